@@ -1,0 +1,40 @@
+# slam2d: everything a fresh clone needs goes through these targets.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip --disable-pip-version-check
+PYTEST_ARGS ?=
+
+.PHONY: demo test check bench docs clean
+
+# An install is redone whenever pyproject.toml changes.
+$(VENV)/.installed: pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "slam2d needs Python >= 3.11")'
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install --quiet --upgrade pip
+	$(PIP) install --quiet -e '.[test]'
+	@touch $@
+
+## demo: set up and run the main job on built-in data (writes demo-out/)
+demo: $(VENV)/.installed
+	$(VENV)/bin/slam2d demo --out demo-out
+
+## test: set up and run the whole test suite (slow cases included)
+test: $(VENV)/.installed
+	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+
+## check: the quick loop: everything but the cases marked slow
+check: $(VENV)/.installed
+	$(PY) -m pytest -n 2 -m "not slow" $(PYTEST_ARGS)
+
+## bench: rerun the benchmarks and rewrite BENCHMARKS.md
+bench: $(VENV)/.installed
+	$(PY) benchmarks/run.py
+
+## docs: regenerate the parameter tables and command pages in docs/
+docs: $(VENV)/.installed
+	$(PY) docs/generate.py
+
+clean:
+	rm -rf $(VENV) demo-out .pytest_cache .hypothesis
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +

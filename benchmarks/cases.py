@@ -1,0 +1,148 @@
+"""Benchmark cases. ``python benchmarks/cases.py NAME WORKDIR`` runs one and prints JSON.
+
+A case is a function that does the work and returns the seconds it measured
+(or None to let the runner time the whole process) and an optional note. Add
+a case by writing the function and listing it in ``CASES``.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "datasets"
+SHARED = "../shared/datasets"
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    what: str
+    run: Callable[[Path], tuple[float | None, str]]
+    target: str = ""
+    max_seconds: float | None = None
+    max_peak_mb: float | None = None
+    needs: tuple[str, ...] = ()
+    warmup: bool = True
+    repeat: int | None = None
+
+
+def _read_all(path: Path) -> tuple[float, str]:
+    from slam2d.io import open_recording
+
+    t0 = time.perf_counter()
+    rec = open_recording(path)
+    n = beams = 0
+    for frame in rec.frames():
+        n += 1
+        beams += frame.scan.num_beams
+    dt = time.perf_counter() - t0
+    return dt, f"{n} scans, {beams} beams"
+
+
+def read_fr079(_: Path) -> tuple[float, str]:
+    return _read_all(DATA / "fr079" / "fr079.clf.gz")
+
+
+def _reader_case(rel: str) -> Callable[[Path], tuple[float, str]]:
+    def run(_: Path) -> tuple[float, str]:
+        return _read_all(DATA / rel)
+
+    return run
+
+
+def _slam2d(*args: str) -> None:
+    subprocess.run([str(Path(sys.executable).with_name("slam2d")), *args], check=True, capture_output=True)
+
+
+def map_fr079(workdir: Path) -> tuple[None, str]:
+    _slam2d(
+        "map", str(DATA / "fr079" / "fr079.clf.gz"),
+        "--poses", str(DATA / "fr079" / "reference.tum"),
+        "--resolution", "0.05", "--out", str(workdir / "fr079-map"),
+    )
+    info = json.loads((workdir / "fr079-map" / "map.json").read_text())
+    wt = info["wall_thickness_cells"]
+    return None, f"{info['size_cells'][0]}x{info['size_cells'][1]} cells, wall thickness median {wt['median']:g} cells"
+
+
+def map_intel_kernel(_: Path) -> tuple[float, str]:
+    """Mapping alone (reading excluded): the compiled ray caster's throughput."""
+    from slam2d.grids.mapping import map_from_poses
+    from slam2d.grids.occupancy import GridParams
+    from slam2d.io import open_recording
+    from slam2d.io.tum import read_tum
+
+    frames = list(open_recording(DATA / "intel" / "intel.clf.gz").frames())
+    t, poses = read_tum(DATA / "intel" / "reference.tum")
+    t0 = time.perf_counter()
+    grid, stats = map_from_poses(frames, t, poses, params=GridParams(resolution=0.05))
+    dt = time.perf_counter() - t0
+    rays = sum(int(f.scan.valid.sum()) for f in frames)
+    return dt, f"{stats.scans_used} scans, {rays / dt / 1e6:.1f} M rays/s"
+
+
+def numba_compile(_: Path) -> tuple[float, str]:
+    """Cold compile of the grid kernels (numba's on-disk cache disabled for this process)."""
+    import os
+
+    os.environ["NUMBA_CACHE_DIR"] = str(Path(_) / "numba-cold-cache")
+    import numpy as np
+
+    t0 = time.perf_counter()
+    from slam2d.grids.occupancy import GridParams, OccupancyGrid
+
+    grid = OccupancyGrid(GridParams(resolution=0.05))
+    from slam2d.core import make_scan
+
+    scan = make_scan(0.0, np.full(360, 3.0), -np.pi / 2, np.pi / 359, 0.0, 80.0)
+    grid.integrate(scan, np.zeros(3))
+    return time.perf_counter() - t0, "first call of the ray caster, compile included"
+
+
+def _write_fr079_bag(workdir: Path) -> Path:
+    bag = workdir / "fr079-ros2"
+    if not bag.exists():
+        from slam2d.io import open_recording
+        from slam2d.io.rosbag import write_rosbag
+
+        write_rosbag(bag, open_recording(DATA / "fr079" / "fr079.clf.gz").frames())
+    return bag
+
+
+def read_ros2_fr079(workdir: Path) -> tuple[float, str]:
+    return _read_all(_write_fr079_bag(workdir))
+
+
+CASES: list[Case] = [
+    Case("read-fr079", "read fr079.clf.gz end to end into frames (4791 scans x 360 beams)", read_fr079,
+         target="< 2 s", max_seconds=2.0, needs=(SHARED,)),
+    Case("map-fr079", "`slam2d map` fr079 with reference.tum at 0.05 m, whole command", map_fr079,
+         target="< 5 s", max_seconds=5.0, needs=(SHARED,)),
+    Case("map-intel-kernel", "ray casting all intel scans into a 0.05 m grid (reading excluded)", map_intel_kernel,
+         needs=(SHARED,)),
+    Case("numba-compile", "cold numba compile of the grid kernels", numba_compile, warmup=False, repeat=1),
+    Case("read-ros2-fr079", "read fr079 converted to a ROS 2 bag (sqlite3)", read_ros2_fr079, needs=(SHARED,)),
+] + [
+    Case(f"memory-{Path(rel).name.split('.')[0]}",
+         f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,
+         needs=(SHARED,), repeat=1)
+    for rel in (
+        "intel/intel.clf.gz", "aces/aces.clf.gz", "fr101/fr101.clf.gz", "mines-exp1/mines-exp1.clf.gz",
+        "mines-exp2/mines-exp2.clf.gz", "robustness/csail-robotlaser1-corrected.log",
+        "robustness/laser_scan_matcher_demo.bag",
+    )
+]
+
+
+if __name__ == "__main__":
+    name, workdir = sys.argv[1], Path(sys.argv[2])
+    (case,) = [c for c in CASES if c.name == name]
+    seconds, extra = case.run(workdir)
+    print(json.dumps({"seconds": seconds, "extra": extra} if seconds is not None else {"extra": extra}))

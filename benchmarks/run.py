@@ -1,0 +1,143 @@
+#!/usr/bin/env python3
+"""Run slam2d's benchmarks and rewrite BENCHMARKS.md.
+
+    .venv/bin/python benchmarks/run.py              # everything, rewrite BENCHMARKS.md
+    .venv/bin/python benchmarks/run.py --only read  # cases whose name contains "read"; prints, no rewrite
+
+Each case runs in a fresh child process, so its peak memory (max RSS, read
+with ``wait4``) is its own. A case reports the wall time of the work it
+measures; cases that time a whole ``slam2d`` command report the command's
+wall time as a user sees it, interpreter start-up included. Every case is run
+``--repeat`` times and the median is reported; numba's compile time is kept
+out of the timings by a warm-up run (``cache=True`` keeps compiled code on
+disk), and measured on its own in the ``numba-compile`` case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+import cases  # noqa: E402  (benchmarks/cases.py)
+
+
+def _run_child(name: str, workdir: Path) -> dict:
+    """Run one case in a child process; return its JSON result plus peak RSS in MB."""
+    cmd = [sys.executable, str(HERE / "cases.py"), name, str(workdir)]
+    start = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    out = proc.stdout.read().decode()
+    err = proc.stderr.read().decode()
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise RuntimeError(f"case {name} failed ({proc.returncode}):\n{err[-3000:]}")
+    result = json.loads(out.strip().splitlines()[-1])
+    result["peak_mb"] = usage.ru_maxrss / 1024.0  # Linux reports KiB
+    result.setdefault("seconds", wall)
+    result["process_seconds"] = wall
+    return result
+
+
+def _machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        mem_kb = int(Path("/proc/meminfo").read_text().split()[1])
+        mem = f"{mem_kb / 1024 / 1024:.0f} GiB RAM"
+    except (OSError, ValueError, IndexError):
+        mem = "unknown RAM"
+    import numba
+    import numpy
+
+    return (
+        f"{cpu}, {os.cpu_count()} cores, {mem}; {platform.system()} {platform.release()}; "
+        f"Python {platform.python_version()}, numpy {numpy.__version__}, numba {numba.__version__}"
+    )
+
+
+def _fmt(v: float | None, digits: int = 2) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", help="run only cases whose name contains this text (no rewrite)")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per case; the median is reported")
+    parser.add_argument("--output", type=Path, default=ROOT / "BENCHMARKS.md")
+    args = parser.parse_args()
+
+    selected = [c for c in cases.CASES if not args.only or args.only in c.name]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="slam2d-bench-") as tmp:
+        workdir = Path(tmp)
+        for case in selected:
+            if case.needs and not all((ROOT / p).exists() for p in case.needs):
+                print(f"skip {case.name}: missing {case.needs}", file=sys.stderr)
+                continue
+            if case.warmup:
+                _run_child(case.name, workdir)
+            results = [_run_child(case.name, workdir) for _ in range(case.repeat or args.repeat)]
+            seconds = statistics.median(r["seconds"] for r in results)
+            peak = max(r["peak_mb"] for r in results)
+            extra = results[-1].get("extra", "")
+            ok = []
+            if case.max_seconds is not None:
+                ok.append(seconds <= case.max_seconds)
+            if case.max_peak_mb is not None:
+                ok.append(peak <= case.max_peak_mb)
+            verdict = "-" if not ok else ("yes" if all(ok) else "**no**")
+            row = dict(case=case, seconds=seconds, peak=peak, extra=extra, verdict=verdict, runs=len(results))
+            rows.append(row)
+            print(f"{case.name}: {seconds:.3f} s, {peak:.0f} MB peak {extra} -> {verdict}", file=sys.stderr)
+
+    if args.only:
+        return 0
+    lines = [
+        "# Benchmarks",
+        "",
+        "Written by `make bench` (`.venv/bin/python benchmarks/run.py`); do not edit by hand.",
+        f"Measured {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} on: {_machine()}.",
+        "",
+        "Each case runs in a fresh process; time is the median of the runs, peak memory the largest "
+        "max-RSS of them (the whole process: interpreter, numpy and numba included). "
+        "Numba compile time is excluded by a warm-up run and shown in its own row. "
+        "Reference trajectories of the real logs are GMapping results, not independent ground truth.",
+        "",
+        "| case | what is measured | runs | time (s) | peak memory (MB) | target | met | notes |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        c = r["case"]
+        lines.append(
+            f"| `{c.name}` | {c.what} | {r['runs']} | {_fmt(r['seconds'])} | {_fmt(r['peak'], 0)} | "
+            f"{c.target or '-'} | {r['verdict']} | {r['extra']} |"
+        )
+    lines.append("")
+    args.output.write_text("\n".join(lines))
+    print(f"wrote {args.output}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,3 @@
+from slam2d.cli import main
+
+raise SystemExit(main())

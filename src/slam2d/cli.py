@@ -1,0 +1,317 @@
+"""The ``slam2d`` command: one entry point, one subcommand per job.
+
+Options that configure a library object are generated from its parameter
+dataclass (:mod:`slam2d.params`), so the CLI, the library and the docs cannot
+disagree. A user mistake ends in one ``slam2d: error: ...`` line and exit
+status 2; a traceback means a bug in slam2d.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from slam2d import __version__
+from slam2d.errors import InputError, ProblemLog, Slam2dError
+from slam2d.io.base import ProgressCallback, ReadOptions
+from slam2d.params import add_arguments, from_arguments
+
+__all__ = ["main", "build_parser"]
+
+EXIT_USER_ERROR = 2
+
+
+# --------------------------------------------------------------------------- output helpers
+
+
+def _console(stderr: bool = False):
+    from rich.console import Console
+
+    return Console(stderr=stderr, highlight=False, soft_wrap=True)
+
+
+@contextmanager
+def progress_bar(description: str) -> Iterator[ProgressCallback]:
+    """A rich progress bar on a terminal; silent when stderr is not one (logs, CI)."""
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
+
+    enabled = sys.stderr.isatty()
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TimeRemainingColumn(),
+        console=_console(stderr=True),
+        transient=True,
+        disable=not enabled,
+    ) as bar:
+        task = bar.add_task(description, total=None)
+
+        def update(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total or None)
+
+        yield update
+
+
+def _report_problems(problems: ProblemLog, what: str) -> None:
+    if problems:
+        err = _console(stderr=True)
+        err.print(f"[yellow]{what}: {problems.total()} problem(s) did not stop the run:[/yellow]")
+        for line in problems.lines():
+            err.print(f"  - {line}", markup=False)
+
+
+def _read_options(args: argparse.Namespace) -> ReadOptions:
+    return from_arguments(ReadOptions, args)
+
+
+# --------------------------------------------------------------------------- info
+
+
+def _add_info(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "info",
+        help="describe a recording and every problem found in it",
+        description="Read a CARMEN log (plain or gzipped), a ROS 1 bag or a ROS 2 bag once and report "
+        "its scans, beams, field of view, range limits, rate, time span, odometry source, topics, "
+        "and every problem found (gaps, time going backwards, corrupt records).",
+    )
+    p.add_argument("file", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON instead of a table")
+    add_arguments(p.add_argument_group("reading"), ReadOptions)
+    p.set_defaults(handler=cmd_info)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    import math
+
+    from slam2d.io import open_recording
+    from slam2d.io.inspect import summarize
+
+    recording = open_recording(args.file, _read_options(args))
+    with progress_bar(f"reading {args.file.name}") as progress:
+        summary = summarize(recording, progress)
+    if args.json:
+        print(json.dumps(summary.as_dict(), indent=2))
+        return 0
+
+    from rich.table import Table
+
+    out = _console()
+    t = Table(title=f"{summary.path}", show_header=False, title_justify="left")
+    t.add_column("what", style="bold")
+    t.add_column("value")
+    deg = math.degrees
+    rows = [
+        ("format", f"{summary.format}, {summary.file_bytes / 1e6:.2f} MB"),
+        ("scans", f"{summary.scans}"),
+        ("beams", f"{summary.beams_min}" + (f"-{summary.beams_max}" if summary.beams_max != summary.beams_min else "")),
+        ("field of view", f"{summary.field_of_view_deg:.2f} deg at {summary.angular_resolution_deg:.4f} deg per beam"),
+        ("range limits", f"{summary.range_min:g} to {summary.range_max:g} m (longest return {summary.longest_return:.2f} m, "
+         f"{100 * summary.no_return_fraction:.1f} % no return)"),
+        ("rate", f"{summary.rate_hz:.2f} Hz (median)"),
+        ("time span", f"{summary.start:.3f} to {summary.end:.3f} s ({summary.duration:.1f} s)"),
+        ("odometry", f"{summary.odometry_source}; {summary.frames_with_odometry} of {summary.scans} scans, "
+         f"path {summary.odometry_path_length:.1f} m"),
+        ("laser mount", "x {:.3f} m, y {:.3f} m, yaw {:.1f} deg".format(
+            summary.laser_mount[0], summary.laser_mount[1], deg(summary.laser_mount[2]))),
+    ]
+    for k, v in rows:
+        t.add_row(k, v)
+    out.print(t)
+    if summary.streams:
+        st = Table(title="streams", title_justify="left")
+        for col in ("name", "type", "count", "used as"):
+            st.add_column(col)
+        for s in summary.streams:
+            st.add_row(s["name"], s["type"], str(s["count"]), s.get("used_as", ""))
+        out.print(st)
+    if summary.problems:
+        out.print(f"[yellow]problems found ({len(summary.problems)}):[/yellow]")
+        for line in summary.problems:
+            out.print(f"  - {line}", markup=False)
+    else:
+        out.print("[green]no problems found[/green]")
+    return 0
+
+
+# --------------------------------------------------------------------------- map
+
+
+def _add_map(sub: argparse._SubParsersAction) -> None:
+    from slam2d.grids.occupancy import GridParams
+
+    p = sub.add_parser(
+        "map",
+        help="build an occupancy map from a recording and known poses",
+        description="Build a map_server map (PGM + YAML, plus a PNG preview) from the scans of DATA "
+        "placed at the poses of a TUM trajectory (one pose per scan, or interpolated between poses). "
+        "Without --poses the scans are placed along the recording's raw odometry, which shows how "
+        "far the odometry drifts.",
+    )
+    p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    p.add_argument("--poses", type=Path, help="TUM trajectory of the robot base (t x y z qx qy qz qw)")
+    p.add_argument(
+        "--max-pose-gap", type=float, default=1.0, metavar="S",
+        help="scans further than this from the nearest given pose are skipped [s] (default: 1.0)",
+    )
+    p.add_argument(
+        "--mode", choices=("trinary", "scale"), default="trinary",
+        help="map_server image mode (default: trinary, as map_saver writes)",
+    )
+    add_arguments(p.add_argument_group("grid"), GridParams)
+    add_arguments(p.add_argument_group("reading"), ReadOptions)
+    p.set_defaults(handler=cmd_map)
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from slam2d.eval.map_metrics import scan_agreement
+    from slam2d.grids.mapping import map_from_poses
+    from slam2d.grids.occupancy import GridParams
+    from slam2d.io import open_recording
+
+    grid_params = from_arguments(GridParams, args)
+    recording = open_recording(args.data, _read_options(args))
+    if args.poses is not None:
+        from slam2d.io.tum import read_tum
+
+        times, poses = read_tum(args.poses)
+        source = str(args.poses)
+    else:
+        # One cheap pass for the odometry trajectory, so that mapping and the
+        # agreement check below place every scan the same way.
+        stamped = [(f.timestamp, f.odometry) for f in recording.frames() if f.odometry is not None]
+        times = np.array([t for t, _ in stamped], dtype=np.float64)
+        poses = np.array([p for _, p in stamped], dtype=np.float64).reshape(-1, 3)
+        source = f"odometry ({recording.odometry_source})"
+    if len(times) == 0:
+        raise InputError(f"no poses to place scans at: {source} is empty", path=args.poses or args.data)
+    with progress_bar(f"mapping {args.data.name}") as progress:
+        grid, stats = map_from_poses(
+            recording.frames(progress), times, poses, params=grid_params,
+            max_pose_gap=args.max_pose_gap,
+        )
+    if stats.scans_used == 0:
+        raise InputError(
+            f"no scan could be placed: none lies within {args.max_pose_gap} s of a pose from {source}",
+            path=args.data,
+        )
+    agreement = scan_agreement(grid, recording.frames(), times, poses, max_pose_gap=args.max_pose_gap)
+    written = write_map_outputs(
+        grid, args.out, mode=args.mode,
+        extra={"poses": source, "scan_agreement": agreement, "stats": stats.as_dict()},
+    )
+    out = _console()
+    out.print(
+        f"mapped {stats.scans_used} scans ({stats.scans_skipped} skipped) from {args.data} with poses from {source}; "
+        f"{100 * agreement['fraction']:.1f} % of beam endpoints fall on occupied cells",
+        markup=False,
+    )
+    for path in written:
+        out.print(f"  wrote {path}", markup=False)
+    _report_problems(recording.problems, str(args.data))
+    return 0
+
+
+def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra: dict[str, Any] | None = None) -> list[Path]:
+    """Write ``map.yaml`` + ``map.pgm``, a ``map.png`` preview and ``map.json`` (size, sharpness, stats)."""
+    from slam2d.eval.map_metrics import wall_thickness
+    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.map_server import save_grid
+    from slam2d.report.images import save_map_png
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cropped = grid.crop_to_observed()
+    yaml_path, pgm_path = save_grid(cropped, out_dir / "map.yaml", mode=mode)
+    png_path = save_map_png(cropped, out_dir / "map.png")
+    info = {
+        "resolution_m": cropped.resolution,
+        "size_cells": list(cropped.shape),
+        "origin": [float(v) for v in cropped.origin],
+        "wall_thickness_cells": wall_thickness(cropped.occupancy()),
+        **(extra or {}),
+    }
+    json_path = out_dir / "map.json"
+    write_text_atomic(json_path, json.dumps(info, indent=2) + "\n")
+    return [yaml_path, pgm_path, png_path, json_path]
+
+
+# --------------------------------------------------------------------------- demo
+
+
+def _add_demo(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="make the built-in recording and run info and map on it",
+        description="Simulate a robot driving laps in a rectangular room (URG-04LX-like laser, drifting "
+        "odometry), write it as a CARMEN log with its true trajectory, then run 'info' and 'map' on it: "
+        "once with the true poses and once along the odometry.",
+    )
+    p.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder (default: demo-out)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated noise (default: 0)")
+    p.set_defaults(handler=cmd_demo)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from slam2d.io.carmen import write_carmen
+    from slam2d.io.tum import write_tum
+    from slam2d.sim.demo_room import demo_room_frames
+
+    out = _console()
+    args.out.mkdir(parents=True, exist_ok=True)
+    frames, truth = demo_room_frames(seed=args.seed)
+    log = write_carmen(args.out / "room.log.gz", frames)
+    truth_path = args.out / "truth.tum"
+    write_tum(truth_path, [f.timestamp for f in frames], truth)
+    out.print(f"wrote {log} and {truth_path} ({len(frames)} scans)\n", markup=False)
+    parser = build_parser()
+    status = main_args(parser.parse_args(["info", str(log)]))
+    for name, extra in (("map-truth", ["--poses", str(truth_path)]), ("map-odometry", [])):
+        status |= main_args(parser.parse_args(["map", str(log), "--out", str(args.out / name), *extra]))
+    return status
+
+
+# --------------------------------------------------------------------------- entry point
+
+_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_info, _add_map, _add_demo]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="slam2d",
+        description="2D laser SLAM methods behind one interface: read recordings, build and compare maps.",
+    )
+    parser.add_argument("--version", action="version", version=f"slam2d {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in _COMMANDS:
+        add(sub)
+    return parser
+
+
+def main_args(args: argparse.Namespace) -> int:
+    try:
+        return int(args.handler(args) or 0)
+    except Slam2dError as exc:
+        print(f"slam2d: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except OSError as exc:  # an output folder we cannot write, a disk that is full
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"slam2d: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("slam2d: interrupted", file=sys.stderr)
+        return 130
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return main_args(args)

@@ -1,0 +1,218 @@
+"""Parameter dataclasses: one definition gives the defaults, the units, the CLI and the docs.
+
+A parameter set is a plain dataclass whose fields are made with :func:`param`::
+
+    @dataclass
+    class GridParams:
+        resolution: float = param(0.05, unit="m", help="cell size", low=0.001)
+
+:func:`add_arguments` turns it into ``argparse`` options (``--resolution``),
+:func:`from_arguments` builds the instance back, :func:`markdown_table` writes
+the table the docs show, and :func:`validate` checks types, choices and ranges
+with an :class:`~slam2d.errors.InputError` that names the parameter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass
+from typing import Any
+
+from slam2d.errors import InputError
+
+__all__ = [
+    "param",
+    "ParamInfo",
+    "describe",
+    "add_arguments",
+    "from_arguments",
+    "validate",
+    "coerce",
+    "markdown_table",
+]
+
+
+def param(
+    default: Any,
+    *,
+    help: str,
+    unit: str = "",
+    choices: tuple[Any, ...] | None = None,
+    low: float | None = None,
+    high: float | None = None,
+) -> Any:
+    """A dataclass field carrying its unit, help line, allowed choices and range."""
+    meta = {"help": help, "unit": unit, "choices": choices, "low": low, "high": high}
+    return dataclasses.field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class ParamInfo:
+    name: str
+    type: Any
+    default: Any
+    unit: str
+    help: str
+    choices: tuple[Any, ...] | None
+    low: float | None
+    high: float | None
+
+    @property
+    def optional(self) -> bool:
+        return _is_optional(self.type)
+
+    @property
+    def base_type(self) -> Any:
+        return _base_type(self.type)
+
+
+def _is_optional(tp: Any) -> bool:
+    return typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp)
+
+
+def _base_type(tp: Any) -> Any:
+    if _is_optional(tp):
+        (inner,) = [a for a in typing.get_args(tp) if a is not type(None)]
+        return inner
+    return tp
+
+
+def describe(cls: type) -> list[ParamInfo]:
+    """The parameters of a parameter dataclass, in declaration order."""
+    hints = typing.get_type_hints(cls)
+    out = []
+    for f in dataclasses.fields(cls):
+        m = f.metadata
+        out.append(
+            ParamInfo(
+                name=f.name,
+                type=hints[f.name],
+                default=f.default,
+                unit=m.get("unit", ""),
+                help=m.get("help", ""),
+                choices=m.get("choices"),
+                low=m.get("low"),
+                high=m.get("high"),
+            )
+        )
+    return out
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _help_text(p: ParamInfo) -> str:
+    text = p.help
+    if p.unit:
+        text += f" [{p.unit}]"
+    if p.choices:
+        text += f" (one of: {', '.join(map(str, p.choices))})"
+    if p.default is not None and p.base_type is not bool:
+        text += f" (default: {p.default})"
+    return text
+
+
+def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls: type) -> None:
+    """Add one ``--option`` per field of ``cls``; values are parsed later by :func:`from_arguments`."""
+    for p in describe(cls):
+        if p.base_type is bool:
+            parser.add_argument(
+                _flag(p.name),
+                dest=p.name,
+                action=argparse.BooleanOptionalAction,
+                default=p.default,
+                help=_help_text(p),
+            )
+        else:
+            parser.add_argument(
+                _flag(p.name),
+                dest=p.name,
+                default=None,
+                metavar=p.unit.upper().replace(" ", "_") or p.base_type.__name__.upper(),
+                help=_help_text(p),
+            )
+
+
+def coerce(p: ParamInfo, text: Any) -> Any:
+    """Convert a string (from the command line or a file) to the parameter's type."""
+    if text is None:
+        return None
+    if isinstance(text, str) and p.optional and text.strip().lower() in ("none", "null", ""):
+        return None
+    t = p.base_type
+    try:
+        if t is bool:
+            if isinstance(text, bool):
+                return text
+            s = str(text).strip().lower()
+            if s in ("1", "true", "yes", "on"):
+                return True
+            if s in ("0", "false", "no", "off"):
+                return False
+            raise ValueError(text)
+        if t is int:
+            if isinstance(text, float) and not text.is_integer():
+                raise ValueError(text)
+            return int(str(text)) if isinstance(text, str) else int(text)
+        if t is float:
+            return float(text)
+        if t is str:
+            return str(text)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{text!r} is not a valid {t.__name__}", field=p.name
+        ) from None
+    return text
+
+
+def validate(instance: Any) -> None:
+    """Check every field of a parameter dataclass against its choices and range."""
+    for p in describe(type(instance)):
+        value = getattr(instance, p.name)
+        if value is None:
+            if not p.optional:
+                raise InputError("a value is required", field=p.name)
+            continue
+        if p.choices and value not in p.choices:
+            raise InputError(
+                f"{value!r} is not one of: {', '.join(map(str, p.choices))}", field=p.name
+            )
+        unit = f" {p.unit}" if p.unit else ""
+        if p.low is not None and value < p.low:
+            raise InputError(f"{value}{unit} is below the minimum {p.low}{unit}", field=p.name)
+        if p.high is not None and value > p.high:
+            raise InputError(f"{value}{unit} is above the maximum {p.high}{unit}", field=p.name)
+
+
+def from_arguments(cls: type, namespace: argparse.Namespace) -> Any:
+    """Build and validate an instance of ``cls`` from parsed command-line options."""
+    values = {}
+    for p in describe(cls):
+        raw = getattr(namespace, p.name, None)
+        if raw is not None:
+            values[p.name] = coerce(p, raw)
+    instance = cls(**values)
+    validate(instance)
+    return instance
+
+
+def markdown_table(cls: type) -> str:
+    """A Markdown table of the parameters: name, default, unit, meaning."""
+    rows = ["| parameter | default | unit | meaning |", "|---|---|---|---|"]
+    for p in describe(cls):
+        meaning = p.help
+        if p.choices:
+            meaning += " One of: " + ", ".join(f"`{c}`" for c in p.choices) + "."
+        rng = []
+        if p.low is not None:
+            rng.append(f">= {p.low}")
+        if p.high is not None:
+            rng.append(f"<= {p.high}")
+        if rng:
+            meaning += " Range: " + ", ".join(rng) + "."
+        rows.append(f"| `{_flag(p.name)}` | `{p.default}` | {p.unit or '-'} | {meaning} |")
+    return "\n".join(rows) + "\n"

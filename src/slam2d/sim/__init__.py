@@ -1,0 +1,1 @@
+"""Simulation of test spaces with exact ground truth."""

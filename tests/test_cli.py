@@ -1,0 +1,231 @@
+"""The `slam2d` command end to end: info, map, demo, and every bad input a user can give it."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slam2d.cli import main
+from tests.conftest import dataset_file
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory):
+    """A short built-in recording written as a CARMEN log, with its true trajectory."""
+    from slam2d.io.carmen import write_carmen
+    from slam2d.io.tum import write_tum
+    from slam2d.sim.demo_room import demo_room_frames
+
+    d = tmp_path_factory.mktemp("room")
+    frames, truth = demo_room_frames(seed=3, laps=1)
+    log = write_carmen(d / "room.log.gz", frames)
+    write_tum(d / "truth.tum", [f.timestamp for f in frames], truth)
+    return log, d / "truth.tum", len(frames)
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code, err, *needles):
+    assert code == 2
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("slam2d: error: ")
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def test_info_reports_the_recording(capsys, room):
+    log, _, n = room
+    code, out, err = run(capsys, "info", log, "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["scans"] == n
+    assert s["beams_min"] == s["beams_max"] == 682
+    assert s["field_of_view_deg"] == pytest.approx(239.77, abs=0.01)
+    assert s["rate_hz"] == pytest.approx(10.0, rel=1e-3)
+    assert s["frames_with_odometry"] == n
+    assert s["laser_mount"][0] == pytest.approx(0.145)
+    assert s["problems"] == []
+
+
+def test_info_table_names_what_matters(capsys, room):
+    log, _, _ = room
+    code, out, _ = run(capsys, "info", log)
+    assert code == 0
+    for word in ("scans", "field of view", "range limits", "rate", "time span", "odometry", "no problems found"):
+        assert word in out
+
+
+def test_map_with_true_poses_is_sharp_and_complete(capsys, room, tmp_path):
+    log, truth, n = room
+    out_dir = tmp_path / "map"
+    code, out, err = run(capsys, "map", log, "--poses", truth, "--out", out_dir)
+    assert code == 0, err
+    assert sorted(p.name for p in out_dir.iterdir()) == ["map.json", "map.pgm", "map.png", "map.yaml"]
+    info = json.loads((out_dir / "map.json").read_text())
+    assert info["stats"]["scans_used"] == n
+    assert info["wall_thickness_cells"]["median"] <= 2
+    from slam2d.io.map_server import read_map
+
+    m = read_map(out_dir / "map.yaml")
+    occupied = np.argwhere(m.occupancy == 100)
+    assert len(occupied) > 100
+    # the room is 6 m x 4 m: the occupied cells span it (within a cell or two)
+    span = (occupied.max(axis=0) - occupied.min(axis=0)) * m.resolution
+    assert span[1] == pytest.approx(6.0, abs=0.15) and span[0] == pytest.approx(4.0, abs=0.15)
+
+
+def test_map_along_odometry_is_blurred_by_drift(capsys, room, tmp_path):
+    log, truth, _ = room
+    run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "truth")
+    code, _, err = run(capsys, "map", log, "--out", tmp_path / "odom", "--max-pose-gap", "0.5")
+    assert code == 0, err
+    sharp = json.loads((tmp_path / "truth" / "map.json").read_text())["wall_thickness_cells"]
+    blurred = json.loads((tmp_path / "odom" / "map.json").read_text())["wall_thickness_cells"]
+    assert blurred["p90"] > sharp["p90"]
+
+
+def test_demo_runs_end_to_end(capsys, tmp_path):
+    code, out, err = run(capsys, "demo", "--out", tmp_path / "demo")
+    assert code == 0, err
+    for sub in ("map-truth", "map-odometry"):
+        assert (tmp_path / "demo" / sub / "map.yaml").is_file()
+    assert "no problems found" in out
+
+
+# ---------------------------------------------------------------- bad input, each a clear line
+
+
+def test_missing_file(capsys, tmp_path):
+    code, _, err = run(capsys, "info", tmp_path / "nope.log")
+    assert_one_line_error(code, err, "nope.log", "no such file")
+
+
+def test_directory_instead_of_file(capsys, tmp_path):
+    code, _, err = run(capsys, "info", tmp_path)
+    assert_one_line_error(code, err, str(tmp_path), "is a folder")
+
+
+def test_empty_file(capsys, tmp_path):
+    empty = tmp_path / "empty.log"
+    empty.write_text("")
+    code, _, err = run(capsys, "info", empty)
+    assert_one_line_error(code, err, "empty.log", "empty")
+
+
+def test_truncated_line_names_file_line_and_field(capsys, tmp_path):
+    bad = tmp_path / "bad.log"
+    bad.write_text(
+        "ODOM 0 0 0 0 0 0 1.0 host 1.0\n"
+        "FLASER 180 " + " ".join(["1.0"] * 100) + "\n"
+    )
+    code, _, err = run(capsys, "info", bad)
+    assert_one_line_error(code, err, "bad.log:2", "FLASER")
+
+
+def test_non_numeric_field(capsys, tmp_path):
+    bad = tmp_path / "bad.log.gz"
+    with gzip.open(bad, "wt") as f:
+        f.write("ODOM 0 0 zero 0 0 0 1.0 host 1.0\n")
+    code, _, err = run(capsys, "info", bad)
+    assert_one_line_error(code, err, "bad.log.gz:1", "theta")
+
+
+def test_skip_bad_records_counts_and_continues(capsys, room, tmp_path):
+    log, _, n = room
+    with gzip.open(log, "rt") as f:
+        lines = f.readlines()
+    lines.insert(5, "FLASER 3 1.0 oops\n")
+    patched = tmp_path / "patched.log"
+    patched.write_text("".join(lines))
+    code, _, err = run(capsys, "info", patched)
+    assert_one_line_error(code, err, "patched.log:6")
+    code, out, err = run(capsys, "info", patched, "--skip-bad-records", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["scans"] == n
+    assert any("patched.log:6" in p or "6" in p for p in s["problems"])
+
+
+def test_bad_parameter_value(capsys, room, tmp_path):
+    log, truth, _ = room
+    code, _, err = run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "m", "--resolution", "-1")
+    assert_one_line_error(code, err, "resolution")
+    assert not (tmp_path / "m").exists()
+
+
+def test_bad_poses_file_writes_nothing(capsys, room, tmp_path):
+    log, _, _ = room
+    poses = tmp_path / "poses.tum"
+    poses.write_text("0.0 1 2 0 0 0 0 1\n0.1 1 2 0 0 0 zero 1\n")
+    code, _, err = run(capsys, "map", log, "--poses", poses, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, "poses.tum:2")
+    assert not (tmp_path / "m").exists()
+
+
+def test_poses_that_do_not_overlap_in_time(capsys, room, tmp_path):
+    log, _, _ = room
+    poses = tmp_path / "late.tum"
+    poses.write_text("5000.0 0 0 0 0 0 0 1\n5001.0 1 0 0 0 0 0 1\n")
+    code, _, err = run(capsys, "map", log, "--poses", poses, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, "no scan could be placed")
+    assert not (tmp_path / "m" / "map.yaml").exists()
+
+
+def test_unsupported_bag_version(capsys):
+    bag = dataset_file("robustness/laser_scan_sparsifier_demo.bag")
+    code, _, err = run(capsys, "info", bag)
+    assert_one_line_error(code, err, "laser_scan_sparsifier_demo.bag", "unsupported bag version 1.2")
+
+
+def test_corrupt_timestamps_are_caught(capsys):
+    log = dataset_file("robustness/infinite-corridor-corrupt-timestamps.log.gz")
+    code, _, err = run(capsys, "info", log)
+    assert_one_line_error(code, err, "infinite-corridor-corrupt-timestamps.log.gz:", "timestamp")
+
+
+def test_real_entry_point_prints_no_traceback(tmp_path):
+    exe = Path(sys.executable).with_name("slam2d")
+    proc = subprocess.run([str(exe), "info", str(tmp_path / "missing.bag")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0
+    assert "Traceback" not in proc.stderr
+    proc = subprocess.run([str(exe), "map", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0
+    assert "--resolution" in proc.stdout and "[m]" in proc.stdout
+
+
+@pytest.mark.parametrize(
+    "rel, scans",
+    [
+        ("intel/intel.clf.gz", 910),
+        ("aces/aces.clf.gz", 440),
+        ("fr101/fr101.clf.gz", 292),
+        ("mines-exp1/mines-exp1.clf.gz", 756),
+        ("mines-exp2/mines-exp2.clf.gz", 641),
+        ("robustness/csail-robotlaser1-corrected.log", 686),
+        ("robustness/laser_scan_matcher_demo.bag", None),
+        pytest.param("fr079/fr079.clf.gz", 4791, marks=pytest.mark.slow),
+    ],
+)
+def test_info_on_every_shared_dataset(capsys, rel, scans):
+    path = dataset_file(rel)
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    if scans is not None:
+        assert s["scans"] == scans
+    else:
+        assert s["scans"] > 300
+    assert s["duration"] > 0
