@@ -229,3 +229,18 @@ def test_info_on_every_shared_dataset(capsys, rel, scans):
     else:
         assert s["scans"] > 300
     assert s["duration"] > 0
+
+
+def test_bag_without_the_requested_topic(capsys, room, tmp_path):
+    from slam2d.io import open_recording
+    from slam2d.io.rosbag import write_rosbag
+
+    log, _, _ = room
+    bag = write_rosbag(tmp_path / "room-ros2", open_recording(log).frames())
+    code, out, err = run(capsys, "info", bag, "--json")
+    assert code == 0, err
+    assert json.loads(out)["odometry_source"].startswith("/odom")
+    code, _, err = run(capsys, "info", bag, "--scan-topic", "/front_scan")
+    assert_one_line_error(code, err, "room-ros2", "scan_topic", "no topic /front_scan", "/scan")
+    code, _, err = run(capsys, "info", bag, "--scan-topic", "/odom")
+    assert_one_line_error(code, err, "scan_topic", "nav_msgs/Odometry", "expected sensor_msgs/LaserScan")

@@ -243,7 +243,7 @@ def test_real_log_reads(name):
     assert log.laser_keyword == keyword
     assert log.odometry_source == f"pose embedded in {keyword} lines"
     streams = {s.name: s for s in log.streams()}
-    assert streams[keyword].count == n_scans and streams[keyword].used_as == "scans"
+    assert streams[keyword].count == n_scans and streams[keyword].used_as == "scans, odometry"
     # progress counts bytes of the file on disk and ends at its size
     assert sizes[-1] == (path.stat().st_size, path.stat().st_size)
     assert all(a[0] <= b[0] for a, b in zip(sizes, sizes[1:]))
@@ -395,7 +395,7 @@ def test_rear_laser_is_used_only_without_a_front_laser(tmp_path):
     log = CarmenLog(both)
     scans = _scans(log)
     assert len(scans) == 2 and all(s.ranges[0] == 2.0 for s in scans)
-    assert {s.name: s.used_as for s in log.streams()} == {"RLASER": "", "FLASER": "scans"}
+    assert {s.name: s.used_as for s in log.streams()} == {"RLASER": "", "FLASER": "scans, odometry"}
 
     rear = _write_lines(tmp_path / "rear.log", [_flaser([1.0] * 5, 1.0, keyword="RLASER")])
     log = CarmenLog(rear)
@@ -422,7 +422,7 @@ def test_other_messages_and_comments_are_counted(tmp_path):
     assert [type(m).__name__ for m in messages] == ["OdometryReading", "LaserScan"]
     assert messages[0].source == "FLASER" and messages[0].timestamp == 1.0
     counts = {s.name: (s.count, s.used_as) for s in log.streams()}
-    assert counts == {"#": (1, ""), "TRUEPOS": (1, ""), "NEFF": (2, ""), "ODOM": (1, ""), "FLASER": (1, "scans")}
+    assert counts == {"#": (1, ""), "TRUEPOS": (1, ""), "NEFF": (2, ""), "ODOM": (1, ""), "FLASER": (1, "scans, odometry")}
     # reading again does not double the counts
     list(log.messages())
     assert {s.name: s.count for s in log.streams()}["NEFF"] == 2

@@ -68,6 +68,25 @@ def _first_crossings(u0, v0, du, dv, col, row):
     return t_max_x, t_delta_x, t_max_y, t_delta_y
 
 
+@njit(cache=True, inline="always")
+def _step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y):
+    """One traversal step to the next cell: ``(col, row, t_max_x, t_max_y)`` after it.
+
+    Once the ray is in the end cell's column (row) it only moves along the
+    other axis, so rounding can never carry it past the end cell.
+    """
+    if col == end_col:
+        return col, row + step_r, t_max_x, t_max_y + t_delta_y
+    if row == end_row:
+        return col + step_c, row, t_max_x + t_delta_x, t_max_y
+    if t_max_x < t_max_y - _CORNER_EPS:
+        return col + step_c, row, t_max_x + t_delta_x, t_max_y
+    if t_max_y < t_max_x - _CORNER_EPS:
+        return col, row + step_r, t_max_x, t_max_y + t_delta_y
+    # exactly through a corner: step diagonally
+    return col + step_c, row + step_r, t_max_x + t_delta_x, t_max_y + t_delta_y
+
+
 @njit(cache=True)
 def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols):
     """Cells crossed by the segment ``(x0, y0) -> (x1, y1)``, start and end cells included.
@@ -99,23 +118,9 @@ def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols
             count += 1
         if col == end_col and row == end_row:
             break
-        if col == end_col:
-            row += step_r
-            t_max_y += t_delta_y
-        elif row == end_row:
-            col += step_c
-            t_max_x += t_delta_x
-        elif t_max_x < t_max_y - _CORNER_EPS:
-            col += step_c
-            t_max_x += t_delta_x
-        elif t_max_y < t_max_x - _CORNER_EPS:
-            row += step_r
-            t_max_y += t_delta_y
-        else:
-            col += step_c
-            row += step_r
-            t_max_x += t_delta_x
-            t_max_y += t_delta_y
+        col, row, t_max_x, t_max_y = _step(
+            col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
+        )
     return count
 
 
@@ -194,23 +199,9 @@ def integrate_rays(
                 updated += 1
             if at_end:
                 break
-            if col == end_col:
-                row += step_r
-                t_max_y += t_delta_y
-            elif row == end_row:
-                col += step_c
-                t_max_x += t_delta_x
-            elif t_max_x < t_max_y - _CORNER_EPS:
-                col += step_c
-                t_max_x += t_delta_x
-            elif t_max_y < t_max_x - _CORNER_EPS:
-                row += step_r
-                t_max_y += t_delta_y
-            else:
-                col += step_c
-                row += step_r
-                t_max_x += t_delta_x
-                t_max_y += t_delta_y
+            col, row, t_max_x, t_max_y = _step(
+                col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
+            )
     return updated
 
 
@@ -260,26 +251,10 @@ def cast_rays(occupied, origin_x, origin_y, resolution, x, y, theta, angles, max
                 break  # outside and not heading back in
             if col == end_col and row == end_row:
                 break
-            if col == end_col:
-                t_entry = t_max_y
-                row += step_r
-                t_max_y += t_delta_y
-            elif row == end_row:
-                t_entry = t_max_x
-                col += step_c
-                t_max_x += t_delta_x
-            elif t_max_x < t_max_y - _CORNER_EPS:
-                t_entry = t_max_x
-                col += step_c
-                t_max_x += t_delta_x
-            elif t_max_y < t_max_x - _CORNER_EPS:
-                t_entry = t_max_y
-                row += step_r
-                t_max_y += t_delta_y
-            else:
-                t_entry = t_max_x
-                col += step_c
-                row += step_r
-                t_max_x += t_delta_x
-                t_max_y += t_delta_y
+            previous_x, previous_y = t_max_x, t_max_y
+            col, row, t_max_x, t_max_y = _step(
+                col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
+            )
+            # the ray enters the new cell where it crossed the boundary it stepped over
+            t_entry = previous_x if t_max_x != previous_x else previous_y
     return out

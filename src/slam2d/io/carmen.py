@@ -226,7 +226,7 @@ class CarmenLog(Recording):
         for name, count in self._counts.items():
             used = ""
             if name == self._laser_keyword:
-                used = "scans"
+                used = "scans, odometry" if self._odometry_mode == "embedded" else "scans"
             elif name == "ODOM" and self._odometry_mode == "odom":
                 used = "odometry"
             elif name == "PARAM" and self._laser_params_seen and self._laser_keyword in ("FLASER", "RLASER"):

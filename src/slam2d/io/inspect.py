@@ -112,12 +112,7 @@ def summarize(recording: Recording, progress: ProgressCallback | None = None) ->
                     f"{gaps.size} x gap between scans longer than {max(GAP_FACTOR * median, 1.0):.3g} s "
                     f"(longest {dt[worst]:.3g} s after scan {worst} at t={t[worst]:.6g})"
                 )
-            backwards = np.flatnonzero(dt < 0)
-            if backwards.size:
-                problems.append(
-                    f"{backwards.size} x scan time going backwards (largest step {-dt.min():.3g} s, "
-                    f"first after scan {backwards[0]})"
-                )
+            # Scan time going backwards is reported by the reader itself (TimestampCheck).
             if beams_min != beams_max:
                 problems.append(f"beam count varies between scans ({beams_min} to {beams_max})")
         if s.odometry_source != "none" and with_odom < s.scans:

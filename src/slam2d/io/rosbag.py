@@ -51,6 +51,11 @@ _PROGRESS_EVERY = 200
 _MAX_SEQUENCE_LENGTH = 1 << 24
 
 
+#: Mounts closer than this (m, rad) are the same mount: one recomputed from a
+#: CARMEN line's laser and robot poses differs from the original in the last bits.
+_MOUNT_TOLERANCE = 1e-9
+
+
 def _short_type(msgtype: str) -> str:
     """``sensor_msgs/msg/LaserScan`` -> ``sensor_msgs/LaserScan`` (the ROS 1 spelling)."""
     return msgtype.replace("/msg/", "/")
@@ -475,25 +480,30 @@ class RosBag(Recording):
                 return candidate
         return None
 
+    def _requested_topic(self, wanted: str, msgtype: str, field: str) -> str:
+        """The topic the user named, checked to exist and to carry ``msgtype``."""
+        found = self._find_topic(wanted)
+        if found is None:
+            raise InputError(
+                f"no topic {wanted} in the bag; topics: {self._topic_listing()}",
+                path=self.path,
+                field=field,
+            )
+        actual = self._backend.topics[found].msgtype
+        if actual != msgtype:
+            raise InputError(
+                f"unknown/unsupported message type {_short_type(actual)} on topic {found}, "
+                f"expected {_short_type(msgtype)}",
+                path=self.path,
+                field=field,
+            )
+        return found
+
     def _choose_scan_topic(self) -> str:
         topics = self._backend.topics
         wanted = self.options.scan_topic
         if wanted:
-            found = self._find_topic(wanted)
-            if found is None:
-                raise InputError(
-                    f"no topic {wanted} in the bag; topics: {self._topic_listing()}",
-                    path=self.path,
-                    field="scan_topic",
-                )
-            if topics[found].msgtype != SCAN_TYPE:
-                raise InputError(
-                    f"unknown/unsupported message type {_short_type(topics[found].msgtype)} on topic "
-                    f"{found}, expected sensor_msgs/LaserScan",
-                    path=self.path,
-                    field="scan_topic",
-                )
-            return found
+            return self._requested_topic(wanted, SCAN_TYPE, "scan_topic")
         scans = sorted(t.name for t in topics.values() if t.msgtype == SCAN_TYPE)
         if not scans:
             raise InputError(
@@ -525,21 +535,7 @@ class RosBag(Recording):
         if mode in ("auto", "odom"):
             wanted = self.options.odom_topic
             if wanted:
-                found = self._find_topic(wanted)
-                if found is None:
-                    raise InputError(
-                        f"no topic {wanted} in the bag; topics: {self._topic_listing()}",
-                        path=self.path,
-                        field="odom_topic",
-                    )
-                if topics[found].msgtype != ODOMETRY_TYPE:
-                    raise InputError(
-                        f"unknown/unsupported message type {_short_type(topics[found].msgtype)} on "
-                        f"topic {found}, expected nav_msgs/Odometry",
-                        path=self.path,
-                        field="odom_topic",
-                    )
-                self.odom_topic = found
+                self.odom_topic = self._requested_topic(wanted, ODOMETRY_TYPE, "odom_topic")
                 return
             odoms = sorted(t.name for t in topics.values() if t.msgtype == ODOMETRY_TYPE)
             if len(odoms) > 1:
@@ -1102,7 +1098,7 @@ class _BagWriter:
                     self.earliest_ns,
                     latched=True,
                 )
-        elif not np.array_equal(mount, self.mount):
+        elif not np.allclose(mount, self.mount, rtol=0.0, atol=_MOUNT_TOLERANCE):
             raise InputError(
                 f"laser mount {mount.tolist()} differs from the first scan's {self.mount.tolist()}; "
                 "a bag holds one static laser mount",

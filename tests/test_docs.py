@@ -1,0 +1,33 @@
+"""The generated parts of docs/ match the code (run `make docs` to refresh them)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_generated_docs_are_current():
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "docs" / "generate.py"), "--check"], capture_output=True, text=True, cwd=ROOT
+    )
+    assert proc.returncode == 0, f"docs are stale, run `make docs`:\n{proc.stderr}"
+
+
+def test_every_command_has_a_page():
+    from slam2d.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for name in sub.choices:
+        page = ROOT / "docs" / "commands" / f"{name}.md"
+        assert page.is_file(), f"no docs page for `slam2d {name}`"
+        assert f"<!-- BEGIN GENERATED: help:{name} -->" in page.read_text()
+
+
+def test_readme_opens_with_the_two_commands():
+    head = "\n".join((ROOT / "README.md").read_text().splitlines()[:20])
+    assert "make demo" in head and "make test" in head
+    assert "make test" in (ROOT / ".ci" / "run").read_text()
