@@ -106,10 +106,10 @@ def pictures() -> None:
         main(["map", str(intel / "intel.clf.gz"), "--poses", str(intel / "reference.tum"), "--out", str(t / "ref")])
         main(["map", str(intel / "intel.clf.gz"), "--out", str(t / "odom")])
         main(["demo", "--out", str(t / "demo")])
-        shutil.copy(t / "ref" / "map.png", images / "intel-reference.png")
-        shutil.copy(t / "odom" / "map.png", images / "intel-odometry.png")
-        shutil.copy(t / "demo" / "map-truth" / "map.png", images / "demo-truth.png")
-        shutil.copy(t / "demo" / "map-odometry" / "map.png", images / "demo-odometry.png")
+        shutil.copy(t / "ref" / "preview.png", images / "intel-reference.png")
+        shutil.copy(t / "odom" / "preview.png", images / "intel-odometry.png")
+        shutil.copy(t / "demo" / "map-truth" / "preview.png", images / "demo-truth.png")
+        shutil.copy(t / "demo" / "map-odometry" / "preview.png", images / "demo-odometry.png")
 
 
 def main() -> int:

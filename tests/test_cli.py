@@ -72,7 +72,7 @@ def test_map_with_true_poses_is_sharp_and_complete(capsys, room, tmp_path):
     out_dir = tmp_path / "map"
     code, out, err = run(capsys, "map", log, "--poses", truth, "--out", out_dir)
     assert code == 0, err
-    assert sorted(p.name for p in out_dir.iterdir()) == ["map.json", "map.pgm", "map.png", "map.yaml"]
+    assert sorted(p.name for p in out_dir.iterdir()) == ["map.json", "map.pgm", "map.yaml", "preview.png"]
     info = json.loads((out_dir / "map.json").read_text())
     assert info["stats"]["scans_used"] == n
     assert info["wall_thickness_cells"]["median"] <= 2
@@ -244,3 +244,23 @@ def test_bag_without_the_requested_topic(capsys, room, tmp_path):
     assert_one_line_error(code, err, "room-ros2", "scan_topic", "no topic /front_scan", "/scan")
     code, _, err = run(capsys, "info", bag, "--scan-topic", "/odom")
     assert_one_line_error(code, err, "scan_topic", "nav_msgs/Odometry", "expected sensor_msgs/LaserScan")
+
+
+def test_map_in_scale_mode_reads_back(capsys, room, tmp_path):
+    from slam2d.io.map_server import read_map
+
+    log, truth, _ = room
+    code, _, err = run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "t")
+    assert code == 0, err
+    code, _, err = run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "s", "--mode", "scale")
+    assert code == 0, err
+    trinary = read_map(tmp_path / "t" / "map.yaml")
+    scale = read_map(tmp_path / "s" / "map.yaml")
+    assert scale.mode == "scale" and scale.image_path.name != "preview.png"
+    assert scale.occupancy.shape == trinary.occupancy.shape
+    # map_saver's trinary rule applied to the scale map's values gives the trinary map
+    s = scale.occupancy.astype(int)
+    assert np.array_equal(trinary.occupancy == 100, s >= 65)
+    assert np.array_equal(trinary.occupancy == 0, (s >= 0) & (s <= 25))
+    assert np.array_equal(trinary.occupancy == -1, (s < 0) | ((s > 25) & (s < 65)))
+    assert (s > 25).any() and (s < 0).any()

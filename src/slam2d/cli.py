@@ -222,7 +222,7 @@ def cmd_map(args: argparse.Namespace) -> int:
 
 
 def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra: dict[str, Any] | None = None) -> list[Path]:
-    """Write ``map.yaml`` + ``map.pgm``, a ``map.png`` preview and ``map.json`` (size, sharpness, stats)."""
+    """Write ``map.yaml`` + ``map.pgm``, a ``preview.png`` picture and ``map.json`` (size, sharpness, stats)."""
     from slam2d.eval.map_metrics import wall_thickness
     from slam2d.io.atomic import write_text_atomic
     from slam2d.io.map_server import save_grid
@@ -231,7 +231,7 @@ def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra:
     out_dir.mkdir(parents=True, exist_ok=True)
     cropped = grid.crop_to_observed()
     yaml_path, pgm_path = save_grid(cropped, out_dir / "map.yaml", mode=mode)
-    png_path = save_map_png(cropped, out_dir / "map.png")
+    png_path = save_map_png(cropped, out_dir / "preview.png")
     info = {
         "resolution_m": cropped.resolution,
         "size_cells": list(cropped.shape),
