@@ -17,16 +17,13 @@ from tests.conftest import dataset_file
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    """A short built-in recording written as a CARMEN log, with its true trajectory."""
-    from slam2d.io.carmen import write_carmen
-    from slam2d.io.tum import write_tum
-    from slam2d.sim.demo_room import demo_room_frames
+    """A short simulated recording of the study's arena as a CARMEN log, with its true trajectory."""
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
 
     d = tmp_path_factory.mktemp("room")
-    frames, truth = demo_room_frames(seed=3, laps=1)
-    log = write_carmen(d / "room.log.gz", frames)
-    write_tum(d / "truth.tum", [f.timestamp for f in frames], truth)
-    return log, d / "truth.tum", len(frames)
+    sim = simulate("paper-arena", SimulationParams(seed=3, duration=40.0))
+    write_outputs(sim, d)
+    return d / "recording.log.gz", d / "truth.tum", len(sim.scans)
 
 
 def run(capsys, *argv):
@@ -52,10 +49,10 @@ def test_info_reports_the_recording(capsys, room):
     s = json.loads(out)
     assert s["scans"] == n
     assert s["beams_min"] == s["beams_max"] == 682
-    assert s["field_of_view_deg"] == pytest.approx(239.77, abs=0.01)
+    assert s["field_of_view_deg"] == pytest.approx(681 * 360 / 1024)  # first to last beam
     assert s["rate_hz"] == pytest.approx(10.0, rel=1e-3)
     assert s["frames_with_odometry"] == n
-    assert s["laser_mount"][0] == pytest.approx(0.145)
+    assert s["laser_mount"][0] > 0.0  # the youBot's laser sits ahead of its centre
     assert s["problems"] == []
 
 
@@ -81,9 +78,12 @@ def test_map_with_true_poses_is_sharp_and_complete(capsys, room, tmp_path):
     m = read_map(out_dir / "map.yaml")
     occupied = np.argwhere(m.occupancy == 100)
     assert len(occupied) > 100
-    # the room is 6 m x 4 m: the occupied cells span it (within a cell or two)
+    # the occupied cells span the arena's walls (within a cell or two)
+    from slam2d.sim.world import load_world
+
+    xmin, ymin, xmax, ymax = load_world("paper-arena").bounds()
     span = (occupied.max(axis=0) - occupied.min(axis=0)) * m.resolution
-    assert span[1] == pytest.approx(6.0, abs=0.15) and span[0] == pytest.approx(4.0, abs=0.15)
+    assert span[1] == pytest.approx(xmax - xmin, abs=0.15) and span[0] == pytest.approx(ymax - ymin, abs=0.15)
 
 
 def test_map_along_odometry_is_blurred_by_drift(capsys, room, tmp_path):

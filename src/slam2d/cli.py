@@ -250,10 +250,10 @@ def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra:
 def _add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="make the built-in recording and run info and map on it",
-        description="Simulate a robot driving laps in a rectangular room (URG-04LX-like laser, drifting "
-        "odometry), write it as a CARMEN log with its true trajectory, then run 'info' and 'map' on it: "
-        "once with the true poses and once along the odometry.",
+        help="simulate the study's test space and run info and map on the recording",
+        description="Simulate a youBot with a Hokuyo URG-04LX driving through paper-arena (the source "
+        "study's rectangular-walled room), write the recording and its ground truth, then run 'info' "
+        "and 'map' on it: once with the true poses and once along the drifting odometry.",
     )
     p.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder (default: demo-out)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the simulated noise (default: 0)")
@@ -261,27 +261,152 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from slam2d.io.carmen import write_carmen
-    from slam2d.io.tum import write_tum
-    from slam2d.sim.demo_room import demo_room_frames
-
-    out = _console()
-    args.out.mkdir(parents=True, exist_ok=True)
-    frames, truth = demo_room_frames(seed=args.seed)
-    log = write_carmen(args.out / "room.log.gz", frames)
-    truth_path = args.out / "truth.tum"
-    write_tum(truth_path, [f.timestamp for f in frames], truth)
-    out.print(f"wrote {log} and {truth_path} ({len(frames)} scans)\n", markup=False)
     parser = build_parser()
-    status = main_args(parser.parse_args(["info", str(log)]))
-    for name, extra in (("map-truth", ["--poses", str(truth_path)]), ("map-odometry", [])):
+    sim_dir = args.out / "paper-arena"
+    status = main_args(parser.parse_args(["simulate", "paper-arena", "--out", str(sim_dir), "--seed", str(args.seed)]))
+    if status:
+        return status
+    log = sim_dir / "recording.log.gz"
+    status |= main_args(parser.parse_args(["info", str(log)]))
+    for name, extra in (("map-truth", ["--poses", str(sim_dir / "truth.tum")]), ("map-odometry", [])):
         status |= main_args(parser.parse_args(["map", str(log), "--out", str(args.out / name), *extra]))
     return status
 
 
+# --------------------------------------------------------------------------- simulate
+
+
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    from slam2d.sensors.motion_noise import OdometryNoise
+    from slam2d.sim.simulate import SimulationParams
+
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a recording with exact ground truth in a built-in or custom world",
+        description="Drive a simulated robot along a path in WORLD (a built-in name or a YAML world file) "
+        "and write what it recorded: a CARMEN log (recording.log.gz), a ROS 2 bag (recording/; "
+        "recording.bag with --ros1) with /scan, /odom, /tf and /tf_static, the true trajectory "
+        "(truth.tum), the true occupancy map (truth-map.yaml + .pgm), the world (world.yaml) and every "
+        "setting (simulation.json). The same settings and seed give the same bytes.",
+    )
+    p.add_argument("world", help="a built-in world (see --list-worlds) or a world YAML file")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    p.add_argument("--path", type=Path, help="YAML with 'waypoints: [[x, y], ...]' or "
+                   "'commands: [[seconds, vx, vy, omega], ...]' (default: the world's own path)")
+    p.add_argument("--ros1", action="store_true", help="write a ROS 1 bag instead of a ROS 2 bag")
+    p.add_argument("--map-resolution", type=float, default=0.05, metavar="M",
+                   help="cell size of the true occupancy map [m] (default: 0.05)")
+    add_arguments(p.add_argument_group("simulation"), SimulationParams)
+    add_arguments(p.add_argument_group("odometry noise"), OdometryNoise)
+    p.set_defaults(handler=cmd_simulate)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from slam2d.sensors.motion_noise import OdometryNoise
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+    if not args.map_resolution > 0:
+        raise InputError(f"{args.map_resolution} m must be positive", field="map_resolution")
+    params = from_arguments(SimulationParams, args)
+    noise = from_arguments(OdometryNoise, args)
+    with progress_bar(f"simulating {args.world}"):
+        sim = simulate(args.world, params, odometry_noise=noise, path=args.path)
+    written = write_outputs(sim, args.out, ros1=args.ros1, map_resolution=args.map_resolution)
+    out = _console()
+    duration = float(sim.times[-1] - sim.times[0])
+    out.print(
+        f"simulated {duration:.1f} s in {sim.world.name}: {len(sim.scans)} scans from a {sim.laser.name} "
+        f"on a {sim.robot.name}, seed {params.seed}",
+        markup=False,
+    )
+    for path in written:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
+# --------------------------------------------------------------------------- repeatability
+
+
+def _add_repeatability(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "repeatability",
+        help="simulate the study's repeated static range measurements",
+        description="The source study's repeatability experiment in simulation: a laser facing a flat target "
+        "of each material at each distance and angle, measured N times. Writes repeatability.csv "
+        "(material, angle_deg, distance_m, repetition, range_m), and with --scan-logs one CARMEN log of "
+        "full scans per set-up.",
+    )
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    p.add_argument("--materials", default=",".join(_materials()),
+                   help="comma-separated materials (default: all five of the study)")
+    p.add_argument("--distances", default="1,2,3,3.5,4", help="comma-separated distances [m] (default: 1,2,3,3.5,4)")
+    p.add_argument("--angles", default="90,45",
+                   help="comma-separated angles between beam and target [deg]; 90 = perpendicular (default: 90,45)")
+    p.add_argument("--repetitions", type=int, default=500, help="measurements per set-up (default: 500)")
+    p.add_argument("--laser", default="urg-04lx", help="laser preset (default: urg-04lx)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--scan-logs", action="store_true", help="also write one CARMEN log of full scans per set-up")
+    p.set_defaults(handler=cmd_repeatability)
+
+
+def _materials() -> tuple[str, ...]:
+    from slam2d.sensors.range_noise import MATERIALS
+
+    return MATERIALS
+
+
+def _number_list(text: str, field: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"{text!r} is not a comma-separated list of numbers", field=field) from None
+    if not values:
+        raise InputError("the list is empty", field=field)
+    return values
+
+
+def cmd_repeatability(args: argparse.Namespace) -> int:
+    from slam2d.sensors.range_noise import material_index
+    from slam2d.sim.laser import laser_preset
+    from slam2d.sim.repeatability import (
+        format_summary, repeated_measurements, study_setups, write_repeatability_csv, write_setup_log,
+    )
+
+    materials = [m.strip() for m in args.materials.split(",") if m.strip()]
+    for m in materials:
+        try:
+            material_index(m)
+        except ValueError as exc:
+            raise InputError(str(exc), field="materials") from None
+    distances = _number_list(args.distances, "distances")
+    angles = _number_list(args.angles, "angles")
+    if any(d <= 0 for d in distances):
+        raise InputError("distances must be positive", field="distances")
+    if any(not 0 < a <= 90 for a in angles):
+        raise InputError("angles must lie in (0, 90] degrees", field="angles")
+    if args.repetitions < 1:
+        raise InputError(f"{args.repetitions} must be at least 1", field="repetitions")
+    laser = laser_preset(args.laser)
+    rows = repeated_measurements(materials, distances, angles, args.repetitions, laser=laser, seed=args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    written = [write_repeatability_csv(args.out / "repeatability.csv", rows)]
+    if args.scan_logs:
+        for setup in study_setups(materials, distances, angles):
+            name = f"{setup.material}-{setup.angle_deg:g}deg-{setup.distance:g}m.log.gz"
+            written.append(write_setup_log(args.out / "setups" / name, setup, args.repetitions,
+                                           laser=laser, seed=args.seed))
+    out = _console()
+    out.print(format_summary(rows), markup=False)
+    for path in written:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
 # --------------------------------------------------------------------------- entry point
 
-_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_info, _add_map, _add_demo]
+_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
+    _add_info, _add_map, _add_simulate, _add_repeatability, _add_demo,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,179 @@
+"""`slam2d simulate` end to end: outputs, determinism, ground truth, and bad input."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slam2d.cli import main
+from slam2d.core import se2
+from slam2d.errors import InputError
+from slam2d.sim.simulate import SimulationParams, simulate
+
+SHORT = ["--duration", "20"]
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def arena(tmp_path_factory):
+    out = tmp_path_factory.mktemp("arena")
+    assert main(["simulate", "paper-arena", "--out", str(out), *SHORT, "--seed", "7"]) == 0
+    return out
+
+
+def test_outputs_are_all_there(arena):
+    names = {p.name for p in arena.iterdir()}
+    assert {"recording.log.gz", "recording", "truth.tum", "truth-map.yaml", "truth-map.pgm", "world.yaml",
+            "simulation.json"} <= names
+    settings = json.loads((arena / "simulation.json").read_text())
+    assert settings["simulation"]["seed"] == 7 and settings["world"] == "paper-arena"
+    assert settings["scans"] == pytest.approx(200, abs=2)  # 20 s at 10 Hz
+
+
+def test_same_seed_same_bytes_other_seed_other_bytes(arena, tmp_path):
+    again = tmp_path / "again"
+    assert main(["simulate", "paper-arena", "--out", str(again), *SHORT, "--seed", "7"]) == 0
+    assert digest(again) == digest(arena)
+    other = tmp_path / "other"
+    assert main(["simulate", "paper-arena", "--out", str(other), *SHORT, "--seed", "8"]) == 0
+    a, b = digest(arena), digest(other)
+    assert a["recording.log.gz"] != b["recording.log.gz"]
+    assert a["truth.tum"] == b["truth.tum"]  # the truth does not depend on the noise seed
+
+
+def test_recordings_read_back_with_truth_and_odometry(arena):
+    from slam2d.io import open_recording
+    from slam2d.io.tum import read_tum
+
+    t, truth = read_tum(arena / "truth.tum")
+    for rec in (arena / "recording.log.gz", arena / "recording"):
+        frames = list(open_recording(rec).frames())
+        assert len(frames) == len(t)
+        assert np.allclose([f.timestamp for f in frames], t, atol=1e-9)
+        assert all(f.odometry is not None for f in frames)
+        scan = frames[0].scan
+        assert scan.num_beams == 682 and scan.range_max == pytest.approx(5.6)
+        assert scan.mount[0] > 0.0  # the youBot's laser sits ahead of its centre
+    # odometry starts at the truth and drifts away from it, a little
+    odo = np.array([f.odometry for f in frames])
+    err = np.hypot(*(odo[:, :2] - truth[:, :2]).T)
+    assert err[0] < 1e-9 and 0.0 < err.max() < 1.0
+
+
+def test_bag_plays_in_rosbags(arena):
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([arena / "recording"]) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        assert topics["/scan"] == "sensor_msgs/msg/LaserScan"
+        assert topics["/odom"] == "nav_msgs/msg/Odometry"
+        assert "/tf" in topics and "/tf_static" in topics
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts["/odom"] == 5 * (counts["/scan"] - 1) + 1  # 50 Hz odometry, 10 Hz laser, both at t=0 and the end
+
+
+def test_scans_agree_with_the_true_map(arena):
+    """Endpoints of noise-free-ish scans placed at the true poses land on the true walls."""
+    from slam2d.io import open_recording
+    from slam2d.io.map_server import read_map
+    from slam2d.io.tum import read_tum
+
+    m = read_map(arena / "truth-map.yaml")
+    occupied = m.occupancy == 100
+    t, truth = read_tum(arena / "truth.tum")
+    hits = total = 0
+    for f, pose in zip(open_recording(arena / "recording.log.gz").frames(), truth, strict=True):
+        pts = se2.transform_points(se2.compose(pose, f.scan.mount), f.scan.points())
+        col = np.floor((pts[:, 0] - m.origin[0]) / m.resolution).astype(int)
+        row = np.floor((pts[:, 1] - m.origin[1]) / m.resolution).astype(int)
+        ok = (row >= 0) & (row < occupied.shape[0]) & (col >= 0) & (col < occupied.shape[1])
+        # a 5 mm-noise endpoint lies in its wall's cell or the next one
+        near = np.zeros(ok.sum(), bool)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                r = np.clip(row[ok] + dr, 0, occupied.shape[0] - 1)
+                c = np.clip(col[ok] + dc, 0, occupied.shape[1] - 1)
+                near |= occupied[r, c]
+        hits += int(near.sum())
+        total += int(len(pts))
+    assert hits / total > 0.99
+
+
+def test_ros1_option(tmp_path):
+    from slam2d.io import open_recording
+
+    out = tmp_path / "r1"
+    assert main(["simulate", "static-can", "--out", str(out), "--duration", "3", "--ros1"]) == 0
+    assert (out / "recording.bag").is_file()
+    assert len(list(open_recording(out / "recording.bag").frames())) == pytest.approx(30, abs=1)
+
+
+def test_distortion_moves_the_endpoints():
+    base = SimulationParams(duration=5.0, range_noise="none", dropouts=False)
+    still = simulate("paper-arena", base)
+    skewed = simulate("paper-arena", SimulationParams(duration=5.0, range_noise="none", dropouts=False, distortion=True))
+    moving = np.flatnonzero(np.hypot(*np.diff(still.truth[:, :2], axis=0).T) > 0)
+    k = int(np.searchsorted(still.scan_indices, moving[len(moving) // 2]))
+    a, b = still.scans[k].ranges, skewed.scans[k].ranges
+    ok = ~np.isnan(a) & ~np.isnan(b)
+    assert np.nanmax(np.abs(a[ok] - b[ok])) > 1e-3
+
+
+# ---------------------------------------------------------------- bad input
+
+
+def test_path_through_a_wall(capsys, tmp_path):
+    path = tmp_path / "bad-path.yaml"
+    path.write_text("waypoints: [[1.0, 1.0], [100.0, 1.0]]\n")
+    code, _, err = run(capsys, "simulate", "paper-arena", "--out", tmp_path / "o", "--path", path)
+    assert code == 2 and "bad-path.yaml" in err and "path" in err and "wall" in err
+    assert err.strip().count("\n") == 0 and not (tmp_path / "o").exists()
+
+
+def test_malformed_path_file(capsys, tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("waypoints: [[1.0], [2.0, 3.0]]\n")
+    code, _, err = run(capsys, "simulate", "paper-arena", "--out", tmp_path / "o", "--path", path)
+    assert code == 2 and "p.yaml" in err and "waypoints" in err
+
+
+def test_unknown_world_robot_laser(capsys, tmp_path):
+    for argv, needle in (
+        (["no-such-world"], "no-such-world"),
+        (["paper-arena", "--robot", "roomba"], "robot"),
+        (["paper-arena", "--laser", "velodyne"], "laser"),
+        (["paper-arena", "--range-noise", "loud"], "range_noise"),
+        (["paper-arena", "--srr", "-1"], "srr"),
+    ):
+        code, _, err = run(capsys, "simulate", *argv, "--out", tmp_path / "o")
+        assert code == 2 and needle in err, (argv, err)
+        assert "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_start_outside_the_world(tmp_path):
+    world = tmp_path / "w.yaml"
+    world.write_text(
+        "name: box\nwalls:\n  - {box: {min: [0, 0], max: [4, 3]}, material: cardboard}\n"
+        "start: [10, 10, 0]\npath: [[2, 1.5]]\n"
+    )
+    with pytest.raises(InputError) as err:
+        simulate(world, SimulationParams(duration=1.0))
+    assert "w.yaml" in str(err.value) and "start" in str(err.value)
