@@ -120,7 +120,21 @@ def read_ros2_fr079(workdir: Path) -> tuple[float, str]:
     return _read_all(_write_fr079_bag(workdir))
 
 
+def simulate_office(workdir: Path) -> tuple[float, str]:
+    """Ten minutes of driving in `office`, simulation and every output file."""
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+    t0 = time.perf_counter()
+    sim = simulate("office", SimulationParams(duration=600.0, seed=1))
+    t1 = time.perf_counter()
+    write_outputs(sim, workdir / "office")
+    t2 = time.perf_counter()
+    return t2 - t0, f"{len(sim.scans)} scans; simulate {t1 - t0:.2f} s, write outputs {t2 - t1:.2f} s"
+
+
 CASES: list[Case] = [
+    Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
+         simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
     Case("read-fr079", "read fr079.clf.gz end to end into frames (4791 scans x 360 beams)", read_fr079,
          target="< 2 s", max_seconds=2.0, needs=(SHARED,)),
     Case("map-fr079", "`slam2d map` fr079 with reference.tum at 0.05 m, whole command", map_fr079,
