@@ -21,6 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from slam2d.report.images import MATERIAL_COLOURS  # noqa: E402
 from slam2d.io.atomic import atomic_path  # noqa: E402
 from slam2d.sensors.range_noise import (  # noqa: E402
     MATERIALS,
@@ -33,13 +34,7 @@ from slam2d.sensors.range_noise import (  # noqa: E402
 )
 
 OUT = Path(__file__).resolve().parent / "images" / "sensor-model.png"
-COLOURS = {
-    "varnished-wood": "#a0522d",
-    "white-textile": "#6a9fd4",
-    "white-paper": "#808080",
-    "cardboard": "#d4a017",
-    "black-metal": "#000000",
-}
+COLOURS = MATERIAL_COLOURS
 STUDY_DISTANCES = np.array([1.0, 2.0, 3.0, 3.5, 4.0])
 
 

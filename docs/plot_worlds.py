@@ -23,17 +23,11 @@ from matplotlib.lines import Line2D  # noqa: E402
 
 from slam2d.io.atomic import atomic_path  # noqa: E402
 from slam2d.sim.world import MATERIALS, World, builtin_world_names, load_world  # noqa: E402
+from slam2d.report.images import MATERIAL_COLOURS  # noqa: E402
 
 IMAGES = Path(__file__).resolve().parent / "images"
 
-# One colour per material, dark for the dark surface.
-COLOURS = {
-    "varnished-wood": "#a0522d",
-    "white-textile": "#6a9fd4",
-    "white-paper": "#808080",
-    "cardboard": "#d4a017",
-    "black-metal": "#000000",
-}
+COLOURS = MATERIAL_COLOURS
 
 
 def draw(world: World, ax: plt.Axes) -> None:

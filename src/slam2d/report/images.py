@@ -9,7 +9,16 @@ import numpy as np
 
 from slam2d.io.atomic import atomic_path
 
-__all__ = ["map_image", "save_map_png"]
+__all__ = ["map_image", "save_map_png", "MATERIAL_COLOURS"]
+
+#: One colour per surface material in every picture (dark for the dark surface).
+MATERIAL_COLOURS = {
+    "varnished-wood": "#a0522d",
+    "white-textile": "#6a9fd4",
+    "white-paper": "#808080",
+    "cardboard": "#d4a017",
+    "black-metal": "#000000",
+}
 
 UNKNOWN_GRAY = 205 / 255  # map_saver's colour for unknown cells
 OCCUPIED_PERCENT = 65  # map_saver's thresholds: black at or above, white at or below free
