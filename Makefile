@@ -5,7 +5,12 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip --disable-pip-version-check
 PYTEST_ARGS ?=
 
-.PHONY: demo test check bench docs clean
+.PHONY: demo test check bench docs clean browser
+
+# The report test renders report.html in Debian's Chromium. Where apt-get exists
+# it is installed when missing and the test must run; elsewhere it skips.
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+HAVE_APT := $(shell command -v apt-get >/dev/null 2>&1 && echo 1)
 
 # An install is redone whenever pyproject.toml changes.
 $(VENV)/.installed: pyproject.toml
@@ -19,9 +24,17 @@ $(VENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/slam2d demo --out demo-out
 
+## browser: install Debian's chromium for the report test when it is missing
+browser:
+ifeq ($(HAVE_APT),1)
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || { \
+	  echo "installing Debian's chromium (the report test renders report.html in it)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium >/dev/null; }
+endif
+
 ## test: set up and run the whole test suite (slow cases included)
-test: $(VENV)/.installed
-	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+test: $(VENV)/.installed browser
+	SLAM2D_REQUIRE_BROWSER=$(HAVE_APT) $(PY) -m pytest -n 2 $(PYTEST_ARGS)
 
 ## check: the quick loop: everything but the cases marked slow
 check: $(VENV)/.installed

@@ -72,6 +72,22 @@ def map_fr079(workdir: Path) -> tuple[None, str]:
     return None, f"{info['size_cells'][0]}x{info['size_cells'][1]} cells, wall thickness median {wt['median']:g} cells"
 
 
+def compare_fr079(workdir: Path) -> tuple[None, str]:
+    """The whole `slam2d compare` command with both baselines on fr079; the report's share noted."""
+    import re
+
+    out = workdir / "compare-fr079"
+    proc = subprocess.run(
+        [str(Path(sys.executable).with_name("slam2d")), "compare", str(DATA / "fr079" / "fr079.clf.gz"),
+         "--methods", "odometry,known-poses", "--reference", str(DATA / "fr079" / "reference.tum"),
+         "--out", str(out)],
+        check=True, capture_output=True, text=True,
+    )
+    report = re.search(r"report written in ([0-9.]+) s", proc.stdout)
+    size = (out / "report.html").stat().st_size / 1e6
+    return None, f"report rendering {report.group(1) if report else '?'} s of it; report.html {size:.1f} MB"
+
+
 def map_intel_kernel(_: Path) -> tuple[float, str]:
     """Mapping alone (reading excluded): the compiled ray caster's throughput."""
     from slam2d.grids.mapping import map_from_poses
@@ -139,6 +155,9 @@ CASES: list[Case] = [
          target="< 2 s", max_seconds=2.0, needs=(SHARED,)),
     Case("map-fr079", "`slam2d map` fr079 with reference.tum at 0.05 m, whole command", map_fr079,
          target="< 5 s", max_seconds=5.0, needs=(SHARED,)),
+    Case("compare-fr079", "`slam2d compare` fr079 with odometry and known-poses against reference.tum, "
+         "report included, whole command", compare_fr079, target="< 20 s; report < 5 s", max_seconds=20.0,
+         needs=(SHARED,)),
     Case("map-intel-kernel", "ray casting all intel scans into a 0.05 m grid (reading excluded)", map_intel_kernel,
          needs=(SHARED,)),
     Case("numba-compile", "cold numba compile of the grid kernels", numba_compile, warmup=False, repeat=1),

@@ -7,6 +7,7 @@ parameter tables cannot drift from what the program does:
 
 * ``help:COMMAND`` — the output of ``slam2d COMMAND --help``;
 * ``params:module:Class`` — the parameter table of a parameter dataclass;
+* ``method:NAME`` — a registered method's parameter table and the values it logs;
 * ``example:NAME`` — the output of an example command on a shared dataset
   (left as it is when ``../shared/datasets`` is absent).
 
@@ -48,6 +49,22 @@ def _params(spec: str) -> str:
     return markdown_table(getattr(importlib.import_module(module), cls))
 
 
+def _method(name: str) -> str:
+    from slam2d.methods import get_method
+    from slam2d.params import markdown_table
+
+    cls = get_method(name)
+    text = f"`slam2d run {cls.name} DATA --out DIR --set NAME=VALUE`; " + (
+        "uses the odometry." if cls.uses_odometry else "ignores the odometry."
+    ) + (" Stochastic: `--seed` picks the random stream." if cls.stochastic else "") + "\n\n"
+    text += markdown_table(cls.Params, names="settings")
+    if cls.DIAGNOSTICS:
+        text += "\nLogged per update in `diagnostics.json` (besides `timestamp`, `wall_s`, `cpu_s`):\n\n"
+        text += "| name | meaning |\n|---|---|\n"
+        text += "".join(f"| `{k}` | {v} |\n" for k, v in cls.DIAGNOSTICS.items())
+    return text
+
+
 DATASETS = DOCS.parent.parent / "shared" / "datasets"
 
 EXAMPLES = {
@@ -81,6 +98,8 @@ def render(key: str, old: str) -> str:
         return _help(arg)
     if kind == "params":
         return _params(arg)
+    if kind == "method":
+        return _method(arg)
     if kind == "example":
         new = _example(arg)
         return old if new is None else new
@@ -108,8 +127,27 @@ def pictures() -> None:
         main(["demo", "--out", str(t / "demo")])
         shutil.copy(t / "ref" / "preview.png", images / "intel-reference.png")
         shutil.copy(t / "odom" / "preview.png", images / "intel-odometry.png")
-        shutil.copy(t / "demo" / "map-truth" / "preview.png", images / "demo-truth.png")
-        shutil.copy(t / "demo" / "map-odometry" / "preview.png", images / "demo-odometry.png")
+        runs = t / "demo" / "compare" / "runs"
+        shutil.copy(runs / "known-poses" / "preview.png", images / "demo-truth.png")
+        shutil.copy(runs / "odometry" / "preview.png", images / "demo-odometry.png")
+        _screenshot(t / "demo" / "compare" / "report.html", images / "compare-report.png", t / "browser")
+
+
+def _screenshot(html: Path, png: Path, profile: Path) -> None:
+    """A picture of the top of a report, rendered by headless Chromium (skipped without one)."""
+    import shutil
+    import subprocess
+
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    if browser is None:
+        print("no chromium: compare-report.png not redrawn", file=sys.stderr)
+        return
+    subprocess.run(
+        [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
+         f"--user-data-dir={profile}", "--window-size=1400,1500", f"--screenshot={png}", html.as_uri()],
+        check=True, capture_output=True, timeout=120,
+    )
 
 
 def main() -> int:

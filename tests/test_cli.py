@@ -99,8 +99,12 @@ def test_map_along_odometry_is_blurred_by_drift(capsys, room, tmp_path):
 def test_demo_runs_end_to_end(capsys, tmp_path):
     code, out, err = run(capsys, "demo", "--out", tmp_path / "demo")
     assert code == 0, err
-    for sub in ("map-truth", "map-odometry"):
-        assert (tmp_path / "demo" / sub / "map.yaml").is_file()
+    from slam2d.methods import method_names
+
+    for method in method_names():
+        assert (tmp_path / "demo" / "compare" / "runs" / method / "run.json").is_file(), method
+    html = (tmp_path / "demo" / "compare" / "report.html").read_text()
+    assert all(method in html for method in method_names())
     assert "no problems found" in out
 
 

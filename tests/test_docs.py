@@ -27,6 +27,18 @@ def test_every_command_has_a_page():
         assert f"<!-- BEGIN GENERATED: help:{name} -->" in page.read_text()
 
 
+def test_every_method_has_a_page():
+    from slam2d.methods import available
+
+    for name in available():
+        page = ROOT / "docs" / "methods" / f"{name}.md"
+        assert page.is_file(), f"no docs page for method {name}"
+        text = page.read_text()
+        assert f"<!-- BEGIN GENERATED: method:{name} -->" in text
+        for section in ("## When to choose it", "## How it fails"):
+            assert section in text, f"docs/methods/{name}.md has no '{section}' section"
+
+
 def test_readme_opens_with_the_two_commands():
     head = "\n".join((ROOT / "README.md").read_text().splitlines()[:20])
     assert "make demo" in head and "make test" in head

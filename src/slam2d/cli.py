@@ -205,6 +205,8 @@ def cmd_map(args: argparse.Namespace) -> int:
             path=args.data,
         )
     agreement = scan_agreement(grid, recording.frames(), times, poses, max_pose_gap=args.max_pose_gap)
+    from slam2d.report.map_outputs import write_map_outputs
+
     written = write_map_outputs(
         grid, args.out, mode=args.mode,
         extra={"poses": source, "scan_agreement": agreement, "stats": stats.as_dict()},
@@ -221,27 +223,288 @@ def cmd_map(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra: dict[str, Any] | None = None) -> list[Path]:
-    """Write ``map.yaml`` + ``map.pgm``, a ``preview.png`` picture and ``map.json`` (size, sharpness, stats)."""
-    from slam2d.eval.map_metrics import wall_thickness
-    from slam2d.io.atomic import write_text_atomic
-    from slam2d.io.map_server import save_grid
-    from slam2d.report.images import save_map_png
+# --------------------------------------------------------------------------- methods
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    cropped = grid.crop_to_observed()
-    yaml_path, pgm_path = save_grid(cropped, out_dir / "map.yaml", mode=mode)
-    png_path = save_map_png(cropped, out_dir / "preview.png")
-    info = {
-        "resolution_m": cropped.resolution,
-        "size_cells": list(cropped.shape),
-        "origin": [float(v) for v in cropped.origin],
-        "wall_thickness_cells": wall_thickness(cropped.occupancy()),
-        **(extra or {}),
-    }
-    json_path = out_dir / "map.json"
-    write_text_atomic(json_path, json.dumps(info, indent=2) + "\n")
-    return [yaml_path, pgm_path, png_path, json_path]
+
+def _add_methods(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "methods",
+        help="list the SLAM methods, or one method's parameters",
+        description="Without a name: every registered method with a one-line summary. With a name: the "
+        "method's parameters (name, default, unit, meaning) as 'slam2d run' and 'slam2d compare' take them "
+        "with --set NAME=VALUE, and the values it logs per update.",
+    )
+    p.add_argument("name", nargs="?", help="a method name")
+    p.set_defaults(handler=cmd_methods)
+
+
+def cmd_methods(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from slam2d.methods import available, get_method
+    from slam2d.params import describe
+
+    out = _console()
+    if args.name is None:
+        t = Table(title="methods", title_justify="left")
+        t.add_column("name", style="bold")
+        t.add_column("odometry")
+        t.add_column("summary")
+        for name, cls in available().items():
+            t.add_row(name, "uses" if cls.uses_odometry else "ignores", cls.summary)
+        out.print(t)
+        out.print("details: slam2d methods NAME", markup=False)
+        return 0
+    cls = get_method(args.name)
+    t = Table(title=f"{cls.name}: {cls.summary}", title_justify="left")
+    for col in ("parameter", "default", "unit", "meaning"):
+        t.add_column(col)
+    for prm in describe(cls.Params):
+        t.add_row(prm.name, str(prm.default), prm.unit or "-", prm.help)
+    out.print(t)
+    if cls.DIAGNOSTICS:
+        d = Table(title="logged per update (diagnostics.json)", title_justify="left")
+        d.add_column("name")
+        d.add_column("meaning")
+        for k, v in cls.DIAGNOSTICS.items():
+            d.add_row(k, v)
+        out.print(d)
+    return 0
+
+
+# --------------------------------------------------------------------------- run
+
+
+def _settings(items: list[str] | None) -> dict[str, str]:
+    """``--set NAME=VALUE`` options as a dict (later ones win)."""
+    values: dict[str, str] = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise InputError(f"{item!r} is not NAME=VALUE", field="--set")
+        values[name.strip()] = value.strip()
+    return values
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run one SLAM method on a recording",
+        description="Run METHOD (see 'slam2d methods') over every scan of DATA and write OUT/trajectory.tum, "
+        "OUT/map.yaml + map.pgm + preview.png, OUT/diagnostics.json (time and values per update) and "
+        "OUT/run.json (method, every parameter, seed, input SHA-256, versions, peak memory). "
+        "'--params OUT/run.json' repeats a run exactly.",
+    )
+    p.add_argument("method", help="method name (see 'slam2d methods')")
+    p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE", dest="settings",
+                   help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable)")
+    p.add_argument("--params", type=Path, metavar="FILE",
+                   help="YAML file of parameters (name: value), or a run.json to repeat; --set wins")
+    p.add_argument("--seed", type=int, help="random seed (default: the --params file's, else 0)")
+    add_arguments(p.add_argument_group("reading"), ReadOptions)
+    p.set_defaults(handler=cmd_run)
+
+
+def _command_line() -> str:
+    import shlex
+
+    return " ".join(["slam2d", *map(shlex.quote, sys.argv[1:])])
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from slam2d.methods.runner import build_method, run_method
+
+    slam = build_method(args.method, settings=_settings(args.settings), params_file=args.params, seed=args.seed)
+    options = _read_options(args)
+    with progress_bar(f"{slam.name} on {args.data.name}") as progress:
+        summary = run_method(slam, args.data, args.out, read_options=options, progress=progress,
+                             command=_command_line())
+    out = _console()
+    rec = summary.record
+    span = rec["data_span_s"]
+    duration = (span[1] - span[0]) if span[0] is not None else 0.0
+    out.print(
+        f"{slam.name}: {summary.frames} scans ({summary.poses} placed) in {summary.seconds:.1f} s "
+        f"({duration / summary.seconds if summary.seconds > 0 else float('inf'):.1f}x real time), "
+        f"peak memory {rec['peak_rss_mb']:.0f} MB, seed {slam.seed}",
+        markup=False,
+    )
+    for path in summary.written:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+def _add_truth_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--truth", type=Path, metavar="DIR",
+                   help="ground-truth folder as 'slam2d simulate' writes it (truth.tum, truth-map.yaml)")
+    g.add_argument("--reference", type=Path, metavar="POSES.tum",
+                   help="reference trajectory (TUM), e.g. a dataset's reference.tum (not independent truth)")
+    p.add_argument("--truth-map", type=Path, metavar="MAP.yaml",
+                   help="ground-truth map (map_server YAML) to use with --reference, or instead of a truth folder's")
+    p.add_argument("--relations", type=Path, metavar="FILE",
+                   help="Freiburg .relations file (t1 t2 x y z roll pitch yaw) for the Kümmerle et al. 2009 metric")
+    p.add_argument("--tolerance", type=float, default=0.1, metavar="M",
+                   help="distance within which a map obstacle matches a true one, for precision and recall "
+                   "[m] (default: 0.1)")
+
+
+def _load_truth_options(args: argparse.Namespace) -> tuple[Any, Any]:
+    from slam2d.eval.evaluate import load_reference, load_truth
+
+    if not args.tolerance > 0:
+        raise InputError(f"{args.tolerance} m must be positive", field="--tolerance")
+    truth = None
+    if args.truth is not None:
+        truth = load_truth(args.truth)
+        if args.truth_map is not None:
+            from slam2d.io.map_server import read_map
+
+            truth.map, truth.map_path = read_map(args.truth_map).to_grid(), args.truth_map
+    elif args.reference is not None:
+        truth = load_reference(args.reference, truth_map=args.truth_map)
+    elif args.truth_map is not None:
+        from slam2d.eval.evaluate import GroundTruth
+        from slam2d.io.map_server import read_map
+
+        truth = GroundTruth("truth", args.truth_map, None, None, read_map(args.truth_map).to_grid(), args.truth_map)
+    relations = None
+    if args.relations is not None:
+        from slam2d.io.relations import read_relations
+
+        relations = read_relations(args.relations)
+    return truth, relations
+
+
+def _add_evaluate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "evaluate",
+        help="measure a run's trajectory error, map quality and cost",
+        description="Evaluate RUN (a folder 'slam2d run' wrote, or a TUM trajectory): ATE after the best SE(2) "
+        "alignment and RPE per frame and per metre against --truth or --reference; the Kümmerle et al. 2009 "
+        "relation metric with --relations; map error against a ground-truth map in both directions, with "
+        "precision and recall; map quality without ground truth (Filatov et al. 2017); time per scan, "
+        "real-time factor and peak memory. Writes RUN/evaluation.json (or --out) and prints a summary.",
+    )
+    p.add_argument("run", type=Path, help="a run folder, or a TUM trajectory file")
+    _add_truth_options(p)
+    p.add_argument("--out", type=Path, help="where to write the JSON (default: RUN/evaluation.json for a folder)")
+    p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
+    p.set_defaults(handler=cmd_evaluate)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from slam2d.eval.evaluate import METRIC_COLUMNS, evaluate_run, load_run
+    from slam2d.io.atomic import write_text_atomic
+
+    truth, relations = _load_truth_options(args)
+    run = load_run(args.run)
+    evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance)
+    target = args.out if args.out is not None else (args.run / "evaluation.json" if args.run.is_dir() else None)
+    if target is not None:
+        write_text_atomic(target, json.dumps(evaluation, indent=2) + "\n")
+    if args.json:
+        print(json.dumps(evaluation, indent=2))
+        return 0
+    from rich.table import Table
+
+    out = _console()
+    t = Table(title=f"{args.run}", show_header=False, title_justify="left")
+    t.add_column("metric", style="bold")
+    t.add_column("value")
+    t.add_column("meaning")
+    for col in METRIC_COLUMNS:
+        value = col.value(evaluation)
+        if value is not None:
+            t.add_row(col.label, f"{value:.{col.digits}f} {col.unit}".rstrip(), col.help)
+    out.print(t)
+    if truth is not None and truth.kind == "reference":
+        out.print("trajectory errors are against a reference trajectory, not independent ground truth", markup=False)
+    if target is not None:
+        out.print(f"  wrote {target}", markup=False)
+    return 0
+
+
+# --------------------------------------------------------------------------- compare
+
+
+def _add_compare(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "compare",
+        help="run several methods on the same data and write a comparison report",
+        description="Run every method of --methods on DATA in parallel processes, evaluate each run the same "
+        "way (see 'slam2d evaluate') and write OUT/report.html (self-contained), OUT/report.md and "
+        "OUT/runs/METHOD/ (each run's files). A method that fails is reported as failed; the others go on.",
+    )
+    p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
+    p.add_argument("--methods", required=True, help="comma-separated method names (see 'slam2d methods')")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_truth_options(p)
+    p.add_argument("--set", action="append", metavar="[METHOD.]NAME=VALUE", dest="settings",
+                   help="a parameter for every method that has it, or for one method (repeatable)")
+    p.add_argument("--params", type=Path, metavar="FILE",
+                   help="YAML file with one section per method: METHOD: {NAME: VALUE, ...}; --set wins")
+    p.add_argument("--seed", type=int, help="random seed for every method (default: 0)")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="methods run at once (default: one per core); --jobs 1 times each method alone")
+    add_arguments(p.add_argument_group("reading"), ReadOptions)
+    p.set_defaults(handler=cmd_compare)
+
+
+def _per_method_file(path: Path | None, methods: list[str]) -> dict[str, dict[str, Any]]:
+    if path is None:
+        return {}
+    from slam2d.methods.runner import read_params_file
+
+    doc, _ = read_params_file(path)
+    out = {}
+    for name, section in doc.items():
+        if name not in methods:
+            raise InputError(f"section {name!r} is not one of the methods compared ({', '.join(methods)})",
+                             path=path, field=str(name))
+        if not isinstance(section, dict):
+            raise InputError("expected a mapping of parameter names to values", path=path, field=str(name))
+        out[name] = section
+    return out
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    import time
+
+    from slam2d.eval.compare import compare
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if args.jobs is not None and args.jobs < 1:
+        raise InputError(f"{args.jobs} must be at least 1", field="--jobs")
+    truth, relations = _load_truth_options(args)
+    out = _console()
+
+    def done(outcome: Any, seconds: float) -> None:
+        if outcome.ok:
+            out.print(f"  {outcome.method}: finished in {seconds:.1f} s", markup=False)
+        else:
+            out.print(f"  {outcome.method}: FAILED after {seconds:.1f} s: {outcome.error}", markup=False)
+
+    out.print(f"running {', '.join(methods)} on {args.data}", markup=False)
+    comparison = compare(
+        args.data, methods, args.out, truth=truth, relations=relations, settings=_settings(args.settings),
+        per_method_params=_per_method_file(args.params, methods), seed=args.seed, read_options=_read_options(args),
+        jobs=args.jobs, tolerance=args.tolerance, command=_command_line(), on_done=done,
+    )
+    from slam2d.report.comparison import write_report
+
+    t0 = time.perf_counter()
+    written = write_report(comparison, args.out)
+    out.print(f"report written in {time.perf_counter() - t0:.1f} s", markup=False)
+    for path in written:
+        out.print(f"  wrote {path}", markup=False)
+    failed = [o for o in comparison.outcomes if not o.ok]
+    return 1 if len(failed) == len(comparison.outcomes) else 0
 
 
 # --------------------------------------------------------------------------- demo
@@ -250,10 +513,11 @@ def write_map_outputs(grid: Any, out_dir: Path, *, mode: str = "trinary", extra:
 def _add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="simulate the study's test space and run info and map on the recording",
+        help="simulate the study's test space and compare the methods on it",
         description="Simulate a youBot with a Hokuyo URG-04LX driving through paper-arena (the source "
-        "study's rectangular-walled room), write the recording and its ground truth, then run 'info' "
-        "and 'map' on it: once with the true poses and once along the drifting odometry.",
+        "study's rectangular-walled room), write the recording and its ground truth, run 'info' on it, "
+        "then 'compare' every method on it against the truth and write the report "
+        "(OUT/compare/report.html).",
     )
     p.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder (default: demo-out)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the simulated noise (default: 0)")
@@ -261,6 +525,8 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from slam2d.methods import method_names
+
     parser = build_parser()
     sim_dir = args.out / "paper-arena"
     status = main_args(parser.parse_args(["simulate", "paper-arena", "--out", str(sim_dir), "--seed", str(args.seed)]))
@@ -268,8 +534,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         return status
     log = sim_dir / "recording.log.gz"
     status |= main_args(parser.parse_args(["info", str(log)]))
-    for name, extra in (("map-truth", ["--poses", str(sim_dir / "truth.tum")]), ("map-odometry", [])):
-        status |= main_args(parser.parse_args(["map", str(log), "--out", str(args.out / name), *extra]))
+    status |= main_args(parser.parse_args([
+        "compare", str(log), "--methods", ",".join(method_names()), "--truth", str(sim_dir),
+        "--out", str(args.out / "compare"), "--seed", str(args.seed),
+    ]))
+    if not status:
+        _console().print(f"open {args.out / 'compare' / 'report.html'} in a browser", markup=False)
     return status
 
 
@@ -405,7 +675,8 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- entry point
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
-    _add_info, _add_map, _add_simulate, _add_repeatability, _add_demo,
+    _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
+    _add_repeatability, _add_demo,
 ]
 
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
+import re
 import types
 import typing
 from dataclasses import dataclass
@@ -32,7 +34,20 @@ __all__ = [
     "validate",
     "coerce",
     "markdown_table",
+    "from_mapping",
+    "as_dict",
 ]
+
+# Units a number may carry on the command line or in a parameter file
+# ("--set max_range=450cm", "angular_update: 25deg"), with their factor to the
+# unit the parameter is declared in. Units of one row convert into each other.
+_UNIT_FACTORS: dict[str, dict[str, float]] = {
+    "m": {"m": 1.0, "cm": 0.01, "mm": 0.001, "km": 1000.0},
+    "rad": {"rad": 1.0, "deg": math.pi / 180.0},
+    "s": {"s": 1.0, "ms": 0.001, "min": 60.0},
+    "Hz": {"Hz": 1.0, "kHz": 1000.0},
+}
+_NUMBER_WITH_UNIT = re.compile(r"^\s*([-+0-9.eE]+|[-+]?inf|nan)\s*([A-Za-z]+)\s*$")
 
 
 def param(
@@ -159,6 +174,8 @@ def coerce(p: ParamInfo, text: Any) -> Any:
                 raise ValueError(text)
             return int(str(text)) if isinstance(text, str) else int(text)
         if t is float:
+            if isinstance(text, str):
+                return _float_with_unit(p, text)
             return float(text)
         if t is str:
             return str(text)
@@ -167,6 +184,21 @@ def coerce(p: ParamInfo, text: Any) -> Any:
             f"{text!r} is not a valid {t.__name__}", field=p.name
         ) from None
     return text
+
+
+def _float_with_unit(p: ParamInfo, text: str) -> float:
+    """A float from text, converting a unit suffix into the parameter's unit."""
+    m = _NUMBER_WITH_UNIT.match(text)
+    if m is None:
+        return float(text)
+    number, unit = float(m.group(1)), m.group(2)
+    for family in _UNIT_FACTORS.values():
+        if p.unit in family:
+            if unit not in family:
+                break
+            return number * family[unit] / family[p.unit]
+    expected = f"in {p.unit}" if p.unit else "a plain number"
+    raise InputError(f"{text!r} has unit {unit!r} but this parameter is {expected}", field=p.name)
 
 
 def validate(instance: Any) -> None:
@@ -200,11 +232,17 @@ def from_arguments(cls: type, namespace: argparse.Namespace) -> Any:
     return instance
 
 
-def markdown_table(cls: type) -> str:
-    """A Markdown table of the parameters: name, default, unit, meaning."""
+def markdown_table(cls: type, *, names: str = "flags") -> str:
+    """A Markdown table of the parameters: name, default, unit, meaning.
+
+    ``names="flags"`` shows command-line options (``--max-range``);
+    ``names="settings"`` shows the names ``--set NAME=VALUE`` takes (``max_range``).
+    """
     rows = ["| parameter | default | unit | meaning |", "|---|---|---|---|"]
     for p in describe(cls):
-        meaning = p.help
+        meaning = p.help.rstrip()
+        if meaning and meaning[-1] not in ".!?)":
+            meaning += "."
         if p.choices:
             meaning += " One of: " + ", ".join(f"`{c}`" for c in p.choices) + "."
         rng = []
@@ -214,5 +252,44 @@ def markdown_table(cls: type) -> str:
             rng.append(f"<= {p.high}")
         if rng:
             meaning += " Range: " + ", ".join(rng) + "."
-        rows.append(f"| `{_flag(p.name)}` | `{p.default}` | {p.unit or '-'} | {meaning} |")
+        shown = _flag(p.name) if names == "flags" else p.name
+        rows.append(f"| `{shown}` | `{p.default}` | {p.unit or '-'} | {meaning} |")
     return "\n".join(rows) + "\n"
+
+
+def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None) -> Any:
+    """Build and validate an instance of ``cls`` from a mapping of names to values.
+
+    Values may be strings (``--set name=value``, with an optional unit suffix
+    such as ``25deg``) or already typed (a YAML file). Dashes in names are
+    accepted for underscores. An unknown name raises :class:`InputError`
+    listing the valid ones; ``path``/``where`` say where the values came from.
+    """
+    if not isinstance(values, dict):
+        raise InputError(
+            f"expected a mapping of parameter names to values, got {type(values).__name__}", path=path, where=where
+        )
+    params = {p.name: p for p in describe(cls)}
+    chosen = {}
+    for raw_name, raw in values.items():
+        name = str(raw_name).replace("-", "_")
+        if name not in params:
+            raise InputError(
+                f"unknown parameter {raw_name!r}; valid: {', '.join(sorted(params))}",
+                path=path, where=where, field=str(raw_name),
+            )
+        try:
+            chosen[name] = coerce(params[name], raw)
+        except InputError as exc:
+            raise InputError(exc.message, path=path, where=where, field=name) from None
+    instance = cls(**chosen)
+    try:
+        validate(instance)
+    except InputError as exc:
+        raise InputError(exc.message, path=path, where=where, field=exc.field) from None
+    return instance
+
+
+def as_dict(instance: Any) -> dict[str, Any]:
+    """Every parameter value of an instance, by name (JSON-friendly)."""
+    return {p.name: getattr(instance, p.name) for p in describe(type(instance))}

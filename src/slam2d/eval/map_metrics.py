@@ -11,21 +11,49 @@
   occupied cell of the map when every scan is placed at its pose. It needs
   the scans again, but it separates good from bad trajectories on every real
   log (Intel: 0.78 with the reference trajectory, 0.11 with raw odometry).
+* :func:`map_quality`: the ground-truth-free measures of Filatov et al. 2017
+  (share of occupied among known cells, corners, enclosed free areas). They
+  only rank maps *of the same place at the same resolution* against each
+  other; on their own the numbers mean little.
+
+Map quality against a ground-truth map:
+
+* :func:`obstacle_points`: the occupied cells of a grid as world points.
+* :func:`map_to_truth`: nearest-neighbour distances between the obstacle cells
+  of a SLAM map and of a ground-truth map, both ways (truth -> map is Santos et
+  al. 2013's normalised k-NN error, k = 1, in metres), with precision, recall
+  and F1 at a distance tolerance.
+* :func:`align_maps`: ICP (point-to-plane by default) of a map's obstacle cells
+  onto the truth's, for when only a ground-truth map (no ground-truth
+  trajectory) gives the frame.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from slam2d.core import se2
 from slam2d.core.frames import Frame
+from slam2d.errors import InputError
 from slam2d.io.tum import interpolate_poses
 
-__all__ = ["run_lengths", "wall_thickness", "scan_agreement"]
+__all__ = [
+    "run_lengths",
+    "wall_thickness",
+    "scan_agreement",
+    "obstacle_points",
+    "map_to_truth",
+    "align_maps",
+    "ICP_METHODS",
+    "map_quality",
+]
 
 
 def run_lengths(mask: ArrayLike) -> NDArray[np.int64]:
@@ -137,3 +165,433 @@ def scan_agreement(
         scans += 1
     fraction = on_wall / endpoints if endpoints else float("nan")
     return {"fraction": float(fraction), "endpoints": endpoints, "scans": scans}
+
+
+# --------------------------------------------------------------------------- against a ground-truth map
+
+# Slack on "within tolerance": cell centres computed from different origins
+# differ from the exact distance by round-off of a few 1e-16 m.
+_DISTANCE_SLACK = 1e-9
+
+
+def _as_float(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _check_probability(value: float, name: str) -> float:
+    v = _as_float(value)
+    if not 0.0 < v < 1.0:
+        raise InputError(f"{value!r} is not a probability strictly between 0 and 1", field=name)
+    return v
+
+
+def _as_transform(transform: ArrayLike, name: str) -> NDArray[np.float64]:
+    try:
+        arr = np.asarray(transform, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.full(0, np.nan)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise InputError(f"{transform!r} is not a finite transform [x, y, theta]", field=name)
+    return arr
+
+
+def obstacle_points(
+    grid: Any, *, occupied_threshold: float = 0.65, transform: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """World ``[x, y]`` of the centres of a grid's occupied cells, ``(N, 2)``.
+
+    A cell is occupied as :meth:`~slam2d.grids.occupancy.OccupancyGrid.occupied`
+    says (observed, probability above ``occupied_threshold``). With
+    ``transform`` ``[x, y, theta]`` the points are mapped by
+    :func:`slam2d.core.se2.transform_points` (e.g. from a SLAM map's frame into
+    the ground truth's frame).
+    """
+    _check_probability(occupied_threshold, "occupied_threshold")
+    rows, cols = np.nonzero(grid.occupied(occupied_threshold))
+    points = grid.cell_to_world(np.stack([rows, cols], axis=-1))
+    if transform is not None:
+        points = se2.transform_points(_as_transform(transform, "transform"), points)
+    return np.asarray(points, dtype=np.float64).reshape(-1, 2)
+
+
+def _distance_stats(distances: NDArray[np.float64]) -> dict[str, float]:
+    return {
+        "mean": float(distances.mean()),
+        "median": float(np.median(distances)),
+        "p95": float(np.percentile(distances, 95)),
+        "max": float(distances.max()),
+    }
+
+
+def _truth_points(truth: Any, occupied_threshold: float) -> NDArray[np.float64]:
+    points = obstacle_points(truth, occupied_threshold=occupied_threshold)
+    if points.shape[0] == 0:
+        raise InputError("the ground-truth map has no occupied cells", field="truth")
+    return points
+
+
+def map_to_truth(
+    grid: Any,
+    truth: Any,
+    *,
+    transform: ArrayLike | None = None,
+    tolerance: float = 0.1,
+    occupied_threshold: float = 0.65,
+) -> dict[str, Any]:
+    """Compare a SLAM map's obstacle cells with a ground-truth map's, in metres.
+
+    ``grid`` is the SLAM map and ``truth`` the ground-truth map (both
+    :class:`~slam2d.grids.occupancy.OccupancyGrid`, any resolutions and
+    origins: cells are compared as points at their centres).
+    ``transform`` ``[x, y, theta]`` maps the SLAM map's coordinates into the
+    truth's frame (None: they share a frame; see :func:`align_maps`).
+
+    Returns::
+
+        {"truth_to_map_m": stats of the distance from each true obstacle cell to
+                           the nearest map obstacle cell (Santos et al. 2013's
+                           normalised k-NN error with k = 1, in metres: missing
+                           or misplaced walls),
+         "map_to_truth_m": the same from each map obstacle cell to the truth
+                           (ghost walls, smeared walls),
+         "precision": share of map obstacle cells within ``tolerance`` of a true one,
+         "recall": share of true obstacle cells within ``tolerance`` of a map one,
+         "f1": their harmonic mean, "tolerance_m": tolerance,
+         "map_cells": map obstacle cells, "truth_cells": true obstacle cells}
+
+    where stats are ``{"mean", "median", "p95", "max"}``. "Within" includes
+    the tolerance itself.
+
+    Every true obstacle cell counts, so walls the robot never saw count as
+    missing (they raise ``truth_to_map_m`` and lower recall): compare maps of
+    the same exploration. With different resolutions even identical walls are
+    some fraction of a cell apart (cell centres do not coincide).
+
+    A map with no obstacle cells gives ``truth_to_map_m`` all infinite,
+    ``map_to_truth_m`` all NaN, precision NaN, recall 0 and F1 0. A truth with
+    no obstacle cells raises :class:`~slam2d.errors.InputError`.
+    """
+    tol = _as_float(tolerance)
+    if not (math.isfinite(tol) and tol > 0.0):
+        raise InputError(f"{tolerance!r} is not a positive distance in metres", field="tolerance")
+    truth_pts = _truth_points(truth, occupied_threshold)
+    map_pts = obstacle_points(grid, occupied_threshold=occupied_threshold, transform=transform)
+    n_map, n_truth = int(map_pts.shape[0]), int(truth_pts.shape[0])
+    if n_map == 0:
+        inf, nan = float("inf"), float("nan")
+        return {
+            "truth_to_map_m": {"mean": inf, "median": inf, "p95": inf, "max": inf},
+            "map_to_truth_m": {"mean": nan, "median": nan, "p95": nan, "max": nan},
+            "precision": nan,
+            "recall": 0.0,
+            "f1": 0.0,  # the limit of 2PR / (P + R) as R -> 0, whatever P is
+            "tolerance_m": tol,
+            "map_cells": 0,
+            "truth_cells": n_truth,
+        }
+    truth_to_map = cKDTree(map_pts).query(truth_pts, k=1)[0]
+    map_to_truth_d = cKDTree(truth_pts).query(map_pts, k=1)[0]
+    within = tol + _DISTANCE_SLACK
+    precision = float(np.mean(map_to_truth_d <= within))
+    recall = float(np.mean(truth_to_map <= within))
+    f1 = 2.0 * precision * recall / (precision + recall) if precision + recall > 0.0 else 0.0
+    return {
+        "truth_to_map_m": _distance_stats(truth_to_map),
+        "map_to_truth_m": _distance_stats(map_to_truth_d),
+        "precision": precision,
+        "recall": recall,
+        "f1": float(f1),
+        "tolerance_m": tol,
+        "map_cells": n_map,
+        "truth_cells": n_truth,
+    }
+
+
+def _rigid_fit(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rigid motion ``[x, y, theta]`` that best maps ``source`` onto ``target`` (least squares)."""
+    src_mean = source.mean(axis=0)
+    dst_mean = target.mean(axis=0)
+    a = source - src_mean
+    b = target - dst_mean
+    # Maximising sum(b . R a) over the angle has this closed form in 2D.
+    cos_part = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    sin_part = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    theta = math.atan2(sin_part, cos_part)
+    c, s = math.cos(theta), math.sin(theta)
+    tx = dst_mean[0] - (c * src_mean[0] - s * src_mean[1])
+    ty = dst_mean[1] - (s * src_mean[0] + c * src_mean[1])
+    return np.array([tx, ty, theta])
+
+
+#: the ways :func:`align_maps` can pair cells
+ICP_METHODS = ("point-to-plane", "point-to-point")
+_NORMAL_NEIGHBOURS = 7
+
+
+def _wall_normals(points: NDArray[np.float64], tree: cKDTree) -> NDArray[np.float64]:
+    """Unit normals ``(N, 2)`` of the walls through each point, from its 7 nearest neighbours.
+
+    The wall runs along the direction in which the neighbours spread most
+    (principal axis of their scatter); the normal is perpendicular to it.
+    """
+    k = min(_NORMAL_NEIGHBOURS, points.shape[0])
+    nearest = tree.query(points, k=k)[1].reshape(points.shape[0], k)
+    spread = points[nearest] - points[nearest].mean(axis=1, keepdims=True)
+    sxx = np.sum(spread[..., 0] ** 2, axis=1)
+    syy = np.sum(spread[..., 1] ** 2, axis=1)
+    sxy = np.sum(spread[..., 0] * spread[..., 1], axis=1)
+    along = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    return np.stack([-np.sin(along), np.cos(along)], axis=-1)
+
+
+def _point_to_plane_step(
+    source: NDArray[np.float64], target: NDArray[np.float64], normals: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The rigid motion that best moves ``source`` onto the walls through ``target``.
+
+    Minimises the squared distances along ``normals`` (linearised in the
+    angle, about the source's centroid for good conditioning; the next
+    iteration corrects the linearisation). A direction no wall constrains
+    (all walls parallel) gets no motion.
+    """
+    centre = source.mean(axis=0)
+    rel = source - centre
+    residual = np.sum(normals * (source - target), axis=1)
+    jacobian = np.stack(
+        [normals[:, 0], normals[:, 1], normals[:, 1] * rel[:, 0] - normals[:, 0] * rel[:, 1]],
+        axis=-1,
+    )
+    dx, dy, dtheta = np.linalg.lstsq(jacobian, -residual, rcond=None)[0]
+    c, s = math.cos(dtheta), math.sin(dtheta)
+    # Rotate by dtheta about the centre, then move by (dx, dy).
+    return np.array(
+        [
+            centre[0] + dx - (c * centre[0] - s * centre[1]),
+            centre[1] + dy - (s * centre[0] + c * centre[1]),
+            dtheta,
+        ]
+    )
+
+
+def align_maps(
+    grid: Any,
+    truth: Any,
+    *,
+    initial: ArrayLike | None = None,
+    iterations: int = 30,
+    occupied_threshold: float = 0.65,
+    method: str = "point-to-plane",
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """The transform ``[x, y, theta]`` from a SLAM map's frame into a ground-truth map's.
+
+    ICP of the map's obstacle cell centres onto the truth's, starting from
+    ``initial`` (default: identity). Each iteration pairs every map point with
+    its nearest true point (KD-tree), drops pairs farther apart than a gate,
+    and solves the rigid motion of the kept pairs in closed form:
+
+    * ``"point-to-plane"`` (default) minimises each pair's distance along the
+      true wall's normal (estimated from the 7 nearest true cells), so map
+      cells may slide along a wall;
+    * ``"point-to-point"`` minimises the distance between the paired centres.
+      It locks about half a cell short: when the maps are shifted along a
+      wall, the cells on that wall pair with the cell next door and pull
+      back. A 10 m floor shifted by 0.25 m along x came out 0.222 m
+      (point-to-plane: 0.250); over 30 random offsets of up to 0.3 m and 5 deg
+      the median error was 10 mm / 0.08 deg (point-to-plane: 1.3 mm / 0.004 deg).
+
+    The gate starts open and shrinks to three times the 90th percentile of the
+    pair distances whenever that is smaller (not the median: when most walls
+    run along the offset, they match at once and the few across it are all
+    far), but never below two cells of the coarser map, so ghost walls and
+    unexplored parts (up to a tenth of the map) stop pulling once the maps are
+    close. It stops when a step moves less than 1 um and 1e-8 rad, or after
+    ``iterations`` steps.
+
+    ICP only finds the nearest local optimum: start it within roughly a wall
+    spacing and a few degrees of the answer (``initial``), and expect a
+    symmetric place (a plain rectangle) to align as well the wrong way round.
+
+    Returns ``(transform, {"iterations", "rmse_m", "inliers", "converged"})``:
+    the steps taken, the RMS distance from the kept map cells to their nearest
+    true cells after the last step (m; cell centres, so about a third of a
+    cell for perfectly aligned maps drawn in different frames), how many map
+    cells were kept, and whether it stopped by convergence. Pass
+    ``transform`` to :func:`map_to_truth`.
+    """
+    if method not in ICP_METHODS:
+        raise InputError(f"{method!r} is not one of {', '.join(ICP_METHODS)}", field="method")
+    try:
+        steps = int(iterations)
+    except (TypeError, ValueError):
+        steps = 0
+    if steps < 1:
+        raise InputError(f"{iterations!r}: need at least one iteration", field="iterations")
+    transform = np.zeros(3) if initial is None else _as_transform(initial, "initial")
+    target = _truth_points(truth, occupied_threshold)
+    source = obstacle_points(grid, occupied_threshold=occupied_threshold)
+    if source.shape[0] < 3:
+        raise InputError(
+            f"the map has {source.shape[0]} occupied cells; aligning needs at least 3",
+            field="grid",
+        )
+    tree = cKDTree(target)
+    normals = _wall_normals(target, tree) if method == "point-to-plane" else None
+    min_gate = 2.0 * max(float(grid.resolution), float(truth.resolution))
+    gate = math.inf
+    converged = False
+    done = 0
+    for done in range(1, steps + 1):
+        moved = se2.transform_points(transform, source)
+        dist, nearest = tree.query(moved, k=1)
+        gate = max(min_gate, min(gate, 3.0 * float(np.percentile(dist, 90))))
+        # At least 90 % of the cells are within the gate, so never fewer than 3.
+        keep = dist <= gate
+        paired = nearest[keep]
+        if normals is not None:
+            step = _point_to_plane_step(moved[keep], target[paired], normals[paired])
+        else:
+            step = _rigid_fit(moved[keep], target[paired])
+        transform = se2.compose(step, transform)
+        if math.hypot(step[0], step[1]) < 1e-6 and abs(step[2]) < 1e-8:
+            converged = True
+            break
+    dist = tree.query(se2.transform_points(transform, source), k=1)[0]
+    keep = dist <= gate
+    rmse = float(np.sqrt(np.mean(dist[keep] ** 2))) if keep.any() else float("nan")
+    info = {"iterations": done, "rmse_m": rmse, "inliers": int(keep.sum()), "converged": converged}
+    return np.asarray(transform, dtype=np.float64), info
+
+
+# --------------------------------------------------------------------------- without ground truth
+
+# Harris detector settings (cells): the image is smoothed by one Gaussian, the
+# structure tensor summed over another, R = det - k * trace^2, and cells with R
+# above a share of the map's strongest response are corner cells. Tuned on
+# rasterised rooms: with a window of 1 cell or a threshold of 1 %, a third of
+# a 3 m x 2 m room's orientations (0-90 deg in 1 deg steps) scored 5-14 corners
+# instead of 4, from the staircases of slanted walls; with these, none did.
+_HARRIS_SMOOTHING = 1.0
+_HARRIS_WINDOW = 1.5
+_HARRIS_K = 0.05
+_HARRIS_RELATIVE_THRESHOLD = 0.05
+
+
+def _count_corners(occupied: NDArray[np.bool_]) -> int:
+    """Harris corners of the occupied-cell image (1 occupied, 0 anything else)."""
+    rows_any = np.flatnonzero(occupied.any(axis=1))
+    if rows_any.size == 0:
+        return 0
+    cols_any = np.flatnonzero(occupied.any(axis=0))
+    # Crop to the walls with enough empty margin that no filter sees the crop edge.
+    pad = 2 + int(4.0 * _HARRIS_SMOOTHING + 0.5) + int(4.0 * _HARRIS_WINDOW + 0.5)
+    crop = occupied[rows_any[0] : rows_any[-1] + 1, cols_any[0] : cols_any[-1] + 1]
+    image = np.pad(crop.astype(np.float32), pad)
+    # Without smoothing, the staircase of a rasterised slanted wall is a row of
+    # tiny corners (a room rotated by 10 degrees scored 30 corners instead of 4).
+    image = ndimage.gaussian_filter(image, _HARRIS_SMOOTHING, mode="constant")
+    grad_x = ndimage.sobel(image, axis=1, mode="constant")
+    grad_y = ndimage.sobel(image, axis=0, mode="constant")
+    sxx = ndimage.gaussian_filter(grad_x * grad_x, _HARRIS_WINDOW, mode="constant")
+    syy = ndimage.gaussian_filter(grad_y * grad_y, _HARRIS_WINDOW, mode="constant")
+    sxy = ndimage.gaussian_filter(grad_x * grad_y, _HARRIS_WINDOW, mode="constant")
+    response = sxx * syy - sxy * sxy - _HARRIS_K * (sxx + syy) ** 2
+    peak = float(response.max())
+    if peak <= 0.0:
+        return 0
+    strong = response > _HARRIS_RELATIVE_THRESHOLD * peak
+    _, count = ndimage.label(strong, structure=np.ones((3, 3), dtype=np.bool_))
+    return int(count)
+
+
+def map_quality(
+    grid: Any,
+    *,
+    occupied_threshold: float = 0.65,
+    free_threshold: float = 0.25,
+    min_area_cells: int = 4,
+) -> dict[str, Any]:
+    """Map quality without ground truth (Filatov et al. 2017's measures).
+
+    ``grid`` is an :class:`~slam2d.grids.occupancy.OccupancyGrid`. Among
+    observed cells, a cell is *occupied* when its probability is above
+    ``occupied_threshold`` (as :meth:`OccupancyGrid.occupied` and map_server
+    decide), *free* when it is at most ``free_threshold``, and *uncertain* in
+    between. Returns::
+
+        {"occupied_fraction": occupied / (occupied + free): higher than another
+                              map of the same place means blurred or thick walls,
+         "uncertain_fraction": uncertain / observed,
+         "corners": Harris corners of the walls,
+         "enclosed_areas": 4-connected regions of free cells with at least
+                           min_area_cells cells (the explored space is one;
+                           misaligned or double walls close off extra ones),
+         "largest_area_fraction": cells of the largest free region / all free cells,
+         "observed_m2": observed area, square metres}
+
+    Corners: the image is 1 on occupied cells and 0 elsewhere (free, uncertain
+    and unknown alike, so the edge of the explored region is not structure;
+    only walls make corners). It is smoothed by a Gaussian of sigma 1 cell
+    (so slanted walls drawn as pixel staircases do not count as rows of
+    corners), Sobel gradients give the structure tensor, summed over a
+    Gaussian window of sigma 1.5 cells, Harris's ``R = det - 0.05 trace^2``
+    above 5 % of the map's strongest response marks corner cells, and each
+    8-connected blob of them is one corner. A wall end (a door jamb) counts as
+    a corner too; features closer than about 10 cells can merge into one. The direction of "better" is disputed: the paper's is fewer
+    (double walls and misalignment add corners), while some tools read more
+    corners as more detail. Counts depend on resolution.
+
+    All of these only compare maps of the same place at the same resolution
+    (e.g. two SLAM methods, or two settings, on one log); alone they mean
+    little. Fractions are NaN when their denominator is 0.
+
+    On real logs (Intel, FR079, FR101, ACES; 5 cm log-odds maps from the
+    reference trajectory vs raw odometry) the odometry map always had many
+    more enclosed areas (1093 vs 23 on Intel) and a larger uncertain
+    fraction, but a *lower* occupied fraction (0.018 vs 0.065 on Intel: with
+    poses metres off, the free-space rays of one scan erase the walls another
+    drew, which is the reverse of the mild blurring the measure was made for),
+    and fewer corners on three logs out of four.
+    """
+    occ_p = _check_probability(occupied_threshold, "occupied_threshold")
+    free_p = _check_probability(free_threshold, "free_threshold")
+    if not free_p < occ_p:
+        raise InputError(
+            f"{free_threshold!r} must be below occupied_threshold {occupied_threshold!r}",
+            field="free_threshold",
+        )
+    try:
+        min_area = int(min_area_cells)
+    except (TypeError, ValueError):
+        min_area = 0
+    if min_area < 1 or min_area != min_area_cells:
+        raise InputError(f"{min_area_cells!r} is not a positive whole number", field="min_area_cells")
+    observed = np.asarray(grid.observed, dtype=np.bool_)
+    occupied = np.asarray(grid.occupied(occ_p), dtype=np.bool_)
+    # Compared in log-odds, as the grid stores them, so a loaded value of
+    # exactly 100 * free_threshold counts as free.
+    free_logodds = np.float32(math.log(free_p / (1.0 - free_p)))
+    free = observed & (grid.logodds <= free_logodds) & ~occupied
+    n_observed = int(observed.sum())
+    n_occupied = int(occupied.sum())
+    n_free = int(free.sum())
+    n_uncertain = n_observed - n_occupied - n_free
+    nan = float("nan")
+    labels, n_regions = ndimage.label(free)  # default structure: 4-connected
+    if n_regions:
+        sizes = np.bincount(labels.ravel())[1:]
+        enclosed = int(np.count_nonzero(sizes >= min_area))
+        largest = float(sizes.max()) / n_free
+    else:
+        enclosed, largest = 0, nan
+    known = n_occupied + n_free
+    return {
+        "occupied_fraction": n_occupied / known if known else nan,
+        "uncertain_fraction": n_uncertain / n_observed if n_observed else nan,
+        "corners": _count_corners(occupied),
+        "enclosed_areas": enclosed,
+        "largest_area_fraction": largest,
+        "observed_m2": n_observed * float(grid.resolution) ** 2,
+    }

@@ -1,0 +1,191 @@
+"""The interface every SLAM method implements, and the diagnostics it keeps.
+
+A method is built from its parameter dataclass (``Params``; fields made with
+:func:`slam2d.params.param`, so the CLI options and the docs table come from
+it), a seed, and optionally a per-beam sensor model. It is then fed one
+:class:`~slam2d.core.frames.Frame` at a time with :meth:`SlamMethod.feed`,
+and at any point exposes
+
+* :attr:`~SlamMethod.pose`: the current pose estimate of the robot base,
+* :meth:`~SlamMethod.trajectory`: the estimated pose at every frame it placed,
+* :meth:`~SlamMethod.map`: the current occupancy grid,
+* :attr:`~SlamMethod.diagnostics`: per-update wall and CPU time, plus the
+  values the method reports (match scores, effective particle counts, ...).
+
+A method subclass implements :meth:`~SlamMethod.update` (one frame),
+:meth:`~SlamMethod.current_pose` and :meth:`~SlamMethod.map`, and registers
+itself with :func:`slam2d.methods.registry.register`. Graph methods that
+revise the past override :meth:`~SlamMethod.trajectory` and
+:meth:`~SlamMethod.finish`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from abc import ABC, abstractmethod
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core.frames import Frame
+from slam2d.grids.occupancy import OccupancyGrid
+from slam2d.params import as_dict, validate
+
+__all__ = ["SlamMethod", "Diagnostics"]
+
+
+class Diagnostics:
+    """What a method did, update by update: a table of numeric series plus totals.
+
+    ``series`` maps a name to one value per update; every update has
+    ``timestamp`` (s), ``wall_s`` and ``cpu_s`` (the time :meth:`SlamMethod.update`
+    took), and whatever the method returned for it. A value a method did not
+    report for an update is NaN. ``counters`` count events (``match_failures``,
+    ``resamples``...); ``summary`` holds scalars set once (``finish_wall_s``,
+    peak memory...).
+    """
+
+    BUILT_IN = ("timestamp", "wall_s", "cpu_s")
+
+    def __init__(self) -> None:
+        self.series: dict[str, list[float]] = {name: [] for name in self.BUILT_IN}
+        self.counters: Counter[str] = Counter()
+        self.summary: dict[str, Any] = {}
+
+    def __len__(self) -> int:
+        return len(self.series["timestamp"])
+
+    def record(self, timestamp: float, wall_s: float, cpu_s: float, values: Mapping[str, float] | None) -> None:
+        n = len(self)
+        self.series["timestamp"].append(float(timestamp))
+        self.series["wall_s"].append(float(wall_s))
+        self.series["cpu_s"].append(float(cpu_s))
+        for name, value in (values or {}).items():
+            column = self.series.get(name)
+            if column is None:
+                column = self.series[name] = [math.nan] * n
+            column.append(float(value))
+        for column in self.series.values():
+            if len(column) == n:
+                column.append(math.nan)
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counters[name] += n
+
+    def array(self, name: str) -> NDArray[np.float64]:
+        return np.asarray(self.series[name], dtype=np.float64)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "updates": len(self),
+            "series": {k: [None if math.isnan(v) else v for v in col] for k, col in self.series.items()},
+            "counters": dict(self.counters),
+            "summary": dict(self.summary),
+        }
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any]) -> Diagnostics:
+        d = cls()
+        d.series = {
+            k: [math.nan if v is None else float(v) for v in col] for k, col in doc.get("series", {}).items()
+        }
+        for name in cls.BUILT_IN:
+            d.series.setdefault(name, [])
+        d.counters = Counter(doc.get("counters", {}))
+        d.summary = dict(doc.get("summary", {}))
+        return d
+
+
+class SlamMethod(ABC):
+    """Base of every SLAM method: feed frames, read pose, trajectory, map and diagnostics."""
+
+    #: Registry name, as typed on the command line (``gmapping``, ``known-poses``).
+    name: ClassVar[str]
+    #: The parameter dataclass.
+    Params: ClassVar[type]
+    #: One line for listings.
+    summary: ClassVar[str] = ""
+    #: Whether the method reads the frames' odometry (odometry-free methods ignore it).
+    uses_odometry: ClassVar[bool] = True
+    #: Whether results depend on the seed.
+    stochastic: ClassVar[bool] = False
+    #: Per-update values the method reports, name -> "meaning [unit]" (for the docs and the report).
+    DIAGNOSTICS: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, params: Any = None, *, seed: int = 0, sensor_model: Any = None) -> None:
+        self.params = params if params is not None else self.Params()
+        if not isinstance(self.params, self.Params):
+            raise TypeError(f"{self.name}: params must be a {self.Params.__name__}, got {type(self.params).__name__}")
+        validate(self.params)
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+        # A per-beam range noise model (sigma(range, incidence)); None: the method's own default.
+        self.sensor_model = sensor_model
+        self.diagnostics = Diagnostics()
+        self._times: list[float] = []
+        self._poses: list[NDArray[np.float64]] = []
+        self.frames_fed = 0
+
+    # ----------------------------------------------------------------- what a method implements
+
+    @abstractmethod
+    def update(self, frame: Frame) -> Mapping[str, float] | None:
+        """Process one frame; return the values to log for this update (or None)."""
+
+    @abstractmethod
+    def current_pose(self) -> NDArray[np.float64] | None:
+        """The current estimate of the robot base pose, or None while the method has none."""
+
+    @abstractmethod
+    def map(self) -> OccupancyGrid:
+        """The current map."""
+
+    def finish(self) -> None:  # noqa: B027 - optional hook
+        """Called once after the last frame (a final optimisation, picking the best particle...)."""
+
+    # ----------------------------------------------------------------- what every method gets
+
+    def feed(self, frame: Frame) -> None:
+        """Process one frame, timing the update and recording the pose it ends at."""
+        wall0 = time.perf_counter()
+        cpu0 = time.process_time()
+        values = self.update(frame)
+        cpu = time.process_time() - cpu0
+        wall = time.perf_counter() - wall0
+        self.frames_fed += 1
+        pose = self.current_pose()
+        if pose is not None:
+            self._times.append(frame.timestamp)
+            self._poses.append(np.array(pose, dtype=np.float64).reshape(3))
+        self.diagnostics.record(frame.timestamp, wall, cpu, values)
+
+    def run(self, frames: Iterable[Frame]) -> SlamMethod:
+        """Feed every frame, then :meth:`finish` (timed into ``diagnostics.summary['finish_wall_s']``)."""
+        for frame in frames:
+            self.feed(frame)
+        wall0 = time.perf_counter()
+        self.finish()
+        self.diagnostics.summary["finish_wall_s"] = time.perf_counter() - wall0
+        return self
+
+    @property
+    def pose(self) -> NDArray[np.float64] | None:
+        """The current pose estimate ``[x, y, theta]`` of the robot base, or None."""
+        return self.current_pose()
+
+    def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(timestamps (N,), poses (N, 3))``: the estimate at every frame that got a pose."""
+        if not self._times:
+            return np.zeros(0), np.zeros((0, 3))
+        return np.array(self._times), np.stack(self._poses)
+
+    def parameters(self) -> dict[str, Any]:
+        """Every parameter value, by name."""
+        return as_dict(self.params)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.frames_fed} frames fed, seed {self.seed})"

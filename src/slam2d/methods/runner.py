@@ -1,0 +1,280 @@
+"""Run a method on a recording and write a run folder that says how to repeat it.
+
+A run folder holds
+
+* ``trajectory.tum``: the estimated robot base pose at every scan that got one;
+* ``map.yaml`` + ``map.pgm`` (map_server), ``preview.png``, ``map.json``;
+* ``diagnostics.json``: per-update timing and the method's own values;
+* ``run.json``: the method, every parameter value, the seed, the input file's
+  SHA-256, the reading options, the versions of slam2d, Python and every
+  dependency, and the peak memory. ``slam2d run METHOD DATA --params run.json``
+  repeats the run with the same parameters and seed.
+
+``run.json`` is written last, so a folder without it is not a finished run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+import resource
+import sys
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from slam2d.errors import InputError
+from slam2d.io.base import ProgressCallback, ReadOptions
+from slam2d.methods.base import SlamMethod
+from slam2d.methods.registry import get_method
+from slam2d.params import as_dict, from_mapping
+
+__all__ = ["RunSummary", "build_method", "read_params_file", "run_method", "input_digest", "versions"]
+
+RUN_FORMAT = 1
+_DEPENDENCIES = ("numpy", "scipy", "numba", "rosbags", "matplotlib", "pyyaml", "pillow", "rich")
+
+
+@dataclass
+class RunSummary:
+    """What :func:`run_method` did and where it wrote it."""
+
+    method: str
+    out_dir: Path
+    written: list[Path]
+    frames: int
+    poses: int
+    seconds: float
+    record: dict[str, Any]  # the content of run.json
+
+
+def versions() -> dict[str, str]:
+    """slam2d, Python and dependency versions, for run.json and the benchmarks."""
+    import slam2d
+
+    out = {"slam2d": slam2d.__version__, "python": platform.python_version()}
+    for name in _DEPENDENCIES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    out["platform"] = platform.platform()
+    return out
+
+
+def input_digest(path: str | Path) -> dict[str, Any]:
+    """SHA-256 of a recording: of the file, or of every file in a folder (a ROS 2 bag), names included."""
+    path = Path(path)
+    h = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    size = 0
+    for f in files:
+        if path.is_dir():
+            h.update(str(f.relative_to(path)).encode() + b"\0")
+        with open(f, "rb") as stream:
+            while chunk := stream.read(1 << 20):
+                h.update(chunk)
+                size += len(chunk)
+    return {"sha256": h.hexdigest(), "bytes": size}
+
+
+def read_params_file(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A YAML (or JSON) parameter file: ``(parameters, extras)``.
+
+    Either a flat mapping ``name: value``, or a mapping with a ``params``
+    section (as ``run.json`` has), whose ``method`` and ``seed`` come back in
+    ``extras``.
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such parameter file" if not path.exists() else "is not a file", path=path)
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise InputError("is not text (a YAML parameter file was expected)", path=path) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = mark.line + 1 if mark is not None else None
+        raise InputError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", path=path, where=where) from None
+    if doc is None:
+        return {}, {}
+    if not isinstance(doc, dict):
+        raise InputError(f"expected a mapping of parameter names to values, got {type(doc).__name__}", path=path)
+    if "params" in doc:
+        params = doc["params"]
+        if not isinstance(params, dict):
+            raise InputError("'params' must be a mapping of parameter names to values", path=path, field="params")
+        extras = {k: doc[k] for k in ("method", "seed") if k in doc}
+        return dict(params), extras
+    return dict(doc), {}
+
+
+def build_method(
+    method: str,
+    *,
+    settings: Mapping[str, Any] | None = None,
+    params_file: str | Path | None = None,
+    seed: int | None = None,
+    sensor_model: Any = None,
+) -> SlamMethod:
+    """Construct a method by name from a parameter file and ``name=value`` settings (settings win).
+
+    The seed is the one given, else the parameter file's (a ``run.json``), else 0.
+    """
+    cls = get_method(method)
+    values: dict[str, Any] = {}
+    file_seed = None
+    if params_file is not None:
+        values, extras = read_params_file(params_file)
+        if extras.get("method") not in (None, cls.name):
+            raise InputError(
+                f"this file is for method {extras['method']!r}, not {cls.name!r}", path=params_file, field="method"
+            )
+        file_seed = extras.get("seed")
+        params = from_mapping(cls.Params, values, path=params_file)
+        values = as_dict(params)
+    if settings:
+        values.update(settings)
+    params = from_mapping(cls.Params, values)
+    chosen_seed = seed if seed is not None else (int(file_seed) if file_seed is not None else 0)
+    return cls(params, seed=chosen_seed, sensor_model=sensor_model)
+
+
+def _rss_mb() -> float:
+    """Resident memory now (MB), from /proc; NaN where there is none."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+    return pages * resource.getpagesize() / 1e6
+
+
+def _peak_rss_mb() -> float:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / 1024.0 if sys.platform != "darwin" else peak / 1e6  # KiB on Linux, bytes on macOS
+
+
+def run_method(
+    method: str | SlamMethod,
+    data: str | Path,
+    out_dir: str | Path,
+    *,
+    settings: Mapping[str, Any] | None = None,
+    params_file: str | Path | None = None,
+    seed: int | None = None,
+    read_options: ReadOptions | None = None,
+    progress: ProgressCallback | None = None,
+    command: str = "",
+) -> RunSummary:
+    """Run a method (a name, or an instance already built) over every frame of ``data``; write the run folder."""
+    from slam2d.io import detect_format, open_recording
+
+    data = Path(data)
+    out_dir = Path(out_dir)
+    options = read_options if read_options is not None else ReadOptions()
+    slam = method if isinstance(method, SlamMethod) else build_method(
+        method, settings=settings, params_file=params_file, seed=seed
+    )
+    recording = open_recording(data, options)
+    digest = input_digest(data)
+    started = datetime.now(timezone.utc)
+    rss_before = _rss_mb()
+    wall0 = time.perf_counter()
+    frames = 0
+    first_t = last_t = None
+    for frame in recording.frames(progress):
+        slam.feed(frame)
+        frames += 1
+        if first_t is None:
+            first_t = frame.timestamp
+        last_t = frame.timestamp
+    if frames == 0:
+        raise InputError("no laser scans in the recording", path=data)
+    finish0 = time.perf_counter()
+    slam.finish()
+    slam.diagnostics.summary["finish_wall_s"] = time.perf_counter() - finish0
+    seconds = time.perf_counter() - wall0
+    peak = _peak_rss_mb()
+    return _write_run(
+        slam, out_dir,
+        data=data, data_format=detect_format(data), digest=digest, options=options, frames=frames,
+        span=(first_t, last_t), started=started, seconds=seconds, rss_before=rss_before, peak=peak,
+        problems=recording.problems.lines(), command=command,
+    )
+
+
+def _write_run(
+    slam: SlamMethod,
+    out_dir: Path,
+    *,
+    data: Path,
+    data_format: str,
+    digest: dict[str, Any],
+    options: ReadOptions,
+    frames: int,
+    span: tuple[float | None, float | None],
+    started: datetime,
+    seconds: float,
+    rss_before: float,
+    peak: float,
+    problems: list[str],
+    command: str,
+) -> RunSummary:
+    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.tum import write_tum
+    from slam2d.report.map_outputs import write_map_outputs
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    times, poses = slam.trajectory()
+    if len(times) == 0:
+        raise InputError(
+            f"{slam.name} placed none of the {frames} scans (no odometry or no poses for them)", path=data
+        )
+    written = [write_tum(out_dir / "trajectory.tum", times, poses)]
+    written += write_map_outputs(slam.map(), out_dir)
+    slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
+    diag = {"method": slam.name, "descriptions": dict(slam.DIAGNOSTICS), **slam.diagnostics.as_dict()}
+    diag_path = out_dir / "diagnostics.json"
+    write_text_atomic(diag_path, json.dumps(diag, default=_json_default) + "\n")
+    written.append(diag_path)
+    record = {
+        "format": RUN_FORMAT,
+        "method": slam.name,
+        "params": slam.parameters(),
+        "seed": slam.seed,
+        "data": {"path": str(data.resolve()), "format": data_format, **digest},
+        "read_options": as_dict(options),
+        "scans": frames,
+        "poses": int(len(times)),
+        "data_span_s": [span[0], span[1]],
+        "started": started.isoformat(timespec="seconds"),
+        "wall_s": seconds,
+        "peak_rss_mb": peak,
+        "rss_growth_mb": peak - rss_before,
+        "input_problems": problems,
+        "versions": versions(),
+        "command": command,
+    }
+    run_path = out_dir / "run.json"
+    write_text_atomic(run_path, json.dumps(record, indent=2, default=_json_default) + "\n")
+    written.append(run_path)
+    return RunSummary(slam.name, out_dir, written, frames, int(len(times)), seconds, record)
+
+
+def _json_default(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
