@@ -467,3 +467,27 @@ def test_map_quality_rejects_bad_arguments(kwargs, field):
     with pytest.raises(InputError) as err:
         map_quality(make_grid(room_values()), **kwargs)
     assert err.value.field == field
+
+
+def test_walls_the_laser_never_saw_do_not_count_when_a_visibility_mask_is_given():
+    from slam2d.eval.map_metrics import visible_walls
+
+    # two rooms side by side, 3 m x 2 m each, sharing a wall with no door
+    values = np.zeros((40, 120), dtype=np.int8)
+    values[0, :] = values[-1, :] = 100
+    values[:, 0] = values[:, 59] = values[:, -1] = 100
+    truth = make_grid(values)
+    # the laser sits in the left room only and sees all around, 10 m
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    seen = visible_walls(truth, [[1.5, 1.0, 0.0]], angles=angles, max_range=10.0)
+    xs = truth.cell_to_world(np.argwhere(seen))[:, 0]
+    assert seen.sum() > 100 and xs.max() < 3.0  # nothing of the right room's far walls
+    # a map of exactly what was seen: perfect with the mask, "missing walls" without it
+    seen_map = make_grid(np.where(seen, 100, 0).astype(np.int8))
+    with_mask = map_to_truth(seen_map, truth, truth_visible=seen)
+    without = map_to_truth(seen_map, truth)
+    assert with_mask["truth_to_map_m"]["max"] == 0.0 and with_mask["recall"] == 1.0
+    assert without["truth_to_map_m"]["mean"] > 0.5 and without["recall"] < 0.6
+    assert with_mask["truth_cells"] == int(seen.sum()) < with_mask["truth_cells_total"]
+    # the ghost-wall direction still uses every true wall: the map's walls all lie on true ones
+    assert with_mask["map_to_truth_m"]["max"] == 0.0

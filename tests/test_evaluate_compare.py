@@ -204,3 +204,8 @@ def test_compare_bad_input(sim, tmp_path, capsys, extra, expected):
     for piece in expected:
         assert piece in err, err
     assert not (tmp_path / "cmp" / "report.html").exists()
+
+
+def test_a_bare_trajectory_without_truth_is_an_error(sim, capsys):
+    assert main(["evaluate", str(sim / "truth.tum")]) == 2
+    assert "nothing to evaluate" in capsys.readouterr().err

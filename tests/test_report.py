@@ -123,7 +123,11 @@ def test_best_value_marked_per_column(comparison: Comparison, tmp_path: Path) ->
     c = dataclasses.replace(comparison, outcomes=[odo, known])
     write_report(c, tmp_path)
     table = _md_table((tmp_path / "report.md").read_text())
-    assert table["header"] == ["method", "ATE [m]", "Precision", "Corners", "Time/scan [ms]"]
+    by_key = {c.key: c for c in METRIC_COLUMNS}
+    columns = [by_key[k] for k in (("trajectory", "ate", "translation_m", "rmse"), ("map_truth", "precision"),
+                                   ("map_quality", "corners"), ("cost", "wall_s_per_scan", "median"))]
+    assert [c.better for c in columns] == ["lower", "higher", None, "lower"]
+    assert table["header"] == ["method"] + [f"{c.label} [{c.unit}]" if c.unit else c.label for c in columns]
     assert table["odometry"] == [f"**0.100 {BEST_MARK}**", "0.500", "40", f"**2.00 {BEST_MARK}**"]
     assert table["known-poses"] == ["0.300", f"**0.900 {BEST_MARK}**", "12", f"**2.00 {BEST_MARK}**"]
     html = (tmp_path / "report.html").read_text()

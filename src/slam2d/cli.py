@@ -404,6 +404,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     truth, relations = _load_truth_options(args)
     run = load_run(args.run)
+    if run.map is None and (truth is None or not truth.has_trajectory) and relations is None:
+        raise InputError(
+            "nothing to evaluate: a bare trajectory needs --truth, --reference or --relations", path=args.run
+        )
     evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance)
     target = args.out if args.out is not None else (args.run / "evaluation.json" if args.run.is_dir() else None)
     if target is not None:

@@ -121,10 +121,26 @@ class GroundTruth:
     poses: NDArray[np.float64] | None
     map: Any = None  # OccupancyGrid
     map_path: Path | None = None
+    #: The simulated laser (``angle_min``, ``angle_increment``, ``beams``, ``range_max``, ``mount``)
+    #: when known: then only the walls it could have seen count in the map comparison.
+    laser: dict[str, Any] | None = None
+    _visible: Any = None
 
     @property
     def has_trajectory(self) -> bool:
         return self.times is not None and len(self.times) > 0
+
+    def visible_walls(self, max_poses: int = 3000) -> Any:
+        """The true obstacle cells the laser could have hit along the true trajectory (cached), or None."""
+        if self._visible is None and self.laser is not None and self.map is not None and self.has_trajectory:
+            from slam2d.core import se2
+            from slam2d.eval.map_metrics import visible_walls
+
+            step = max(1, len(self.times) // max_poses)
+            laser_poses = se2.compose(self.poses[::step], np.asarray(self.laser.get("mount", [0.0, 0.0, 0.0])))
+            angles = self.laser["angle_min"] + self.laser["angle_increment"] * np.arange(self.laser["beams"])
+            self._visible = visible_walls(self.map, laser_poses, angles=angles, max_range=self.laser["range_max"])
+        return self._visible
 
 
 def load_truth(folder: str | Path) -> GroundTruth:
@@ -148,7 +164,19 @@ def load_truth(folder: str | Path) -> GroundTruth:
         grid = read_map(map_path).to_grid()
     else:
         map_path = None
-    return GroundTruth("truth", folder, times, poses, grid, map_path)
+    return GroundTruth("truth", folder, times, poses, grid, map_path, laser=_simulated_laser(folder))
+
+
+def _simulated_laser(folder: Path) -> dict[str, Any] | None:
+    """The laser of a simulation (``simulation.json``), or None when the folder has none or it is unreadable."""
+    try:
+        doc = json.loads((folder / "simulation.json").read_text(encoding="utf-8"))
+        laser = dict(doc["laser"])
+        laser["mount"] = list(doc.get("robot", {}).get("laser_mount", [0.0, 0.0, 0.0]))
+        float(laser["angle_min"]), float(laser["angle_increment"]), int(laser["beams"]), float(laser["range_max"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return laser
 
 
 def load_reference(path: str | Path, *, truth_map: str | Path | None = None) -> GroundTruth:
@@ -309,8 +337,10 @@ def evaluate_run(
                 result["alignment_source"] = "map"
                 result["map_alignment"] = info
             result["map_truth"] = map_metrics.map_to_truth(
-                run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance
+                run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance,
+                truth_visible=truth.visible_walls(),
             )
+            result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map)
     if run.diagnostics:
         result["cost"] = cost_metrics(run.diagnostics, run.run)

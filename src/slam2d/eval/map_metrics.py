@@ -37,11 +37,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
+from numba import njit
 from scipy.spatial import cKDTree
 
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
+from slam2d.grids.raycast import cast_rays
 from slam2d.io.tum import interpolate_poses
 
 __all__ = [
@@ -50,6 +52,7 @@ __all__ = [
     "scan_agreement",
     "obstacle_points",
     "map_to_truth",
+    "visible_walls",
     "align_maps",
     "ICP_METHODS",
     "map_quality",
@@ -233,6 +236,53 @@ def _truth_points(truth: Any, occupied_threshold: float) -> NDArray[np.float64]:
     return points
 
 
+@njit(cache=True)
+def _mark_first_hits(occupied, origin_x, origin_y, resolution, poses, angles, max_range, seen):
+    rows, cols = occupied.shape
+    for k in range(poses.shape[0]):
+        x, y, theta = poses[k, 0], poses[k, 1], poses[k, 2]
+        ranges = cast_rays(occupied, origin_x, origin_y, resolution, x, y, theta, angles, max_range)
+        for i in range(angles.shape[0]):
+            r = ranges[i]
+            if r != r:  # NaN: nothing within range
+                continue
+            # half a cell past the entry point lies inside the hit cell
+            a = theta + angles[i]
+            px = x + (r + 0.5 * resolution) * math.cos(a)
+            py = y + (r + 0.5 * resolution) * math.sin(a)
+            col = int(math.floor((px - origin_x) / resolution))
+            row = int(math.floor((py - origin_y) / resolution))
+            if 0 <= row < rows and 0 <= col < cols and occupied[row, col]:
+                seen[row, col] = True
+
+
+def visible_walls(
+    truth: Any,
+    laser_poses: ArrayLike,
+    *,
+    angles: ArrayLike,
+    max_range: float,
+    occupied_threshold: float = 0.65,
+) -> NDArray[np.bool_]:
+    """The true obstacle cells a laser could have hit from the given poses (a mask over ``truth``).
+
+    Rays are cast in the ground-truth map from every laser pose ``[x, y,
+    theta]`` (truth frame) at ``angles`` (radians, relative to the laser) up
+    to ``max_range``; the first obstacle cell of each ray is marked. Walls the
+    robot never saw then do not count against a map (:func:`map_to_truth`'s
+    ``truth_visible``).
+    """
+    occupied = np.ascontiguousarray(truth.occupied(occupied_threshold))
+    poses = np.ascontiguousarray(np.asarray(laser_poses, dtype=np.float64).reshape(-1, 3))
+    seen = np.zeros(occupied.shape, dtype=np.bool_)
+    if poses.shape[0] == 0 or occupied.size == 0:
+        return seen
+    ox, oy = truth.origin
+    _mark_first_hits(occupied, float(ox), float(oy), float(truth.resolution), poses,
+                     np.ascontiguousarray(np.asarray(angles, dtype=np.float64)), float(max_range), seen)
+    return seen
+
+
 def map_to_truth(
     grid: Any,
     truth: Any,
@@ -240,6 +290,7 @@ def map_to_truth(
     transform: ArrayLike | None = None,
     tolerance: float = 0.1,
     occupied_threshold: float = 0.65,
+    truth_visible: NDArray[np.bool_] | None = None,
 ) -> dict[str, Any]:
     """Compare a SLAM map's obstacle cells with a ground-truth map's, in metres.
 
@@ -266,8 +317,10 @@ def map_to_truth(
     the tolerance itself.
 
     Every true obstacle cell counts, so walls the robot never saw count as
-    missing (they raise ``truth_to_map_m`` and lower recall): compare maps of
-    the same exploration. With different resolutions even identical walls are
+    missing (they raise ``truth_to_map_m`` and lower recall), unless
+    ``truth_visible`` (a boolean mask over ``truth``, see
+    :func:`visible_walls`) limits the true cells to those the laser could have
+    hit; ``truth_cells_total`` then says how many there are in all. With different resolutions even identical walls are
     some fraction of a cell apart (cell centres do not coincide).
 
     A map with no obstacle cells gives ``truth_to_map_m`` all infinite,
@@ -277,7 +330,16 @@ def map_to_truth(
     tol = _as_float(tolerance)
     if not (math.isfinite(tol) and tol > 0.0):
         raise InputError(f"{tolerance!r} is not a positive distance in metres", field="tolerance")
-    truth_pts = _truth_points(truth, occupied_threshold)
+    truth_pts = all_truth_pts = _truth_points(truth, occupied_threshold)
+    n_truth_total = int(truth_pts.shape[0])
+    if truth_visible is not None:
+        mask = np.asarray(truth_visible, dtype=np.bool_)
+        if mask.shape != tuple(truth.shape):
+            raise ValueError(f"truth_visible: shape {mask.shape} does not match the truth's {tuple(truth.shape)}")
+        occupied = truth.occupied(occupied_threshold)
+        rows, cols = np.nonzero(occupied & mask)
+        if rows.size:
+            truth_pts = truth.cell_to_world(np.stack([rows, cols], axis=1))
     map_pts = obstacle_points(grid, occupied_threshold=occupied_threshold, transform=transform)
     n_map, n_truth = int(map_pts.shape[0]), int(truth_pts.shape[0])
     if n_map == 0:
@@ -291,9 +353,11 @@ def map_to_truth(
             "tolerance_m": tol,
             "map_cells": 0,
             "truth_cells": n_truth,
+            "truth_cells_total": n_truth_total,
         }
     truth_to_map = cKDTree(map_pts).query(truth_pts, k=1)[0]
-    map_to_truth_d = cKDTree(truth_pts).query(map_pts, k=1)[0]
+    # A map wall on a true wall is no ghost, seen or not: the reverse direction uses every true cell.
+    map_to_truth_d = cKDTree(all_truth_pts).query(map_pts, k=1)[0]
     within = tol + _DISTANCE_SLACK
     precision = float(np.mean(map_to_truth_d <= within))
     recall = float(np.mean(truth_to_map <= within))
@@ -307,6 +371,7 @@ def map_to_truth(
         "tolerance_m": tol,
         "map_cells": n_map,
         "truth_cells": n_truth,
+        "truth_cells_total": n_truth_total,
     }
 
 

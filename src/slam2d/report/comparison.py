@@ -107,6 +107,7 @@ class _Report:
     title: str
     facts: list[tuple[str, str]]
     judged: str  # one paragraph: what the runs were judged against
+    judged_warning: bool  # a reference (not ground truth) or nothing: shown as a warning
     columns: list[MetricColumn]
     rows: list[_Row]
     table_notes: list[str]
@@ -247,6 +248,7 @@ def _build(comparison: Comparison) -> _Report:
         title=f"slam2d comparison: {Path(str(comparison.data)).name}",
         facts=facts,
         judged=_judged_long(truth, comparison.relations),
+        judged_warning=truth is None or truth.kind != "truth",
         columns=columns,
         rows=rows,
         table_notes=notes,
@@ -369,6 +371,8 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
         _Image(name, f"map: {title}", plots.map_panel_png(canvas, k, title, colour=colour), caption)
         for k, (name, title, colour, caption) in enumerate(titles)
     ]
+    if len(images) == 1 and titles[0][0] == "map-truth.png":
+        return images, "No run produced a map: only the truth's is shown."
     frame = "the truth's frame" if aligned_any else "each run's own frame"
     note = (f"All maps are drawn on one canvas in {frame}, at the same scale and orientation "
             f"({canvas.metres_per_pixel:.3g} m per pixel, {canvas.width:.1f} m x {canvas.height:.1f} m).")
@@ -391,6 +395,9 @@ def _trajectory_image(entries: list[_Entry], truth: Any) -> tuple[_Image | None,
         truth_track = (word, np.asarray(truth.poses))
     if not tracks and truth_track is None:
         return None, "No trajectory to show."
+    if not tracks:
+        png = plots.trajectories_png([], truth_track, title=f"{truth_track[0]} trajectory")
+        return _Image("trajectories.png", "trajectories", png), "No run produced a trajectory: only the truth's is shown."
     aligned = truth_track is not None and any(_alignment(e) is not None for e in entries if e.shown)
     title = "Trajectories aligned to the truth" if aligned else "Trajectories, each in its own frame"
     png = plots.trajectories_png(tracks, truth_track, title=title)
@@ -580,7 +587,7 @@ def _html(report: _Report) -> str:
         f"<h1>{_e(report.title)}</h1>",
         _facts_html(report.facts),
     ]
-    cls = "warning" if "NOT independent" in report.judged or "No ground truth" in report.judged else "note"
+    cls = "warning" if report.judged_warning else "note"
     out.append(f'<p class="{cls}">{_e(report.judged)}</p>')
 
     out.append('<h2 id="metrics">Metrics</h2>')
@@ -588,7 +595,7 @@ def _html(report: _Report) -> str:
         head = "".join(
             f'<th title="{_e(c.help + " (" + _direction(c) + ")")}">{_e(_column_header(c))}</th>'
             for c in report.columns
-        )
+        ) or "<th>result</th>"
         out.append(f'<div class="scroll"><table class="metrics"><tr><th>method</th>{head}</tr>')
         for row in report.rows:
             name = f"<td>{_swatch(row.entry.colour)}{_e(row.entry.label)}</td>"
@@ -602,6 +609,7 @@ def _html(report: _Report) -> str:
             )
             out.append(f"<tr>{name}{cells}</tr>")
         out.append("</table></div>")
+    if report.columns:
         out.append(f'<p class="note">{BEST_MARK} and bold: the best value of the column (ties all marked; values are '
                    "compared as shown; no mark where the better direction is disputed or fewer than two methods have "
                    "a value). Hover a column header for what it measures.</p>")
@@ -630,7 +638,8 @@ def _html(report: _Report) -> str:
     else:
         out.append('<p class="note">No timing recorded.</p>')
 
-    out.append('<h2 id="methods">Methods</h2>')
+    if report.sections:
+        out.append('<h2 id="methods">Methods</h2>')
     for section in report.sections:
         out.append(_section_html(section))
     if report.failures:
@@ -692,7 +701,7 @@ def _markdown(report: _Report) -> str:
         out.append(f"- **{_m(k)}:** {_m(v)}")
     out += ["", f"> {_one_line(report.judged)}", "", "## Metrics", ""]
     if report.columns or report.rows:
-        head = ["method"] + [_column_header(c) for c in report.columns]
+        head = ["method"] + ([_column_header(c) for c in report.columns] or ["result"])
         rows = []
         for row in report.rows:
             if row.failed is not None:
@@ -701,6 +710,7 @@ def _markdown(report: _Report) -> str:
                 rows.append([_m(row.entry.label)]
                             + [f"**{c.text} {BEST_MARK}**" if c.best else c.text for c in row.cells])
         out += _md_table(head, rows)
+    if report.columns:
         out += ["", f"{BEST_MARK} and bold: the best value of the column (ties all marked; values compared as shown; "
                 "no mark where the better direction is disputed or fewer than two methods have a value).", ""]
         for c in report.columns:
@@ -708,7 +718,7 @@ def _markdown(report: _Report) -> str:
         for note in report.table_notes:
             out += ["", note]
     if not report.columns:
-        out.append("No metric could be computed for any method.")
+        out += ["", "No metric could be computed for any method."]
     out += ["", "## Maps", "", report.maps_note, ""]
     for image in report.maps:
         out += [_md_image(image), "", f"*{_m(image.caption)}*", ""]
@@ -717,7 +727,7 @@ def _markdown(report: _Report) -> str:
         out += [_md_image(report.trajectories), ""]
     out += ["## Time per scan", ""]
     out += [_md_image(report.timing), "", report.timing.caption, ""] if report.timing is not None else ["No timing recorded.", ""]
-    out += ["## Methods", ""]
+    out += ["## Methods", ""] if report.sections else []
     for section in report.sections:
         out += _section_md(section)
     if report.failures:
