@@ -156,8 +156,8 @@ def main() -> int:
         "",
         *method_matrix.markdown(method_rows),
         "",
-        f"Command: `make bench` (`.venv/bin/python benchmarks/run.py`); the table alone: "
-        f"`.venv/bin/python benchmarks/methods.py`.",
+        "Command: `make bench` (`.venv/bin/python benchmarks/run.py`); the table alone: "
+        "`.venv/bin/python benchmarks/methods.py`.",
         "",
     ]
     args.output.write_text("\n".join(lines))

@@ -474,7 +474,7 @@ def test_non_numeric_pose_and_odom_fields(tmp_path):
     path = _write_lines(tmp_path / "pose.log", [_flaser([1.0] * 5, 1.0, pose=(0, "x1", 0))])
     text = _error(path)
     assert "pose.log:1:" in text and "FLASER y" in text
-    path = _write_lines(tmp_path / "odom.log", [f"ODOM 0 0 zz 0 0 0 1.0 host 1.0", _flaser([1.0] * 5, 1.0)])
+    path = _write_lines(tmp_path / "odom.log", ["ODOM 0 0 zz 0 0 0 1.0 host 1.0", _flaser([1.0] * 5, 1.0)])
     text = _error(path, ReadOptions(odometry="odom"))
     assert "odom.log:1:" in text and "ODOM theta" in text and "'zz'" in text
     path = _write_lines(tmp_path / "param.log", ["PARAM robot_frontlaser_offset abc", _flaser([1.0] * 5, 1.0)])

@@ -19,7 +19,6 @@ order and time order (``t2`` may be before ``t1``) of the file.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
+from slam2d.io.numeric_text import numeric_rows
 
 __all__ = ["Relations", "read_relations", "write_relations", "relations_from_trajectory"]
 
@@ -65,55 +65,17 @@ def read_relations(path: str | Path) -> Relations:
     line by line.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path=path)
-    if path.is_dir():
-        raise InputError("is a folder, not a relations file", path=path)
     rows: list[list[float]] = []
-    try:
-        f = open(path, "rb")
-    except OSError as exc:
-        raise InputError(f"cannot be read: {exc.strerror or exc}", path=path) from None
-    with f:
-        for lineno, raw in enumerate(f, start=1):
-            try:
-                line = raw.decode("utf-8")
-            except UnicodeDecodeError as exc:
+    for lineno, values in numeric_rows(path, _COLUMNS, "relations file"):
+        for name, value, unit in (("z", values[4], "m"), ("roll", values[5], "rad"), ("pitch", values[6], "rad")):
+            if abs(value) >= _PLANAR_TOLERANCE:
                 raise InputError(
-                    f"byte 0x{raw[exc.start]:02x} at column {exc.start + 1} is not UTF-8 text "
-                    "(is this a relations file?)",
+                    f"{value!r} {unit} is not zero: not a planar relation (slam2d compares x, y, yaw only)",
                     path=path,
                     where=lineno,
-                ) from None
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            tokens = text.split()
-            if len(tokens) != len(_COLUMNS):
-                raise InputError(
-                    f"{len(tokens)} columns, 8 expected: t1 t2 x y z roll pitch yaw",
-                    path=path,
-                    where=lineno,
-                    field="columns",
+                    field=name,
                 )
-            values = []
-            for name, token in zip(_COLUMNS, tokens):
-                try:
-                    value = float(token)
-                except ValueError:
-                    raise InputError(f"{token!r} is not a number", path=path, where=lineno, field=name) from None
-                if not math.isfinite(value):
-                    raise InputError(f"{token!r} is not a finite number", path=path, where=lineno, field=name)
-                values.append(value)
-            for name, value, unit in (("z", values[4], "m"), ("roll", values[5], "rad"), ("pitch", values[6], "rad")):
-                if abs(value) >= _PLANAR_TOLERANCE:
-                    raise InputError(
-                        f"{value!r} {unit} is not zero: not a planar relation (slam2d compares x, y, yaw only)",
-                        path=path,
-                        where=lineno,
-                        field=name,
-                    )
-            rows.append(values)
+        rows.append(values)
     if not rows:
         raise InputError(
             "file is empty" if path.stat().st_size == 0 else "no relations in the file", path=path

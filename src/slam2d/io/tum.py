@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
+from slam2d.io.numeric_text import numeric_rows
 
 __all__ = ["read_tum", "write_tum", "interpolate_poses"]
 
@@ -41,75 +42,37 @@ def read_tum(
     naming ``file:line`` and the column.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path=path)
-    if path.is_dir():
-        raise InputError("is a folder, not a TUM trajectory file", path=path)
     times: list[float] = []
     rows: list[tuple[float, float, float, float, float, float]] = []
     last_time = -math.inf
-    try:
-        f = open(path, "rb")
-    except OSError as exc:
-        raise InputError(f"cannot be read: {exc.strerror or exc}", path=path) from None
-    with f:
-        for lineno, raw in enumerate(f, start=1):
-            try:
-                line = raw.decode("utf-8")
-            except UnicodeDecodeError as exc:
-                raise InputError(
-                    f"byte 0x{raw[exc.start]:02x} at column {exc.start + 1} is not UTF-8 text "
-                    "(is this a TUM trajectory?)",
-                    path=path,
-                    where=lineno,
-                ) from None
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            tokens = text.split()
-            if len(tokens) != 8:
-                raise InputError(
-                    f"{len(tokens)} columns, 8 expected: t x y z qx qy qz qw",
-                    path=path,
-                    where=lineno,
-                    field="columns",
-                )
-            values = []
-            for name, token in zip(_COLUMNS, tokens):
-                try:
-                    value = float(token)
-                except ValueError:
-                    raise InputError(f"{token!r} is not a number", path=path, where=lineno, field=name) from None
-                if not math.isfinite(value):
-                    raise InputError(f"{token!r} is not a finite number", path=path, where=lineno, field=name)
-                values.append(value)
-            t, x, y, _z, qx, qy, qz, qw = values
-            norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-            if abs(norm - 1.0) > _UNIT_TOLERANCE:
-                raise InputError(
-                    f"({qx}, {qy}, {qz}, {qw}) has norm {norm:.6g}, not 1: not a rotation",
-                    path=path,
-                    where=lineno,
-                    field="quaternion",
-                )
-            if t <= last_time and last_time - t > time_tolerance:
-                raise InputError(
-                    f"{t!r} is {last_time - t:.6g} s before the previous pose ({last_time!r}); "
-                    "timestamps must increase",
-                    path=path,
-                    where=lineno,
-                    field="timestamp",
-                )
-            if t == last_time:
-                raise InputError(
-                    f"{t!r} repeats the previous pose's time; timestamps must increase",
-                    path=path,
-                    where=lineno,
-                    field="timestamp",
-                )
-            last_time = max(last_time, t)
-            times.append(t)
-            rows.append((x, y, qx, qy, qz, qw))
+    for lineno, values in numeric_rows(path, _COLUMNS, "TUM trajectory file"):
+        t, x, y, _z, qx, qy, qz, qw = values
+        norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        if abs(norm - 1.0) > _UNIT_TOLERANCE:
+            raise InputError(
+                f"({qx}, {qy}, {qz}, {qw}) has norm {norm:.6g}, not 1: not a rotation",
+                path=path,
+                where=lineno,
+                field="quaternion",
+            )
+        if t <= last_time and last_time - t > time_tolerance:
+            raise InputError(
+                f"{t!r} is {last_time - t:.6g} s before the previous pose ({last_time!r}); "
+                "timestamps must increase",
+                path=path,
+                where=lineno,
+                field="timestamp",
+            )
+        if t == last_time:
+            raise InputError(
+                f"{t!r} repeats the previous pose's time; timestamps must increase",
+                path=path,
+                where=lineno,
+                field="timestamp",
+            )
+        last_time = max(last_time, t)
+        times.append(t)
+        rows.append((x, y, qx, qy, qz, qw))
     if not times:
         raise InputError("file is empty" if path.stat().st_size == 0 else "no poses in the file", path=path)
     data = np.array(rows, dtype=np.float64)
