@@ -54,9 +54,9 @@ def _method(name: str) -> str:
     from slam2d.params import markdown_table
 
     cls = get_method(name)
-    text = f"`slam2d run {cls.name} DATA --out DIR --set NAME=VALUE`; " + (
-        "uses the odometry." if cls.uses_odometry else "ignores the odometry."
-    ) + (" Stochastic: `--seed` picks the random stream." if cls.stochastic else "") + "\n\n"
+    role = {"required": "needs odometry.", "optional": "odometry optional (see its parameters).",
+            "ignored": "ignores the odometry."}[cls.odometry_role()]
+    text = f"`slam2d run {cls.name} DATA --out DIR --set NAME=VALUE`; " + role + (" Stochastic: `--seed` picks the random stream." if cls.stochastic else "") + "\n\n"
     text += markdown_table(cls.Params, names="settings")
     if cls.DIAGNOSTICS:
         text += "\nLogged per update in `diagnostics.json` (besides `timestamp`, `wall_s`, `cpu_s`):\n\n"

@@ -251,7 +251,7 @@ def cmd_methods(args: argparse.Namespace) -> int:
         t.add_column("odometry")
         t.add_column("summary")
         for name, cls in available().items():
-            t.add_row(name, "uses" if cls.uses_odometry else "ignores", cls.summary)
+            t.add_row(name, cls.odometry_role(), cls.summary)
         out.print(t)
         out.print("details: slam2d methods NAME", markup=False)
         return 0

@@ -111,6 +111,8 @@ class SlamMethod(ABC):
     summary: ClassVar[str] = ""
     #: Whether the method reads the frames' odometry (odometry-free methods ignore it).
     uses_odometry: ClassVar[bool] = True
+    #: True when odometry is optional: the method works without it and uses it when a parameter says so.
+    optional_odometry: ClassVar[bool] = False
     #: Whether results depend on the seed.
     stochastic: ClassVar[bool] = False
     #: Per-update values the method reports, name -> "meaning [unit]" (for the docs and the report).
@@ -182,6 +184,13 @@ class SlamMethod(ABC):
         if not self._times:
             return np.zeros(0), np.zeros((0, 3))
         return np.array(self._times), np.stack(self._poses)
+
+    @classmethod
+    def odometry_role(cls) -> str:
+        """How the method treats odometry, for listings: ``"required"``, ``"optional"`` or ``"ignored"``."""
+        if cls.optional_odometry:
+            return "optional"
+        return "required" if cls.uses_odometry else "ignored"
 
     def parameters(self) -> dict[str, Any]:
         """Every parameter value, by name."""
