@@ -38,6 +38,8 @@ class Dataset:
 DATASETS: tuple[Dataset, ...] = (
     Dataset("paper-arena", "sim", "paper-arena"),
     Dataset("office-120s", "sim", "office", 120.0),
+    Dataset("corridor-loop", "sim", "corridor-loop"),
+    Dataset("long-corridor", "sim", "long-corridor"),
     Dataset("fr079", "shared", "fr079/fr079.clf.gz"),
     Dataset("intel", "shared", "intel/intel.clf.gz"),
     Dataset("aces", "shared", "aces/aces.clf.gz"),
