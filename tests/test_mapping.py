@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -241,14 +240,11 @@ def test_intel_reference_map_is_sharp_and_odometry_map_is_not(datasets):
 
 
 @pytest.mark.datasets
-def test_fr079_maps_in_well_under_five_seconds(datasets):
+def test_fr079_maps_every_scan_with_thin_walls(datasets):
+    # Its speed is the `map-fr079` benchmark's business, not a test's (timed tests flake on shared machines).
     t, p, recording = _reference_and_frames(datasets, "fr079")
-    OccupancyGrid().integrate_scan([0, 0, 0], [1.0], [0.0])  # load the compiled kernel first
-    started = time.perf_counter()
     grid, stats = map_from_poses(recording.frames(), t, p)
-    elapsed = time.perf_counter() - started  # reading included (measured ~1.0 s)
     assert stats.scans_used == 4791
-    assert elapsed < 5.0
     assert wall_thickness(grid)["median"] <= 2
     xmin, ymin, xmax, ymax = grid.crop_to_observed().extent()
     assert 40 < xmax - xmin < 80 and 10 < ymax - ymin < 50

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -396,21 +395,6 @@ def office_sized_world(n_segments: int = 200) -> World:
         length = rng.uniform(0.5, 3)
         segs.append([x, y, x + length, y] if len(segs) % 2 else [x, y, x, y + length])
     return make_world(segs)
-
-
-def test_one_urg_scan_in_an_office_is_fast():
-    world = office_sized_world()
-    sim = LaserSimulator(laser_preset("urg-04lx"), world)
-    rng = np.random.default_rng(0)
-    poses = np.column_stack([rng.uniform(1, 29, 300), rng.uniform(1, 19, 300), rng.uniform(-3, 3, 300)])
-    sim.measure(poses[0], None, rng)  # compile
-    times = []
-    for p in poses:
-        t0 = time.perf_counter()
-        sim.measure(p, None, rng)
-        times.append(time.perf_counter() - t0)
-    # typically ~0.3 ms; the bound leaves room for a loaded CI machine
-    assert np.median(times) < 2e-3, f"median {1e3 * np.median(times):.2f} ms per scan"
 
 
 # ---------------------------------------------------------------- the repeatability experiment
