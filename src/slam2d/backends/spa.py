@@ -33,11 +33,14 @@ __all__ = ["SpaParams", "SpaBackend", "robust_weights", "robust_objective"]
 @dataclass
 class SpaParams:
     max_iterations: int = param(40, low=1, help="most Levenberg-Marquardt iterations (Karto: doSPA(40))")
-    initial_lambda: float = param(1e-4, low=0.0, help="initial LM damping, multiplies diag(H) (Karto's sba default 1e-4)")
-    lambda_factor: float = param(10.0, low=1.0001, help="LM damping grows by this factor after a rejected step and shrinks after an accepted one")
+    initial_lambda: float = param(1e-5, low=0.0, help="initial LM damping (GTSAM 1e-5; Karto's sba 1e-4 with diagonal damping)")
+    damping: str = param(
+        "identity", choices=("identity", "diagonal"),
+        help="LM damping added to H: lambda*I (as GTSAM; does not hold back weakly constrained sub-graphs) or lambda*diag(H) (Marquardt, as Karto's sba)",
+    )
     max_lambda: float = param(1e12, low=0.0, help="give up when the damping exceeds this (no descent step exists)")
     relative_tolerance: float = param(
-        1e-8, low=0.0, help="converged when an accepted step lowers the objective by less than this fraction (Karto: initTol 1e-8)"
+        1e-6, low=0.0, help="converged when an accepted step lowers the objective by less than this fraction (Ceres' function_tolerance)"
     )
     step_tolerance: float = param(1e-9, low=0.0, help="converged when the largest step component is below this [m or rad]")
     robust_kernel: str = param("none", choices=("none", "huber", "cauchy"), help="robust kernel on the Mahalanobis distance of each edge")
@@ -103,11 +106,13 @@ class SpaBackend(Backend):
         pattern = BlockPattern(ei, ej, n, int(graph.fixed))
         solver = SparseSolver(p.linear_solver)
         lam = p.initial_lambda
+        nu = 2.0
         converged = False
         message = "iteration limit"
         it = 0
         solves = 0
         rejected = 0
+        history = [obj]
         while it < p.max_iterations:
             it += 1
             e, A, B = edge_jacobians(x, ei, ej, z)
@@ -125,33 +130,45 @@ class SpaBackend(Backend):
             We = np.einsum("kij,kj->ki", W, e)
             g = pattern.vector(np.stack([np.einsum("kji,kj->ki", A, We), np.einsum("kji,kj->ki", B, We)], axis=1))
             diag = H.diagonal()
-            # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
-            damp_base = np.maximum(diag, 1e-9 * max(float(diag.max()), 1.0))
+            if p.damping == "diagonal":
+                # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
+                damp_base = np.maximum(diag, 1e-9 * max(float(diag.max()), 1.0))
+            else:
+                damp_base = np.ones_like(diag)
             accepted = False
             while lam <= p.max_lambda:
                 Hd = H.copy()
-                Hd.data[pattern.diag_slot] += lam * damp_base + 1e-12
+                Hd.data[pattern.diag_slot] += lam * damp_base
                 solves += 1
                 try:
-                    dx = pattern.expand(solver.solve(Hd, -g))
+                    d = solver.solve(Hd, -g)
                 except np.linalg.LinAlgError:
-                    lam = max(lam, 1e-9) * p.lambda_factor
+                    lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
                     continue
-                x_new = x + dx
-                x_new[:, 2] = se2.wrap_angle(x_new[:, 2])
+                if not np.all(np.isfinite(d)):
+                    lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
+                    continue
+                dx = pattern.expand(d)
+                x_new = se2.compose(x, dx)
                 obj_new, cost_new = objective(x_new)
+                # decrease the quadratic model predicts: -(2 g.d + d^T H d)
+                predicted = -(2.0 * float(g @ d) + float(d @ (H @ d)))
                 if np.isfinite(obj_new) and obj_new <= obj:
                     accepted = True
                     break
                 rejected += 1
-                lam = max(lam, 1e-9) * p.lambda_factor
+                lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
             if not accepted:
                 converged = True  # no descent direction at any damping: a (local) minimum
                 message = "no further decrease at any damping"
                 break
             decrease = obj - obj_new
+            # Nielsen's damping update from the gain ratio (actual / predicted decrease)
+            rho = decrease / predicted if predicted > 0 else 0.0
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
             x, obj, cost = x_new, obj_new, cost_new
-            lam /= p.lambda_factor
+            history.append(obj)
             step = float(np.abs(dx).max())
             if decrease <= p.relative_tolerance * max(obj + decrease, 1e-300) or step < p.step_tolerance:
                 converged = True
@@ -161,5 +178,5 @@ class SpaBackend(Backend):
             poses=x, cost_before=cost0, cost_after=cost, iterations=it, converged=converged,
             wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
             objective_before=obj0, objective_after=obj, message=message,
-            extra={"linear_solves": solves, "rejected_steps": rejected, "final_lambda": lam, "linear_solver": solver.kind},
+            extra={"objective_history": history, "linear_solves": solves, "rejected_steps": rejected, "final_lambda": lam, "linear_solver": solver.kind},
         )
