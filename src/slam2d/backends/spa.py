@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam2d.backends.base import Backend, OptimizationResult
-from slam2d.backends.graph import PoseGraph, edge_errors, edge_jacobians
-from slam2d.backends.linear import BlockPattern, SparseSolver
+from slam2d.backends.graph import PoseGraph, edge_errors
+from slam2d.backends.linear import KERNELS, BlockPattern, SparseSolver, assemble_normal_equations
 from slam2d.core import se2
 from slam2d.params import param
 
@@ -105,6 +105,10 @@ class SpaBackend(Backend):
             )
         pattern = BlockPattern(ei, ej, n, int(graph.fixed))
         solver = SparseSolver(p.linear_solver)
+        data = np.zeros(pattern.nnz)
+        g = np.zeros(pattern.size)
+        kcode = KERNELS[kernel]
+        info = np.ascontiguousarray(info)
         lam = p.initial_lambda
         nu = 2.0
         converged = False
@@ -115,21 +119,9 @@ class SpaBackend(Backend):
         history = [obj]
         while it < p.max_iterations:
             it += 1
-            e, A, B = edge_jacobians(x, ei, ej, z)
-            if kernel != "none":
-                chi2 = np.einsum("ki,kij,kj->k", e, info, e)
-                W = info * robust_weights(chi2, kernel, delta)[:, None, None]
-            else:
-                W = info
-            WA = W @ A
-            WB = W @ B
-            At = np.swapaxes(A, 1, 2)
-            Bt = np.swapaxes(B, 1, 2)
-            blocks = np.stack([At @ WA, At @ WB, Bt @ WA, Bt @ WB], axis=1)
-            H = pattern.matrix(blocks)
-            We = np.einsum("kij,kj->ki", W, e)
-            g = pattern.vector(np.stack([np.einsum("kji,kj->ki", A, We), np.einsum("kji,kj->ki", B, We)], axis=1))
-            diag = H.diagonal()
+            assemble_normal_equations(x, ei, ej, z, info, pattern.slots, pattern.gslots, kcode, delta, data, g)
+            H = pattern._csc(data)
+            diag = data[pattern.diag_slot]
             if p.damping == "diagonal":
                 # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
                 damp_base = np.maximum(diag, 1e-9 * max(float(diag.max()), 1.0))
@@ -137,7 +129,7 @@ class SpaBackend(Backend):
                 damp_base = np.ones_like(diag)
             accepted = False
             while lam <= p.max_lambda:
-                Hd = H.copy()
+                Hd = pattern._csc(data.copy())
                 Hd.data[pattern.diag_slot] += lam * damp_base
                 solves += 1
                 try:
