@@ -324,3 +324,17 @@ def test_gtsam_agrees_with_spa_when_installed():
     gt = get_backend("gtsam").optimize(g)
     assert gt.cost_after == pytest.approx(spa.cost_after, rel=1e-3)
     assert np.abs(gt.poses[:, :2] - spa.poses[:, :2]).max() < 0.05
+
+
+def test_spa_on_a_graph_in_two_parts():
+    """The part not tied to the fixed node is optimised internally and stays where its guess put it."""
+    rng = np.random.default_rng(12)
+    truth = np.column_stack([np.arange(20.0), np.zeros(20), np.zeros(20)])
+    g = PoseGraph()
+    g.add_nodes(truth + rng.normal(size=truth.shape) * [0.1, 0.1, 0.02])
+    ei = np.r_[np.arange(9), np.arange(10, 19)]
+    g.add_edges(ei, ei + 1, se2.relative(truth[ei], truth[ei + 1]), np.eye(3) * 100)
+    res = get_backend("spa").optimize(g)
+    assert np.all(np.isfinite(res.poses)) and res.converged
+    assert res.cost_after < 1e-10
+    assert np.abs(res.poses[10:, :2].mean(axis=0) - g.poses[10:, :2].mean(axis=0)).max() < 0.5

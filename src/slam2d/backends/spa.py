@@ -29,6 +29,9 @@ from slam2d.params import param
 
 __all__ = ["SpaParams", "SpaBackend", "robust_weights", "robust_objective"]
 
+# damping never drops below this: keeps parts of a graph not tied to the fixed node solvable
+_MIN_LAMBDA = 1e-12
+
 
 @dataclass
 class SpaParams:
@@ -135,10 +138,10 @@ class SpaBackend(Backend):
                 try:
                     d = solver.solve(Hd, -g)
                 except np.linalg.LinAlgError:
-                    lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
+                    lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
                     continue
                 if not np.all(np.isfinite(d)):
-                    lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
+                    lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
                     continue
                 dx = pattern.expand(d)
                 x_new = se2.compose(x, dx)
@@ -149,7 +152,7 @@ class SpaBackend(Backend):
                     accepted = True
                     break
                 rejected += 1
-                lam, nu = max(lam, 1e-12) * nu, 2.0 * nu
+                lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
             if not accepted:
                 converged = True  # no descent direction at any damping: a (local) minimum
                 message = "no further decrease at any damping"
@@ -157,7 +160,7 @@ class SpaBackend(Backend):
             decrease = obj - obj_new
             # Nielsen's damping update from the gain ratio (actual / predicted decrease)
             rho = decrease / predicted if predicted > 0 else 0.0
-            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), _MIN_LAMBDA)
             nu = 2.0
             x, obj, cost = x_new, obj_new, cost_new
             history.append(obj)
