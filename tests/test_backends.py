@@ -91,6 +91,43 @@ def test_jacobians_match_finite_differences():
             assert np.allclose(num, J, atol=1e-6), (k, num, J)
 
 
+@pytest.mark.parametrize("kernel", ["none", "huber", "cauchy"])
+def test_compiled_normal_equations_match_numpy(kernel):
+    from slam2d.backends.linear import KERNELS, BlockPattern, assemble_normal_equations
+    from slam2d.backends.spa import robust_objective, robust_weights
+
+    g, _ = manhattan_graph(80, 200, seed=13)
+    g.fixed = 5
+    pat = BlockPattern(g.edge_i, g.edge_j, g.num_nodes, g.fixed)
+    data, grad = np.zeros(pat.nnz), np.zeros(pat.size)
+    cost, obj = assemble_normal_equations(g.poses, g.edge_i, g.edge_j, g.measurements, np.ascontiguousarray(g.information),
+                                          pat.slots, pat.gslots, KERNELS[kernel], 3.0, data, grad)
+    e, A, B = edge_jacobians(g.poses, g.edge_i, g.edge_j, g.measurements)
+    chi2 = np.einsum("ki,kij,kj->k", e, g.information, e)
+    W = g.information * robust_weights(chi2, kernel, 3.0)[:, None, None]
+    At, Bt = np.swapaxes(A, 1, 2), np.swapaxes(B, 1, 2)
+    H = pat.matrix(np.stack([At @ W @ A, At @ W @ B, Bt @ W @ A, Bt @ W @ B], axis=1)).toarray()
+    We = np.einsum("kij,kj->ki", W, e)
+    gv = pat.vector(np.stack([np.einsum("kji,kj->ki", A, We), np.einsum("kji,kj->ki", B, We)], axis=1))
+    assert cost == pytest.approx(chi2.sum(), rel=1e-12)
+    assert obj == pytest.approx(robust_objective(chi2, kernel, 3.0).sum(), rel=1e-12)
+    assert np.allclose(pat._csc(data).toarray(), H, rtol=1e-12, atol=1e-9)
+    assert np.allclose(grad, gv, rtol=1e-12, atol=1e-9)
+    assert np.allclose(H, H.T)
+    # the gradient is J^T W e: compare with finite differences of the objective / 2 over local perturbations
+    if kernel == "none":
+        k = 17
+        h = 1e-6
+        for c in range(3):
+            d = np.zeros(3)
+            d[c] = h
+            p1, p2 = g.poses.copy(), g.poses.copy()
+            p1[k] = se2.compose(p1[k], d)
+            p2[k] = se2.compose(p2[k], -d)
+            fd = (g.cost(p1) - g.cost(p2)) / (2 * h) / 2
+            assert fd == pytest.approx(grad[pat.base[k] + c], rel=1e-5, abs=1e-6)
+
+
 # --------------------------------------------------------------------------- SPA
 
 
