@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from slam2d.backends.base import Backend, OptimizationResult
 from slam2d.backends.graph import PoseGraph
-from slam2d.backends.linear import BlockPattern, SparseSolver
+from slam2d.backends.linear import SOLVERS, BlockPattern, LinearSolver
 from slam2d.backends.spa import SpaBackend, SpaParams
 from slam2d.core import se2
 from slam2d.errors import InputError
@@ -53,7 +53,8 @@ class LagoParams:
         1, low=0, help="Gauss-Newton iterations of the full cost after the linear estimate (the paper's optional step; 0 = pure LAGO)"
     )
     linear_solver: str = param(
-        "auto", choices=("auto", "cholmod", "splu"), help="sparse solver: CHOLMOD (scikit-sparse, optional) or scipy SuperLU"
+        "auto", choices=SOLVERS,
+        help="sparse solver: block (compiled block Cholesky; auto), splu (scipy SuperLU) or cholmod (needs scikit-sparse)",
     )
 
 
@@ -74,9 +75,8 @@ def _edge_marginals(info: NDArray) -> tuple[NDArray[np.float64], NDArray[np.floa
     return w_th, info_t
 
 
-def lago_orientations(graph: PoseGraph, solver: SparseSolver | None = None) -> tuple[NDArray, NDArray, sp.csc_matrix, NDArray]:
-    """Step 1: headings relative to the fixed node (unwrapped), the regularised rotations,
-    the information matrix of the headings (fixed node removed) and its node ranks."""
+def lago_orientations(graph: PoseGraph, linear_solver: str = "auto") -> tuple[NDArray, NDArray]:
+    """Step 1: headings relative to the fixed node (not wrapped) and the regularised edge rotations."""
     n = graph.num_nodes
     fixed = int(graph.fixed)
     ei, ej, z = graph.edge_i, graph.edge_j, graph.measurements
@@ -108,12 +108,11 @@ def lago_orientations(graph: PoseGraph, solver: SparseSolver | None = None) -> t
     # weighted Laplacian over the headings (1x1 blocks), fixed node removed
     pat = BlockPattern(ei, ej, n, fixed, d=1)
     blocks = np.stack([w_th, -w_th, -w_th, w_th], axis=1)[:, :, None, None]
-    L = pat.matrix(blocks)
+    values = pat.values(blocks)
     rhs = pat.vector(np.stack([-w_th * delta_reg, w_th * delta_reg], axis=1)[:, :, None])
-    L.data[pat.diag_slot] += 1e-12 * max(float(L.diagonal().max()), 1.0)
-    solver = solver or SparseSolver("auto")
-    theta = pat.expand(solver.solve(L, rhs))[:, 0]
-    return theta, delta_reg, L, pat.base
+    tiny = np.full(pat.size, 1e-12 * max(float(values[pat.diag_slot].max()), 1.0))
+    theta = pat.expand(LinearSolver(linear_solver, pat).solve(values, tiny, rhs))[:, 0]
+    return theta, delta_reg
 
 
 class LagoBackend(Backend):
@@ -137,8 +136,7 @@ class LagoBackend(Backend):
                                       cost0, cost0, "nothing to optimise")
         fixed = int(graph.fixed)
         ei, ej, z = graph.edge_i, graph.edge_j, graph.measurements
-        solver = SparseSolver(self.params.linear_solver)
-        theta_hat, delta_reg, L_theta, _ = lago_orientations(graph, solver)
+        theta_hat, _ = lago_orientations(graph, self.params.linear_solver)
 
         # step 2: unknowns (x, y, theta) per node, linear in x, y and in theta about theta_hat
         w_th, info_t = _edge_marginals(graph.information)
@@ -172,13 +170,13 @@ class LagoBackend(Backend):
         gi[:, 2] += w_th * dth  # d/dtheta_i of w (theta_j - theta_i - dth)^2 / 2 at zero
         gj[:, 2] -= w_th * dth
         pat = BlockPattern(ei, ej, n, fixed)
-        H = pat.matrix(blocks)
+        values = pat.values(blocks)
         g = pat.vector(np.stack([gi, gj], axis=1))
-        H.data[pat.diag_slot] += 1e-12 * max(float(H.diagonal().max()), 1.0)
-        local = pat.expand(solver.solve(H, -g))  # frame of the fixed node, which sits at the origin
+        tiny = np.full(pat.size, 1e-12 * max(float(values[pat.diag_slot].max()), 1.0))
+        # frame of the fixed node, which sits at the origin
+        local = pat.expand(LinearSolver(self.params.linear_solver, pat).solve(values, tiny, -g))
         anchor = graph.poses[fixed]
         x = se2.compose(anchor, local)
-        del L_theta, delta_reg
         iterations = 2
         message = "linear estimate"
         converged = True

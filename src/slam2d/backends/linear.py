@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-__all__ = ["BlockPattern", "SparseSolver", "cholmod_available"]
+__all__ = ["BlockPattern", "LinearSolver", "SOLVERS", "cholmod_available", "node_ordering", "assemble_normal_equations"]
 
 
 def cholmod_available() -> bool:
@@ -99,6 +99,10 @@ class BlockPattern:
         slot_of_pair = colstart[ucol][:, None, :] + (d * pos)[:, None, None] + p_[None, :, None]  # (U, d(p), d(q))
         indices[slot_of_pair.ravel()] = (urow[:, None, None] * d + p_[None, :, None] + 0 * p_[None, None, :]).ravel()
         self.indices = indices.astype(np.int32)
+        # node-level CSC for the block Cholesky: rows of node column c and the slots of each block
+        self.node_colptr = nodeptr
+        self.node_rows = urow
+        self.pair_slots = np.ascontiguousarray(slot_of_pair)
         diag_pairs = np.searchsorted(ukeys, nodes * m + nodes)
         self.diag_slot = slot_of_pair[diag_pairs][:, p_, p_].ravel() if m else np.zeros(0, dtype=np.int64)
         # diag_slot is in node order; the scalar diagonal index of slot k is (node*d + p)
@@ -117,11 +121,14 @@ class BlockPattern:
     def _csc(self, data: NDArray) -> sp.csc_matrix:
         return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
 
+    def values(self, blocks: NDArray) -> NDArray[np.float64]:
+        """``blocks`` ``(M, 4, d, d)`` (ii, ij, ji, jj) -> the summed CSC values."""
+        keep = self.slots.ravel() >= 0
+        return np.bincount(self.slots.ravel()[keep], weights=blocks.ravel()[keep], minlength=self.nnz)
+
     def matrix(self, blocks: NDArray) -> sp.csc_matrix:
         """``blocks`` ``(M, 4, d, d)`` (ii, ij, ji, jj) -> the summed sparse matrix."""
-        keep = self.slots.ravel() >= 0
-        data = np.bincount(self.slots.ravel()[keep], weights=blocks.ravel()[keep], minlength=self.nnz)
-        return self._csc(data)
+        return self._csc(self.values(blocks))
 
     def vector(self, parts: NDArray) -> NDArray[np.float64]:
         """``parts`` ``(M, 2, d)`` (contributions to node i, node j) -> the summed vector."""
@@ -136,22 +143,46 @@ class BlockPattern:
         return out
 
 
-class SparseSolver:
-    """Solve symmetric positive-definite sparse systems with one fixed pattern.
+SOLVERS = ("auto", "block", "splu", "cholmod")
 
-    ``cholmod``: scikit-sparse's supernodal Cholesky, symbolic analysis done once.
-    ``splu``: scipy's SuperLU without pivoting or reordering: the matrix is
-    symmetric positive definite and already in fill-reducing order
-    (:func:`node_ordering`).
+
+class LinearSolver:
+    """Solve ``(H + diag(diag_add)) x = b`` for matrices with one :class:`BlockPattern`.
+
+    ``block``: the compiled block Cholesky (:mod:`slam2d.backends.cholesky`),
+    symbolic analysis once, the default. ``splu``: scipy's SuperLU without
+    pivoting or reordering (the matrix is symmetric positive definite and
+    already in fill-reducing order). ``cholmod``: scikit-sparse's supernodal
+    Cholesky when installed. A matrix that is not positive definite raises
+    ``numpy.linalg.LinAlgError``.
     """
 
-    def __init__(self, kind: str = "auto") -> None:
+    def __init__(self, kind: str, pattern: BlockPattern) -> None:
         if kind == "auto":
-            kind = "cholmod" if cholmod_available() else "splu"
-        self.kind = kind
-        self._symbolic = None
+            kind = "block"
+        if kind == "cholmod" and not cholmod_available():
+            from slam2d.errors import InputError
 
-    def solve(self, A: sp.csc_matrix, b: NDArray) -> NDArray[np.float64]:
+            raise InputError("linear_solver 'cholmod' needs scikit-sparse (pip install scikit-sparse)", field="linear_solver")
+        if kind not in SOLVERS:
+            raise ValueError(kind)
+        self.kind = kind
+        self.pattern = pattern
+        self._symbolic = None
+        self._block = None
+        if kind == "block":
+            from slam2d.backends.cholesky import BlockCholesky
+
+            self._block = BlockCholesky(pattern)
+
+    def solve(self, data: NDArray, diag_add: NDArray, b: NDArray) -> NDArray[np.float64]:
+        if self._block is not None:
+            if not self._block.factor(data, diag_add):
+                raise np.linalg.LinAlgError("matrix is not positive definite")
+            return self._block.solve(b)
+        values = data.copy()
+        values[self.pattern.diag_slot] += diag_add
+        A = self.pattern._csc(values)
         if self.kind == "cholmod":
             from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
 

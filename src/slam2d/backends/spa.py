@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from slam2d.backends.base import Backend, OptimizationResult
 from slam2d.backends.graph import PoseGraph, edge_errors
-from slam2d.backends.linear import KERNELS, BlockPattern, SparseSolver, assemble_normal_equations
+from slam2d.backends.linear import KERNELS, SOLVERS, BlockPattern, LinearSolver, assemble_normal_equations
 from slam2d.core import se2
 from slam2d.params import param
 
@@ -51,7 +51,8 @@ class SpaParams:
         1.0, low=1e-12, help="kernel width in units of the Mahalanobis distance (Huber: quadratic below it; Cauchy: scale c)"
     )
     linear_solver: str = param(
-        "auto", choices=("auto", "cholmod", "splu"), help="sparse solver: CHOLMOD (scikit-sparse, optional) or scipy SuperLU; auto picks CHOLMOD when installed"
+        "auto", choices=SOLVERS,
+        help="sparse solver: block (compiled block Cholesky; auto), splu (scipy SuperLU) or cholmod (needs scikit-sparse)",
     )
 
 
@@ -107,7 +108,7 @@ class SpaBackend(Backend):
                 objective_before=obj, objective_after=obj, message="nothing to optimise",
             )
         pattern = BlockPattern(ei, ej, n, int(graph.fixed))
-        solver = SparseSolver(p.linear_solver)
+        solver = LinearSolver(p.linear_solver, pattern)
         data = np.zeros(pattern.nnz)
         g = np.zeros(pattern.size)
         kcode = KERNELS[kernel]
@@ -123,7 +124,6 @@ class SpaBackend(Backend):
         while it < p.max_iterations:
             it += 1
             assemble_normal_equations(x, ei, ej, z, info, pattern.slots, pattern.gslots, kcode, delta, data, g)
-            H = pattern._csc(data)
             diag = data[pattern.diag_slot]
             if p.damping == "diagonal":
                 # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
@@ -132,11 +132,9 @@ class SpaBackend(Backend):
                 damp_base = np.ones_like(diag)
             accepted = False
             while lam <= p.max_lambda:
-                Hd = pattern._csc(data.copy())
-                Hd.data[pattern.diag_slot] += lam * damp_base
                 solves += 1
                 try:
-                    d = solver.solve(Hd, -g)
+                    d = solver.solve(data, lam * damp_base, -g)
                 except np.linalg.LinAlgError:
                     lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
                     continue
@@ -147,7 +145,7 @@ class SpaBackend(Backend):
                 x_new = se2.compose(x, dx)
                 obj_new, cost_new = objective(x_new)
                 # decrease the quadratic model predicts: -(2 g.d + d^T H d)
-                predicted = -(2.0 * float(g @ d) + float(d @ (H @ d)))
+                predicted = -(2.0 * float(g @ d) + float(d @ (pattern._csc(data) @ d)))
                 if np.isfinite(obj_new) and obj_new <= obj:
                     accepted = True
                     break
