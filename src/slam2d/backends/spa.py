@@ -144,8 +144,8 @@ class SpaBackend(Backend):
                 dx = pattern.expand(d)
                 x_new = se2.compose(x, dx)
                 obj_new, cost_new = objective(x_new)
-                # decrease the quadratic model predicts: -(2 g.d + d^T H d)
-                predicted = -(2.0 * float(g @ d) + float(d @ (pattern._csc(data) @ d)))
+                # decrease the quadratic model predicts, -(2 g.d + d^T H d), with (H + lambda D) d = -g
+                predicted = -float(g @ d) + lam * float(damp_base @ (d * d))
                 if np.isfinite(obj_new) and obj_new <= obj:
                     accepted = True
                     break
