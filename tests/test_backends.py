@@ -131,15 +131,15 @@ def test_compiled_normal_equations_match_numpy(kernel):
 # --------------------------------------------------------------------------- SPA
 
 
-def _cost_gradient_fd(g, poses, h=1e-6):
-    """Finite-difference gradient of the cost over world-frame coordinates."""
-    grad = np.zeros_like(poses)
-    for n in range(poses.shape[0]):
+def _cost_gradient_fd(g, poses, nodes, h=1e-6):
+    """Finite-difference gradient of the cost over the world-frame coordinates of ``nodes``."""
+    grad = np.zeros((len(nodes), 3))
+    for row, n in enumerate(nodes):
         for c in range(3):
             p1, p2 = poses.copy(), poses.copy()
             p1[n, c] += h
             p2[n, c] -= h
-            grad[n, c] = (g.cost(p1) - g.cost(p2)) / (2 * h)
+            grad[row, c] = (g.cost(p1) - g.cost(p2)) / (2 * h)
     return grad
 
 
@@ -173,8 +173,9 @@ def test_spa_noise_level_optimum():
     sub = PoseGraph()
     sub.add_nodes(res.poses)
     sub.add_edges(g.edge_i, g.edge_j, g.measurements, g.information)
-    grad = _cost_gradient_fd(sub, res.poses)
-    assert np.abs(grad[1:]).max() < 1e-3 * np.abs(_cost_gradient_fd(sub, g.poses)[1:]).max()
+    nodes = np.random.default_rng(0).choice(np.arange(1, g.num_nodes), size=25, replace=False)
+    grad = _cost_gradient_fd(sub, res.poses, nodes)
+    assert np.abs(grad).max() < 1e-3 * np.abs(_cost_gradient_fd(sub, g.poses, nodes)).max()
     # recovered poses are at the noise level: the error to the truth, in the metric of the
     # information matrix H at the optimum, is a chi-square with 3 (N - 1) degrees of freedom
     from slam2d.backends.linear import BlockPattern
