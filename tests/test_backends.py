@@ -398,3 +398,24 @@ def test_linear_solvers_agree():
         LinearSolver("block", pat).solve(-data, add, grad)
     res = {k: get_backend("spa", linear_solver=k).optimize(g) for k in ("block", "splu")}
     assert res["block"].cost_after == pytest.approx(res["splu"].cost_after, rel=1e-9)
+
+
+def test_lago_with_large_heading_noise():
+    """0.1 rad per step: the regularisation still finds the right 2*pi multiples (cost within 10% of SPA's)."""
+    g, _ = manhattan_graph(1000, 2000, seed=3, sigma=(0.05, 0.05, 0.1))
+    gz, _ = manhattan_graph(1000, 2000, seed=3, sigma=(0.05, 0.05, 0.1), initial="zero")
+    spa = get_backend("spa", max_iterations=100).optimize(g)
+    lin = get_backend("lago", refine_iterations=0).optimize(gz)
+    assert lin.cost_after <= 1.10 * spa.cost_after
+    assert get_backend("spa").optimize(gz).cost_after > 2 * spa.cost_after  # SPA itself needs a guess
+
+
+@pytest.mark.slow
+def test_issue_target_lago_within_ten_percent_of_spa_on_5000_nodes():
+    g, truth = manhattan_graph(5000, 10000, seed=0)
+    gz, _ = manhattan_graph(5000, 10000, seed=0, initial="zero")
+    spa = get_backend("spa").optimize(g)
+    assert spa.converged
+    for refine in (0, 1):
+        lago = get_backend("lago", refine_iterations=refine).optimize(gz)
+        assert lago.cost_after <= 1.10 * spa.cost_after
