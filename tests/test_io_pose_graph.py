@@ -74,7 +74,7 @@ def test_comments_blank_lines_and_old_toro_tags(tmp_path):
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", 2, "id", "defined again"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 2 1 0 0 1 0 0 1 0 1\n", 3, "to", "not defined"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0\n", 3, "EDGE_SE2", "needs 11 values"),
-        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 nan 1 0 0 1 0 1\n", 3, "dtheta", "not finite"),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 nan 1 0 0 1 0 1\n", 3, "dtheta", "not a finite number"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 -1 0 0 1 0 1\n", 3, "information", "positive"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 1 1 1 0 0 1 0 0 1 0 1\n", 3, "to", "itself"),
         ("VERTEX_SE2 0 0 0 0\nVERTEX_XY 1 1 0\n", 2, "tag", "unsupported"),
@@ -114,3 +114,11 @@ def test_failed_write_keeps_old_file(tmp_path):
     with pytest.raises(InputError):
         write_g2o(p, g, ids=np.zeros(g.num_nodes))  # ids not distinct
     assert p.read_text() == "old\n"
+
+
+def test_non_utf8_line_is_named(tmp_path):
+    p = tmp_path / "bin.g2o"
+    p.write_bytes(b"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 \xff 0 0\n")
+    with pytest.raises(InputError, match="not UTF-8") as exc:
+        read_g2o(p)
+    assert exc.value.where == 2

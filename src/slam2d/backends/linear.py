@@ -282,20 +282,16 @@ def assemble_normal_equations(poses, ei, ej, z, info, slots, gslots, kernel, del
             for q in range(3):
                 WA[p, q] = W[p, 0] * A[0, q] + W[p, 1] * A[1, q] + W[p, 2] * A[2, q]
                 WB[p, q] = W[p, 0] * B[0, q] + W[p, 1] * B[1, q] + W[p, 2] * B[2, q]
+        # blocks ii, ij, ji, jj = A^T W A, A^T W B, B^T W A, B^T W B
+        for b in range(4):
+            left = A if b < 2 else B
+            right = WA if b % 2 == 0 else WB
+            for p in range(3):
+                for q in range(3):
+                    s = slots[k, b, p, q]
+                    if s >= 0:
+                        data[s] += left[0, p] * right[0, q] + left[1, p] * right[1, q] + left[2, p] * right[2, q]
         for p in range(3):
-            for q in range(3):
-                s = slots[k, 0, p, q]
-                if s >= 0:
-                    data[s] += A[0, p] * WA[0, q] + A[1, p] * WA[1, q] + A[2, p] * WA[2, q]
-                s = slots[k, 1, p, q]
-                if s >= 0:
-                    data[s] += A[0, p] * WB[0, q] + A[1, p] * WB[1, q] + A[2, p] * WB[2, q]
-                s = slots[k, 2, p, q]
-                if s >= 0:
-                    data[s] += B[0, p] * WA[0, q] + B[1, p] * WA[1, q] + B[2, p] * WA[2, q]
-                s = slots[k, 3, p, q]
-                if s >= 0:
-                    data[s] += B[0, p] * WB[0, q] + B[1, p] * WB[1, q] + B[2, p] * WB[2, q]
             s = gslots[k, 0, p]
             if s >= 0:
                 grad[s] += A[0, p] * We[0] + A[1, p] * We[1] + A[2, p] * We[2]

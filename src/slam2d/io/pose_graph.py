@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from slam2d.backends.graph import PoseGraph
 from slam2d.errors import InputError
 from slam2d.io.atomic import write_text_atomic
+from slam2d.io.numeric_text import parse_numbers, token_lines
 
 __all__ = ["read_g2o", "write_g2o", "read_toro", "write_toro", "read_pose_graph", "write_pose_graph"]
 
@@ -77,16 +78,7 @@ def _numbers(path: Path, lineno: int, parts: list[str], names: tuple[str, ...], 
         raise InputError(
             f"{kind} needs {len(names)} values ({' '.join(names)}), found {len(parts)}", path=path, where=lineno, field=kind
         )
-    out = []
-    for name, text in zip(names, parts):
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{text!r} is not a number", path=path, where=lineno, field=name) from None
-        if not np.isfinite(v):
-            raise InputError(f"{text!r} is not finite", path=path, where=lineno, field=name)
-        out.append(v)
-    return out
+    return parse_numbers(parts, names, path, lineno)
 
 
 def _as_id(path: Path, lineno: int, value: float, text: str, name: str) -> int:
@@ -97,12 +89,6 @@ def _as_id(path: Path, lineno: int, value: float, text: str, name: str) -> int:
 
 def _read(path: str | Path, vtags: tuple[str, ...], etags: tuple[str, ...], order, fmt: str) -> tuple[PoseGraph, NDArray[np.int64]]:
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("no such file", path=path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot be read as a {fmt} text file: {exc}", path=path) from None
     vid: list[int] = []
     vpose: list[list[float]] = []
     vline: dict[int, int] = {}
@@ -110,10 +96,7 @@ def _read(path: str | Path, vtags: tuple[str, ...], etags: tuple[str, ...], orde
     elines: list[int] = []
     fix: tuple[int, int] | None = None
     info_names = _info_fields(order)
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
+    for lineno, parts in token_lines(path, f"{fmt} pose graph"):
         tag, rest = parts[0], parts[1:]
         if tag in vtags:
             vals = _numbers(path, lineno, rest, ("id",) + _POSE_FIELDS, tag)
