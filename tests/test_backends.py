@@ -419,3 +419,36 @@ def test_issue_target_lago_within_ten_percent_of_spa_on_5000_nodes():
     for refine in (0, 1):
         lago = get_backend("lago", refine_iterations=refine).optimize(gz)
         assert lago.cost_after <= 1.10 * spa.cost_after
+
+
+def _reversed_edges(g, which):
+    """The same graph with the edges ``which`` stated from the other end (inverse measurement, transformed information)."""
+    ei, ej, z, info = g.edge_i.copy(), g.edge_j.copy(), g.measurements.copy(), g.information.copy()
+    for k in which:
+        c, s = np.cos(z[k, 2]), np.sin(z[k, 2])
+        t = z[k, :2]
+        # inverse(z) = (-R^T t, -theta); J = d inverse / d z
+        J = np.zeros((3, 3))
+        J[:2, :2] = -np.array([[c, s], [-s, c]])
+        J[:2, 2] = -np.array([[-s, c], [-c, -s]]) @ t
+        J[2, 2] = -1.0
+        Ji = np.linalg.inv(J)
+        info[k] = Ji.T @ info[k] @ Ji
+        info[k] = 0.5 * (info[k] + info[k].T)
+        z[k] = se2.inverse(z[k])
+        ei[k], ej[k] = ej[k], ei[k]
+    h = PoseGraph()
+    h.add_nodes(g.poses)
+    h.add_edges(ei, ej, z, info)
+    return h
+
+
+def test_edge_direction_does_not_matter():
+    g, _ = _circles(laps=3)
+    flip = np.arange(0, g.num_edges, 3)
+    h = _reversed_edges(g, flip)
+    for name, opts in (("lago", {"refine_iterations": 0}), ("spa", {})):
+        a = get_backend(name, **opts).optimize(g)
+        b = get_backend(name, **opts).optimize(h)
+        assert np.abs(a.poses[:, :2] - b.poses[:, :2]).max() < 0.02, name
+        assert np.abs(se2.wrap_angle(a.poses[:, 2] - b.poses[:, 2])).max() < 0.005, name
