@@ -1,11 +1,14 @@
 """Sparse pose adjustment (Konolige et al. 2010, Karto's optimiser): Levenberg-Marquardt on the pose graph.
 
-Each iteration linearises every edge error at once (closed-form Jacobians,
-:func:`~slam2d.backends.graph.edge_jacobians`), fills the fixed sparsity
-pattern of ``H = J^T W J`` and solves ``(H + lambda diag(H)) dx = -g`` with a
-sparse Cholesky (CHOLMOD when scikit-sparse is installed) or SuperLU. A step
-that lowers the objective is kept and lambda shrinks; otherwise lambda grows
-and the step is retried, as in Karto's ``SysSPA2d::doSPA``.
+Each iteration linearises every edge error at once in one compiled pass
+(:func:`~slam2d.backends.linear.assemble_normal_equations`, the same local
+Jacobians as :func:`~slam2d.backends.graph.edge_jacobians`), fills the fixed
+sparsity pattern of ``H = J^T W J`` and solves ``(H + lambda D) dx = -g`` with
+the compiled block Cholesky (or SuperLU / CHOLMOD), ``D = I`` by default or
+``diag(H)`` as in Karto's ``SysSPA2d::doSPA``. A step that lowers the
+objective is kept and lambda follows Nielsen's gain-ratio rule; otherwise
+lambda grows and the step is retried. Poses are updated on the manifold,
+``X <- X (+) dx``.
 
 A robust kernel (Huber or Cauchy, on the Mahalanobis distance
 ``sqrt(e^T Omega e)``) is applied by iteratively reweighted least squares:
