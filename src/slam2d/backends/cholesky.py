@@ -84,15 +84,21 @@ def _symbolic(m, colptr, rows):  # pragma: no cover - numba
                     buf[n] = r
                     n += 1
             c = nxt_child[c]
-        srt = np.sort(buf[1:n])
+        # insertion sort of the (short) row list; np.sort would cost seconds of compile time
+        for a in range(2, n):
+            v = buf[a]
+            b = a - 1
+            while b >= 1 and buf[b] > v:
+                buf[b + 1] = buf[b]
+                b -= 1
+            buf[b + 1] = v
         if lptr[j] + n > cap:
             while lptr[j] + n > cap:
                 cap *= 2
             grown = np.empty(cap, dtype=np.int64)
             grown[: lptr[j]] = lrows[: lptr[j]]
             lrows = grown
-        lrows[lptr[j]] = j
-        lrows[lptr[j] + 1 : lptr[j] + n] = srt
+        lrows[lptr[j] : lptr[j] + n] = buf[:n]
         lptr[j + 1] = lptr[j] + n
     return lptr, lrows[: lptr[m]].copy()
 
