@@ -452,3 +452,17 @@ def test_edge_direction_does_not_matter():
         b = get_backend(name, **opts).optimize(h)
         assert np.abs(a.poses[:, :2] - b.poses[:, :2]).max() < 0.02, name
         assert np.abs(se2.wrap_angle(a.poses[:, 2] - b.poses[:, 2])).max() < 0.005, name
+
+
+def test_parameter_objects_and_listing():
+    from slam2d.backends import available_backends, backend_params
+    from slam2d.backends.spa import SpaParams
+
+    assert {"spa", "lago"} <= set(available_backends())
+    assert backend_params("spa") is SpaParams
+    b = get_backend("spa", SpaParams(max_iterations=3), robust_kernel="huber")
+    assert b.params.max_iterations == 3 and b.params.robust_kernel == "huber"
+    b = get_backend("spa", max_iterations="7", robust_delta="2.5")  # strings, as from --set
+    assert b.params.max_iterations == 7 and b.params.robust_delta == 2.5
+    with pytest.raises(InputError):
+        get_backend("lago", SpaParams())
