@@ -14,11 +14,15 @@ from pathlib import Path
 
 from slam2d.errors import InputError
 
-__all__ = ["numeric_rows"]
+__all__ = ["numeric_rows", "token_lines", "parse_numbers"]
 
 
-def numeric_rows(path: Path, columns: tuple[str, ...], what: str) -> Iterator[tuple[int, list[float]]]:
-    """Yield ``(line number, values)`` for every data line of ``path``; ``what`` names the format in errors."""
+def token_lines(path: Path, what: str) -> Iterator[tuple[int, list[str]]]:
+    """Yield ``(line number, tokens)`` for every non-blank, non-comment line of ``path``.
+
+    A missing, unreadable or non-UTF-8 file is an :class:`InputError` naming the
+    file (and the line); ``what`` names the format in the message.
+    """
     if not path.exists():
         raise InputError("no such file", path=path)
     if path.is_dir():
@@ -40,21 +44,31 @@ def numeric_rows(path: Path, columns: tuple[str, ...], what: str) -> Iterator[tu
             text = line.strip()
             if not text or text.startswith("#"):
                 continue
-            tokens = text.split()
-            if len(tokens) != len(columns):
-                raise InputError(
-                    f"{len(tokens)} columns, {len(columns)} expected: {' '.join(columns)}",
-                    path=path,
-                    where=lineno,
-                    field="columns",
-                )
-            values = []
-            for name, token in zip(columns, tokens):
-                try:
-                    value = float(token)
-                except ValueError:
-                    raise InputError(f"{token!r} is not a number", path=path, where=lineno, field=name) from None
-                if not math.isfinite(value):
-                    raise InputError(f"{token!r} is not a finite number", path=path, where=lineno, field=name)
-                values.append(value)
-            yield lineno, values
+            yield lineno, text.split()
+
+
+def parse_numbers(tokens: list[str], columns: tuple[str, ...], path: Path, lineno: int) -> list[float]:
+    """``tokens`` as finite floats, one per named column; a bad one is an :class:`InputError` naming its column."""
+    values = []
+    for name, token in zip(columns, tokens):
+        try:
+            value = float(token)
+        except ValueError:
+            raise InputError(f"{token!r} is not a number", path=path, where=lineno, field=name) from None
+        if not math.isfinite(value):
+            raise InputError(f"{token!r} is not a finite number", path=path, where=lineno, field=name)
+        values.append(value)
+    return values
+
+
+def numeric_rows(path: Path, columns: tuple[str, ...], what: str) -> Iterator[tuple[int, list[float]]]:
+    """Yield ``(line number, values)`` for every data line of ``path``; ``what`` names the format in errors."""
+    for lineno, tokens in token_lines(path, what):
+        if len(tokens) != len(columns):
+            raise InputError(
+                f"{len(tokens)} columns, {len(columns)} expected: {' '.join(columns)}",
+                path=path,
+                where=lineno,
+                field="columns",
+            )
+        yield lineno, parse_numbers(tokens, columns, path, lineno)
