@@ -65,6 +65,7 @@ __all__ = [
     "sensor_model_from_spec",
     "describe_sensor_model",
     "model_document",
+    "dump_model_yaml",
 ]
 
 FORMAT = "slam2d-sensor-model"
@@ -354,25 +355,30 @@ def sensor_model_from_spec(spec: str) -> RangeNoiseModel:
     return read_sensor_model(path)
 
 
-def describe_sensor_model(model: Any, spec: str | None = None) -> dict[str, Any] | None:
-    """What run.json records about a sensor model (None without one)."""
+def describe_sensor_model(model: Any) -> dict[str, Any] | None:
+    """What run.json records about a sensor model (None without one).
+
+    ``spec`` is the ``--sensor-model`` text that gives the same model again
+    (absent for a model built in code that has none).
+    """
     if model is None:
         return None
-    out: dict[str, Any] = {"spec": spec} if spec is not None else {}
     if isinstance(model, CalibratedModel):
-        out.update({"type": "file", "kind": model.kind, "path": str(Path(model.source).resolve())})
+        path = Path(model.source).resolve()
+        out: dict[str, Any] = {"type": "file", "spec": str(path), "kind": model.kind, "path": str(path)}
         try:
-            out["sha256"] = hashlib.sha256(Path(model.source).read_bytes()).hexdigest()
+            out["sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
         except OSError:
             pass
-    elif isinstance(model, ConstantSigma):
-        out.update({"type": "constant", "sigma_m": model.value})
-    elif isinstance(model, StudyModel):
-        out.update({"type": "study", "black_metal_factor": model.black_metal_factor,
-                    "max_incidence_rad": model.max_incidence})
-    else:
-        out.update({"type": type(model).__name__})
-    return out
+        return out
+    if isinstance(model, ConstantSigma):
+        return {"type": "constant", "spec": f"constant:{model.value!r}", "sigma_m": model.value}
+    if isinstance(model, StudyModel):
+        out = {"type": "study", "black_metal_factor": model.black_metal_factor, "max_incidence_rad": model.max_incidence}
+        if model == StudyModel():
+            out["spec"] = "study"
+        return out
+    return {"type": type(model).__name__}
 
 
 def model_document(
@@ -398,3 +404,19 @@ def model_document(
     if extra:
         doc.update(extra)
     return doc
+
+
+def dump_model_yaml(doc: dict[str, Any], header: str = "") -> str:
+    """A model document as YAML text, lists of numbers on one line each (a covariance row per line)."""
+    import yaml
+
+    class _Dumper(yaml.SafeDumper):
+        pass
+
+    def _list(dumper: yaml.SafeDumper, data: list[Any]) -> Any:
+        flat = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in data)
+        return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flat or None)
+
+    _Dumper.add_representer(list, _list)
+    text = yaml.dump(doc, Dumper=_Dumper, sort_keys=False, width=200)
+    return "".join(f"# {line}\n" for line in header.splitlines()) + text

@@ -130,7 +130,8 @@ class Estimate:
     identifiable: bool = True
 
     def as_dict(self) -> dict[str, Any]:
-        return {"value": self.value, "ci95": [self.low, self.high], "identifiable": self.identifiable}
+        return {"value": float(self.value), "ci95": [float(self.low), float(self.high)],
+                "identifiable": bool(self.identifiable)}
 
 
 @dataclass
@@ -282,8 +283,8 @@ def calibrate_odometry(
         noise[name] = Estimate(value, value * math.exp(-_Z95 * s), value * math.exp(_Z95 * s), ok) if ok \
             else Estimate(value, math.nan, math.nan, False)
     noise = {k: noise[k] for k in NOISE_NAMES}
-    k, sk = theta[0], se[0]
-    g, sg = theta[1], se[1]
+    k, sk = float(theta[0]), float(se[0])
+    g, sg = float(theta[1]), float(se[1])
     radius = Estimate(k, k - _Z95 * sk, k + _Z95 * sk, bool(math.isfinite(sk) and distance > 0))
     if rotation > 0 and math.isfinite(sg) and g - _Z95 * sg > 0:
         track = Estimate(1.0 / g, 1.0 / (g + _Z95 * sg), 1.0 / (g - _Z95 * sg))
@@ -295,5 +296,5 @@ def calibrate_odometry(
     return OdometryCalibration(
         noise, radius, track,
         {"xy_m": math.exp(0.5 * theta[6]), "theta_rad": math.exp(0.5 * theta[7])},
-        D, A, n, distance, rotation, -float(best.fun), z, pairs, notes,
+        D, A, n, distance, rotation, -float(best.fun) - 1.5 * n * math.log(2 * math.pi), z, pairs, notes,
     )
