@@ -8,8 +8,9 @@ not quite a polynomial), so the confidence band is honest either way.
 
 The degree is chosen by leave-one-distance-out cross-validation: every
 distinct distance is left out in turn, the fit to the others predicts it, and
-the degree with the smallest mean weighted squared prediction error wins (ties
-go to the lower degree). Leaving a whole distance out, not one point, keeps
+the lowest degree whose mean weighted squared prediction error is within one
+standard error of the smallest wins (the "one-standard-error rule": a higher
+degree must predict clearly better, not by luck of the noise). Leaving a whole distance out, not one point, keeps
 points measured at the same distance (several materials) from vouching for
 each other.
 """
@@ -79,11 +80,17 @@ def cv_scores(distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degree: 
 
     Degrees that leave too few distinct distances to fit when one is held out are absent.
     """
+    return {k: float(np.mean(v)) for k, v in _cv_errors(distance, sigma, se, max_degree).items()}
+
+
+def _cv_errors(
+    distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degree: int
+) -> dict[int, NDArray[np.float64]]:
     d = np.asarray(distance, dtype=np.float64)
     y = np.asarray(sigma, dtype=np.float64)
     s = np.asarray(se, dtype=np.float64)
     levels = np.unique(d)
-    scores: dict[int, float] = {}
+    scores: dict[int, NDArray[np.float64]] = {}
     for degree in range(max_degree + 1):
         if len(levels) - 1 < degree + 1:
             break
@@ -92,19 +99,21 @@ def cv_scores(distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degree: 
             held = d == level
             fit = fit_polynomial(d[~held], y[~held], s[~held], degree)
             errors.append(((fit(d[held]) - y[held]) / s[held]) ** 2)
-        scores[degree] = float(np.mean(np.concatenate(errors)))
+        scores[degree] = np.concatenate(errors)
     return scores
 
 
 def choose_degree(distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degree: int = 3) -> tuple[int, dict[int, float]]:
-    """The degree with the lowest cross-validation score, and every score.
+    """The degree chosen by cross-validation (one-standard-error rule), and every degree's score.
 
     With too few distinct distances to cross-validate (fewer than three) the
     degree is the highest the points allow, at most ``max_degree``.
     """
-    scores = cv_scores(distance, sigma, se, max_degree)
-    if not scores:
+    errors = _cv_errors(distance, sigma, se, max_degree)
+    if len(errors) < 2:  # nothing to choose between
         return min(max_degree, len(np.unique(np.asarray(distance))) - 1), {}
-    best = min(scores.values())
-    # ties (to a relative 1e-9) go to the lower degree
-    return min(k for k, v in scores.items() if v <= best * (1 + 1e-9)), scores
+    scores = {k: float(np.mean(v)) for k, v in errors.items()}
+    best = min(scores, key=lambda k: scores[k])
+    e = errors[best]
+    tolerance = float(np.std(e, ddof=1) / np.sqrt(e.size)) if e.size > 1 else 0.0
+    return min(k for k, v in scores.items() if v <= scores[best] + tolerance), scores

@@ -211,11 +211,11 @@ def _recording_setups(
     if not keep.any():
         raise InputError("no beam returns steadily from a smooth surface in this recording", path=path)
     incidence = np.degrees(incidence_angles(mean, angles))
-    ib = np.round(incidence / incidence_bin).astype(np.int64)
-    rb = np.floor(mean / range_bin).astype(np.int64)
     setups = []
     idx = np.flatnonzero(keep)
-    keys = np.stack([ib[idx], rb[idx]], axis=1)
+    ib = np.round(incidence[idx] / incidence_bin).astype(np.int64)
+    rb = np.floor(mean[idx] / range_bin).astype(np.int64)
+    keys = np.stack([ib, rb], axis=1)
     groups, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     for g, (ibin, _) in enumerate(groups):
