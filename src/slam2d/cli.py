@@ -762,6 +762,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     odo.add_argument("--angular-update", type=float, default=0.5, metavar="RAD",
                      help="rotation over which stt is the spread per radian (GMapping angularUpdate; the "
                      "simulator's reference_rotation) [rad] (default: 0.5)")
+    odo.add_argument("--exact-reference", action="store_true",
+                     help="the reference has no error of its own (a simulator's truth): do not estimate its noise")
     odo.add_argument("--max-gap", type=float, default=0.5, metavar="S",
                      help="longest gap between reference poses to interpolate across [s] (default: 0.5)")
     odo.set_defaults(handler=cmd_calibrate_odometry)
@@ -835,7 +837,8 @@ def cmd_calibrate_odometry(args: argparse.Namespace) -> int:
     if not args.max_gap > 0:
         raise InputError(f"{args.max_gap} s must be positive", field="--max-gap")
     pairs = load_odometry_pairs(args.data, args.reference, max_gap=args.max_gap)
-    cal = calibrate_odometry(pairs, reference_distance=args.linear_update, reference_rotation=args.angular_update)
+    cal = calibrate_odometry(pairs, reference_distance=args.linear_update, reference_rotation=args.angular_update,
+                             exact_reference=args.exact_reference)
     args.out.mkdir(parents=True, exist_ok=True)
     params = cal.gmapping_params()
     lines = [f"# GMapping odometry noise from 'slam2d calibrate odometry' ({cal.intervals} intervals)",

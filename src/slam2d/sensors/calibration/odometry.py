@@ -17,7 +17,10 @@ linear in the motion, so over an interval made of many small odometry steps
 they add up to the same formula with the interval's increment: the estimate
 does not depend on the odometry rate. ``q_xy`` and ``q_theta`` absorb the
 reference's own error per interval (zero for a simulator's exact truth, not
-for a SLAM trajectory used as the reference); they are estimated too.
+for a SLAM trajectory used as the reference); they are estimated too, unless
+the reference is declared exact. Motion at one constant speed cannot tell a
+constant ``q`` from ``srr`` or ``srt`` (both add the same variance to every
+interval): data with stops, speed changes and turns in place calibrate best.
 
 The maximum of the Gaussian log-likelihood over all intervals is found in
 ``(k, 1/t, log srr**2, log str**2, log stt**2, log srt**2, log q_xy, log
@@ -230,9 +233,16 @@ def _hessian(grad, theta: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def calibrate_odometry(
-    pairs: OdometryPairs, *, reference_distance: float = 1.0, reference_rotation: float = 0.5
+    pairs: OdometryPairs, *, reference_distance: float = 1.0, reference_rotation: float = 0.5,
+    exact_reference: bool = False,
 ) -> OdometryCalibration:
-    """Maximum-likelihood srr, srt, str, stt, wheel_radius_scale and track_width_scale (see the module doc)."""
+    """Maximum-likelihood srr, srt, str, stt, wheel_radius_scale and track_width_scale (see the module doc).
+
+    ``exact_reference`` holds the reference's own noise (``q_xy``, ``q_theta``)
+    at zero instead of estimating it: right for a simulator's truth, and it
+    sharpens the estimates when the motion is so uniform (one speed
+    throughout) that a constant term cannot be told from ``srr`` or ``srt``.
+    """
     from scipy.optimize import minimize
 
     if not (reference_distance > 0 and reference_rotation > 0):
@@ -255,31 +265,45 @@ def calibrate_odometry(
     if np.sum(v[:, 2] ** 2) > 0:
         theta0[1] = float(np.sum(u[:, 2] * v[:, 2]) / np.sum(v[:, 2] ** 2))
     bounds = [(1e-3, 1e3), (1e-3, 1e3)] + [_LOG_VAR_BOUNDS] * 6
+    if exact_reference:
+        theta0[6:] = _LOG_VAR_BOUNDS[0]
+        bounds[6:] = [(_LOG_VAR_BOUNDS[0], _LOG_VAR_BOUNDS[0])] * 2
     best = None
-    for start in (theta0, np.concatenate([theta0[:2], theta0[2:] + 2.0])):  # two starts: the surface is not convex
+    shifted = theta0.copy()
+    shifted[2:6] += 2.0
+    if not exact_reference:
+        shifted[6:] += 2.0
+    for start in (theta0, shifted):  # two starts: the surface is not convex
         res = minimize(nll, start, jac=grad, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": 2000, "ftol": 1e-13, "gtol": 1e-9})
         if best is None or res.fun < best.fun:
             best = res
     theta = best.x
-    try:
-        cov = np.linalg.inv(_hessian(grad, theta))
-        se = np.sqrt(np.where(np.diag(cov) > 0, np.diag(cov), np.nan))
-    except np.linalg.LinAlgError:
-        se = np.full(8, np.nan)
-    notes = []
-    # excitation: how much each noise term contributes to the data's variance at the estimate
+    # Parameters that ended on a bound are held there; the information of the others gives their intervals.
+    # So are parameters the motion does not excite at all (no rotation: str, stt and the track scale).
     gx, gy, gt = _design(v, D, A)
-    excited = np.array([gx[:, 0].sum(), gx[:, 1].sum(), gt[:, 2].sum(), gt[:, 3].sum()])
+    excited = np.array([
+        np.sum(v[:, 0] ** 2 + v[:, 1] ** 2), np.sum(v[:, 2] ** 2),
+        gx[:, 0].sum(), gx[:, 1].sum(), gt[:, 2].sum(), gt[:, 3].sum(), 1.0, 1.0,
+    ]) > 0
+    free = excited & np.array([not (lo + 1e-6 >= t or t >= hi - 1e-6) for t, (lo, hi) in zip(theta, bounds, strict=True)])
+    se = np.full(8, np.nan)
+    try:
+        h = _hessian(grad, theta)[np.ix_(free, free)]
+        cov = np.linalg.inv(h)
+        se[free] = np.sqrt(np.where(np.diag(cov) > 0, np.diag(cov), np.nan))
+    except np.linalg.LinAlgError:
+        pass
+    notes = []
     noise = {}
-    for name, j, power in zip(("srr", "str", "stt", "srt"), range(2, 6), excited, strict=True):
+    for name, j, power in zip(("srr", "str", "stt", "srt"), range(2, 6), excited[2:6], strict=True):
         value = math.exp(0.5 * theta[j])
         s = 0.5 * se[j]
         at_bound = theta[j] <= _LOG_VAR_BOUNDS[0] + 1.0
         ok = bool(power > 0 and math.isfinite(s) and s < 2.0 and not at_bound)
         if not ok:
             notes.append(f"{name} is not identifiable from this motion"
-                         + (" (no " + ("rotation" if name in ("str", "stt") else "translation") + ")" if power == 0 else ""))
+                         + (" (no " + ("rotation" if name in ("str", "stt") else "translation") + ")" if not power else ""))
         noise[name] = Estimate(value, value * math.exp(-_Z95 * s), value * math.exp(_Z95 * s), ok) if ok \
             else Estimate(value, math.nan, math.nan, False)
     noise = {k: noise[k] for k in NOISE_NAMES}
