@@ -55,15 +55,25 @@ def test_weighted_fit_recovers_a_polynomial_and_its_band_covers_it():
 
 
 @pytest.mark.parametrize("true_degree", [1, 2, 3])
-def test_cross_validation_finds_the_degree(true_degree):
+def test_cross_validation_never_misses_the_shape(true_degree):
     rng = np.random.default_rng(true_degree)
     d = np.repeat(np.linspace(0.5, 4.0, 9), 4)
     coef = [0.005, 0.002, -0.0012, 0.0003][: true_degree + 1]
     y = np.polynomial.polynomial.polyval(d, coef)
     se = np.full(d.size, 2e-5)
     degree, scores = choose_degree(d, y + se * rng.standard_normal(d.size), se, max_degree=4)
-    assert degree == true_degree, scores
+    assert true_degree <= degree <= true_degree + 2, scores
     assert set(scores) == {0, 1, 2, 3, 4}
+    assert min(scores[k] for k in range(true_degree)) > 10 * scores[degree]  # too low a degree is plainly worse
+    fit = fit_polynomial(d, y, se, degree)
+    assert np.allclose(fit(d), y, atol=1e-9)
+
+
+def test_cross_validation_picks_the_lower_of_equal_degrees():
+    d = np.linspace(1.0, 4.0, 7)
+    y = 0.004 + 0.001 * d  # exactly a line: degrees 1..3 predict it perfectly
+    degree, scores = choose_degree(d, y, np.full(7, 1e-4), max_degree=3)
+    assert degree == 1 and scores[0] > 1
 
 
 def test_cross_validation_needs_distances_to_leave_out():
@@ -379,3 +389,33 @@ def test_methods_receive_the_model(tmp_path):
         compare(tmp_path / "sim" / "recording.log.gz", ["odometry"], tmp_path / "c2", sensor_model="nope", jobs=1)
     summary = run_method("odometry", tmp_path / "sim" / "recording.log.gz", tmp_path / "r", sensor_model="study")
     assert summary.record["sensor_model"]["spec"] == "study"
+
+
+# --------------------------------------------------------------------------- the issue's target
+
+
+@pytest.mark.slow
+def test_target_sigma_within_5_percent_from_half_a_metre_to_four_for_every_surface(tmp_path, capsys):
+    """The issue's target, through the commands: `slam2d repeatability` (the study model injected) at
+    0.5-4 m every 0.25 m, 2000 readings per set-up, then `slam2d calibrate laser`; the model file's
+    sigma(distance) for every surface at both angles is within 5 % of the truth over 0.5-4 m.
+
+    The study model below 1 m is its cubic's tangent, so over 0.5-4 m it is not a cubic: at 45 deg
+    the best cubic is off by 4.3 % at the ends before any noise, hence --max-degree 4 here.
+    """
+    distances = ",".join(f"{d:g}" for d in np.arange(0.5, 4.01, 0.25))
+    code, _, err = run(capsys, "repeatability", "--out", tmp_path / "rep", "--distances", distances,
+                       "--repetitions", "2000", "--seed", "11")
+    assert code == 0, err
+    code, _, err = run(capsys, "calibrate", "laser", tmp_path / "rep" / "repeatability.csv", "--out", tmp_path / "cal",
+                       "--max-degree", "4")
+    assert code == 0, err
+    model = load_sensor_model(tmp_path / "cal" / "model.yaml")
+    truth = StudyModel()
+    d = np.linspace(0.5, 4.0, 71)
+    worst = 0.0
+    for i in range(len(MATERIALS)):
+        for inc in (0.0, math.pi / 4):
+            err = np.abs(model.sigma(d, inc, i) / truth.sigma(d, np.full(d.size, inc), np.full(d.size, i)) - 1)
+            worst = max(worst, float(err.max()))
+    assert worst < 0.05, worst

@@ -8,9 +8,12 @@ not quite a polynomial), so the confidence band is honest either way.
 
 The degree is chosen by leave-one-distance-out cross-validation: every
 distinct distance is left out in turn, the fit to the others predicts it, and
-the lowest degree whose mean weighted squared prediction error is within one
-standard error of the smallest wins (the "one-standard-error rule": a higher
-degree must predict clearly better, not by luck of the noise). Leaving a whole distance out, not one point, keeps
+the degree with the smallest mean weighted squared prediction error wins
+(ties go to the lower degree). The two end distances are not held out:
+predicting them is extrapolation, which a model file never asks of a
+polynomial. Cross-validation protects against too low a degree (a curve that
+misses the shape); it may pick a degree higher than the truth's, which costs
+a little variance, not bias. Leaving a whole distance out, not one point, keeps
 points measured at the same distance (several materials) from vouching for
 each other.
 """
@@ -95,7 +98,9 @@ def _cv_errors(
         if len(levels) - 1 < degree + 1:
             break
         errors = []
-        for level in levels:
+        # The ends are not held out: predicting them would be extrapolation, which a model file never
+        # does with its polynomial (it continues along the tangent), and one wild end would decide alone.
+        for level in levels[1:-1] if len(levels) > 3 else levels:
             held = d == level
             fit = fit_polynomial(d[~held], y[~held], s[~held], degree)
             errors.append(((fit(d[held]) - y[held]) / s[held]) ** 2)
@@ -104,7 +109,7 @@ def _cv_errors(
 
 
 def choose_degree(distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degree: int = 3) -> tuple[int, dict[int, float]]:
-    """The degree chosen by cross-validation (one-standard-error rule), and every degree's score.
+    """The degree with the best cross-validation score, and every degree's score.
 
     With too few distinct distances to cross-validate (fewer than three) the
     degree is the highest the points allow, at most ``max_degree``.
@@ -113,7 +118,5 @@ def choose_degree(distance: ArrayLike, sigma: ArrayLike, se: ArrayLike, max_degr
     if len(errors) < 2:  # nothing to choose between
         return min(max_degree, len(np.unique(np.asarray(distance))) - 1), {}
     scores = {k: float(np.mean(v)) for k, v in errors.items()}
-    best = min(scores, key=lambda k: scores[k])
-    e = errors[best]
-    tolerance = float(np.std(e, ddof=1) / np.sqrt(e.size)) if e.size > 1 else 0.0
-    return min(k for k, v in scores.items() if v <= scores[best] + tolerance), scores
+    best = min(scores.values())
+    return min(k for k, v in scores.items() if v <= best * (1 + 1e-9) + 1e-12), scores  # ties: the lower degree
