@@ -90,19 +90,10 @@ def read_params_file(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
     section (as ``run.json`` has), whose ``method`` and ``seed`` come back in
     ``extras``.
     """
-    import yaml
+    from slam2d.io.yaml_file import read_yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError("no such parameter file" if not path.exists() else "is not a file", path=path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise InputError("is not text (a YAML parameter file was expected)", path=path) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = mark.line + 1 if mark is not None else None
-        raise InputError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", path=path, where=where) from None
+    doc = read_yaml(path, "parameter file")
     if doc is None:
         return {}, {}
     if not isinstance(doc, dict):

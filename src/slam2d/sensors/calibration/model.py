@@ -312,20 +312,9 @@ def model_from_document(doc: Any, path: str | Path = "<model>") -> CalibratedMod
 
 def read_sensor_model(path: str | Path) -> CalibratedModel:
     """Read a model file (YAML); :class:`InputError` naming the file and the field if it is wrong."""
-    import yaml
+    from slam2d.io.yaml_file import read_yaml
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("no such sensor model file" if not path.exists() else "is not a file", path=path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise InputError("is not text (a YAML sensor model was expected)", path=path) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", path=path,
-                         where=mark.line + 1 if mark is not None else None) from None
-    return model_from_document(doc, path)
+    return model_from_document(read_yaml(path, "sensor model file"), path)
 
 
 def load_sensor_model(path: str | Path) -> CalibratedModel:
