@@ -158,6 +158,8 @@ def load_sensor_model_text(tmp_path, text, name="m.yaml"):
          "fits"),
         ({"fits": [{"incidence_deg": 0, "coefficients": [0.004], "covariance": [[1, 2]]}]}, "fits[0].covariance[0]"),
         ({"beyond_measured_incidence": "wrap"}, "beyond_measured_incidence"),
+        ({"fits": [{"incidence_deg": 0, "coefficients": [0.004], "distance_range_m": [3, 1]}]},
+         "fits[0].distance_range_m"),
         ({"materials": {"cardboard": {"fits": "no"}}}, "materials.cardboard.fits"),
         ({"kind": "range"}, "fits"),
     ],
@@ -286,6 +288,21 @@ def test_static_recording_gives_the_same_sigma_as_the_readings(tmp_path):
     assert near[0].sigma == pytest.approx(truth, rel=0.1)
     assert near[0].beams > 5  # many beams pooled
     assert any("depth jump" in s for s in data.skipped)  # the plate's edges are left out
+
+
+def test_cli_calibrates_from_static_recordings_and_refuses_a_moving_one(capsys, tmp_path):
+    logs = [write_setup_log(tmp_path / f"plate-{d:g}m.log.gz", Setup("white-paper", 90.0, d), 200) for d in (1.0, 2.0, 3.0)]
+    code, text, err = run(capsys, "calibrate", "laser", *logs, "--out", tmp_path / "cal")
+    assert code == 0, err
+    model = load_sensor_model(tmp_path / "cal" / "model.yaml")
+    truth = StudyModel().sigma(2.0, 0.0, MATERIALS.index("white-paper"))
+    assert model.sigma(2.0, 0.0, MATERIALS.index("white-paper")) == pytest.approx(truth, rel=0.15)
+    assert "plate-2m" in (tmp_path / "cal" / "report.md").read_text()  # each recording is its own surface
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+    write_outputs(simulate("paper-arena", SimulationParams(seed=2, duration=4.0)), tmp_path / "sim")
+    code, _, err = run(capsys, "calibrate", "laser", tmp_path / "sim" / "recording.log.gz", "--out", tmp_path / "x")
+    one_line_error(code, err, "the robot moved", "standing still")
 
 
 # --------------------------------------------------------------------------- CLI

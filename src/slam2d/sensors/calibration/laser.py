@@ -295,10 +295,13 @@ class CurveFit:
     members: list[SetupStats] = field(default_factory=list, repr=False)  # the set-ups averaged
     note: str = ""
 
-    def document(self) -> dict[str, Any]:
+    def document(self, distance_range: tuple[float, float] | None = None) -> dict[str, Any]:
+        """This curve as a model file's fit entry (its own range when it differs from ``distance_range``)."""
         out: dict[str, Any] = {}
         if self.angle_deg is not None:
             out["incidence_deg"] = float(90.0 - self.angle_deg)
+        if distance_range is not None and tuple(self.fit.distance_range) != tuple(distance_range):
+            out["distance_range_m"] = [float(v) for v in self.fit.distance_range]
         out["degree"] = self.fit.degree
         out["coefficients"] = [float(c) for c in self.fit.coefficients]
         out["covariance"] = [[float(v) for v in row] for row in self.fit.covariance]
@@ -384,24 +387,23 @@ class LaserCalibration:
         rng = (float(d.min()), float(d.max()))
         if len(self.per_angle) == 1:
             kind = "range"
-            fits = [next(iter(self.per_angle.values())).document()]
+            fits = [next(iter(self.per_angle.values())).document(rng)]
             fits[0].pop("incidence_deg", None)
         else:
             kind = "range-incidence"
-            fits = [c.document() for c in sorted(self.per_angle.values(), key=lambda c: -c.angle_deg)]
+            fits = [c.document(rng) for c in sorted(self.per_angle.values(), key=lambda c: -c.angle_deg)]
         materials: dict[str, list[dict[str, Any]]] = {}
         if len(self.data.materials) > 1:
             for m in self.data.materials:
                 curves = sorted((c for (mm, _), c in self.per_material.items() if mm == m), key=lambda c: -c.angle_deg)
+                if not curves:
+                    continue
                 if kind == "range":
-                    if curves:
-                        doc = curves[0].document()
-                        doc.pop("incidence_deg", None)
-                        materials[m] = [doc]
-                elif curves:
-                    materials[m] = [c.document() for c in curves]
-                    if len(curves) == 1:  # one angle only: hold it at every incidence
-                        materials[m] = [curves[0].document()]
+                    doc = curves[0].document(rng)
+                    doc.pop("incidence_deg", None)
+                    materials[m] = [doc]
+                else:  # a surface measured at one angle only is held at it for every incidence
+                    materials[m] = [c.document(rng) for c in curves]
         ref = self.sigma_at_reference()
         info = {
             "reference": {"distance_m": self.reference_distance, "sigma_m": ref["all"]},
@@ -465,6 +467,7 @@ class Verification:
 
 
 def _material_indices(name: str) -> list[int]:
+    """The model's material index for a surface name; the study's four tabulated ones if it has none."""
     from slam2d.sensors.beam_model import TABULATED_MATERIALS
     from slam2d.sensors.range_noise import MATERIALS
 

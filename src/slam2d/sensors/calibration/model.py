@@ -19,6 +19,7 @@ Example (what ``slam2d calibrate laser`` writes, shortened)::
     fits:                                # averaged over the surfaces measured
       - incidence_deg: 0.0
         coefficients: [0.0048, -0.0010, 4e-05, 4e-05]   # sigma = c0 + c1 d + c2 d^2 + ... (m, d in m)
+        distance_range_m: [1.0, 4.0]     # optional: this fit's own range, if narrower than the file's
         covariance: [[...], ...]         # of the coefficients (optional: the confidence band)
         scatter: 0.12                    # relative spread of single surfaces about this fit (optional)
       - incidence_deg: 45.0
@@ -228,6 +229,12 @@ def _curve(entry: Any, path: Path, name: str, distance_range: tuple[float, float
         if not isinstance(rows, list) or len(rows) != len(coef):
             raise InputError(f"expected a {len(coef)} x {len(coef)} matrix", path=path, field=f"{name}.covariance")
         cov = np.array([_numbers(r, path, f"{name}.covariance[{i}]", len(coef)) for i, r in enumerate(rows)])
+    if entry.get("distance_range_m") is not None:  # a fit measured over fewer distances than the file's range
+        lo, hi = _numbers(entry["distance_range_m"], path, f"{name}.distance_range_m", 2)
+        if not 0 <= lo <= hi:
+            raise InputError(f"[{lo}, {hi}] is not a range 0 <= near <= far", path=path,
+                             field=f"{name}.distance_range_m")
+        distance_range = (lo, hi)
     scatter = _number(entry.get("scatter", 0.0), path, f"{name}.scatter")
     if scatter < 0:
         raise InputError(f"{scatter} must be >= 0", path=path, field=f"{name}.scatter")

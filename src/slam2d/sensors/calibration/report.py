@@ -251,6 +251,8 @@ def _slug(text: str) -> str:
 
 
 def _verify_png(ver: Any, model: Any) -> bytes:
+    from slam2d.sensors.calibration.laser import _material_indices
+
     """Fig. 11 form: measured sigma (95 % interval) and the model's prediction with its band, per angle."""
     rows = ver.rows
     angles = sorted({r.setup.angle_deg for r in rows}, reverse=True)
@@ -266,13 +268,20 @@ def _verify_png(ver: Any, model: Any) -> bytes:
                 if not sel:
                     continue
                 d = np.array([r.setup.distance for r in sel])
-                p = np.array([r.predicted for r in sel])
-                h = np.array([r.half_width for r in sel])
                 meas = np.array([r.setup.sigma for r in sel])
                 ci = np.array([r.setup.interval() for r in sel])
+                # the model as a curve between the distances measured, its band for the set-ups' sample size
+                grid = np.linspace(d.min(), d.max(), 60) if d.size > 1 else d
+                mats = np.array(_material_indices(m), dtype=np.int64)
+                dd, mm = np.meshgrid(grid, mats, indexing="ij")
+                inc = np.full(dd.shape, math.radians(90.0 - a))
+                p = model.sigma(dd, inc, mm).mean(axis=1)
+                band = model.band(dd, inc, mm).mean(axis=1) if hasattr(model, "band") else np.zeros_like(p)
+                dof = float(np.mean([r.setup.dof for r in sel]))
+                h = ver.z * np.sqrt(band**2 + p**2 / (2.0 * dof))
                 c = colours[m]
-                ax.fill_between(d, 1000 * (p - h), 1000 * (p + h), color=c, alpha=0.15)
-                ax.plot(d, 1000 * p, "-", color=c, lw=1)
+                ax.fill_between(grid, 1000 * (p - h), 1000 * (p + h), color=c, alpha=0.15)
+                ax.plot(grid, 1000 * p, "-", color=c, lw=1)
                 ax.errorbar(d, 1000 * meas, yerr=[1000 * (meas - ci[:, 0]), 1000 * (ci[:, 1] - meas)], fmt="o",
                             ms=3, color=c, capsize=2, label=m)
             ax.set_title(f"{a:g} deg (incidence {90 - a:g} deg)")
