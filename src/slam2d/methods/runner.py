@@ -87,8 +87,8 @@ def read_params_file(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """A YAML (or JSON) parameter file: ``(parameters, extras)``.
 
     Either a flat mapping ``name: value``, or a mapping with a ``params``
-    section (as ``run.json`` has), whose ``method`` and ``seed`` come back in
-    ``extras``.
+    section (as ``run.json`` has), whose ``method``, ``seed`` and
+    ``sensor_model`` come back in ``extras``.
     """
     from slam2d.io.yaml_file import read_yaml
 

@@ -200,7 +200,9 @@ def laser_report(cal: Any, model_path: Path | None, command: str = "") -> Report
         rep.text("Left out: " + "; ".join(data.skipped[:10]) + (" ..." if len(data.skipped) > 10 else ""))
     ref = cal.sigma_at_reference()
     rep.heading(f"Sigma at {cal.reference_distance:g} m")
-    rep.table(["fit", "sigma [mm]", "sigma [m]"], [[k, _mm(v), f"{v:.5f}"] for k, v in ref.items()])
+    label = {"all": "all surfaces and angles (eq. 1 form)"}
+    rep.table(["fit", "sigma [mm]", "sigma [m]"],
+              [[label.get(k, f"all surfaces, {k}"), _mm(v), f"{v:.5f}"] for k, v in ref.items()])
     rep.text(f"The single value for a method that takes one constant sigma (the study's choice): "
              f"--sensor-model constant:{ref['all']:.5f}" + (f"; the whole model: --sensor-model {model_path}"
                                                                if model_path else "") + ".")
