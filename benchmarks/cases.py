@@ -179,6 +179,32 @@ def lago_5000(_: Path) -> tuple[float, str]:
     return res.wall_s, (f"cpu {res.cpu_s:.3f} s, cost {res.cost_after:.6g} = {res.cost_after / spa.cost_after:.6f} x SPA's "
                         f"{spa.cost_after:.6g} (SPA {spa.wall_s:.3f} s wall, {spa.cpu_s:.3f} s cpu)")
 
+_ODOMETRY_INJECTED = {"srr": 0.1, "srt": 0.2, "str": 0.1, "stt": 0.2}  # the simulator's (GMapping's) defaults
+
+
+def calibrate_odometry_office(workdir: Path) -> tuple[float, str]:
+    """`slam2d calibrate odometry` on 10 min of `office` (simulated, not timed) against its truth.
+
+    The simulation injects the default noise plus a 2 % wheel radius and a -3 % track width error;
+    the note gives every recovered value's error (the issue's target: within 20 %).
+    """
+    import yaml
+
+    sim = workdir / "office-odometry"
+    if not (sim / "truth.tum").is_file():
+        _slam2d("simulate", "office", "--duration", "600", "--seed", "1", "--out", str(sim),
+                "--wheel-radius-scale", "1.02", "--track-width-scale", "0.97")
+    out = workdir / "calibrate-odometry"
+    t0 = time.perf_counter()
+    _slam2d("calibrate", "odometry", str(sim / "recording.log.gz"), "--reference", str(sim / "truth.tum"),
+            "--out", str(out))
+    seconds = time.perf_counter() - t0
+    doc = yaml.safe_load((out / "odometry.yaml").read_text())
+    parts = [f"{k} {100 * (doc['noise'][k]['value'] / v - 1):+.1f} %" for k, v in _ODOMETRY_INJECTED.items()]
+    parts.append(f"wheel scale {doc['wheel_radius_scale']['value']:.4f} (1.02)")
+    parts.append(f"track scale {doc['track_width_scale']['value']:.4f} (0.97)")
+    return seconds, f"{doc['intervals']} intervals; " + ", ".join(parts)
+
 
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
@@ -193,6 +219,9 @@ CASES: list[Case] = [
     Case("map-intel-kernel", "ray casting all intel scans into a 0.05 m grid (reading excluded)", map_intel_kernel,
          needs=(SHARED,)),
     Case("numba-compile", "cold numba compile of the grid kernels", numba_compile, warmup=False, repeat=1),
+    Case("calibrate-odometry-office", "`slam2d calibrate odometry` on 10 min of `office` against truth.tum, "
+         "whole command (simulation not timed)", calibrate_odometry_office,
+         target="every noise parameter within 20 %; < 15 s", max_seconds=15.0, repeat=1),
     Case("read-ros2-fr079", "read fr079 converted to a ROS 2 bag (sqlite3)", read_ros2_fr079, needs=(SHARED,)),
     Case("spa-5000", "SPA (LM, sparse Cholesky/LU) on a synthetic 5000-node, 10,000-edge Manhattan graph from odometry",
          spa_5000, target="< 0.3 s", max_seconds=0.3),

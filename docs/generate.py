@@ -5,7 +5,8 @@ Pages are written by hand; the parts between ``<!-- BEGIN GENERATED: key -->``
 and ``<!-- END GENERATED: key -->`` come from the code, so option lists and
 parameter tables cannot drift from what the program does:
 
-* ``help:COMMAND`` — the output of ``slam2d COMMAND --help``;
+* ``help:COMMAND`` — the output of ``slam2d COMMAND --help`` (``help:calibrate.laser``:
+  of ``slam2d calibrate laser --help``);
 * ``params:module:Class`` — the parameter table of a parameter dataclass;
 * ``method:NAME`` — a registered method's parameter table and the values it logs;
 * ``example:NAME`` — the output of an example command on a shared dataset
@@ -37,8 +38,10 @@ def _help(command: str) -> str:
 
     os.environ["COLUMNS"] = "100"  # argparse wraps to the terminal; fix it so output is stable
     parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    text = sub.choices[command].format_help()
+    for name in command.split("."):  # "calibrate.laser": a subcommand's subcommand
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[name]
+    text = parser.format_help()
     return "```text\n" + text.rstrip() + "\n```\n"
 
 

@@ -303,6 +303,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--params", type=Path, metavar="FILE",
                    help="YAML file of parameters (name: value), or a run.json to repeat; --set wins")
     p.add_argument("--seed", type=int, help="random seed (default: the --params file's, else 0)")
+    _add_sensor_model_option(p)
     add_arguments(p.add_argument_group("reading"), ReadOptions)
     p.set_defaults(handler=cmd_run)
 
@@ -316,7 +317,8 @@ def _command_line() -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from slam2d.methods.runner import build_method, run_method
 
-    slam = build_method(args.method, settings=_settings(args.settings), params_file=args.params, seed=args.seed)
+    slam = build_method(args.method, settings=_settings(args.settings), params_file=args.params, seed=args.seed,
+                        sensor_model=args.sensor_model)
     options = _read_options(args)
     with progress_bar(f"{slam.name} on {args.data.name}") as progress:
         summary = run_method(slam, args.data, args.out, read_options=options, progress=progress,
@@ -456,6 +458,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, help="random seed for every method (default: 0)")
     p.add_argument("--jobs", type=int, metavar="N",
                    help="methods run at once (default: one per core); --jobs 1 times each method alone")
+    _add_sensor_model_option(p)
     add_arguments(p.add_argument_group("reading"), ReadOptions)
     p.set_defaults(handler=cmd_compare)
 
@@ -499,6 +502,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         args.data, methods, args.out, truth=truth, relations=relations, settings=_settings(args.settings),
         per_method_params=_per_method_file(args.params, methods), seed=args.seed, read_options=_read_options(args),
         jobs=args.jobs, tolerance=args.tolerance, command=_command_line(), on_done=done,
+        sensor_model=args.sensor_model,
     )
     from slam2d.report.comparison import write_report
 
@@ -676,11 +680,195 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- calibrate and --sensor-model
+
+
+def _add_sensor_model_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sensor-model", metavar="MODEL",
+                   help="range noise model the methods weigh beams with: a model file ('slam2d calibrate laser' "
+                   "writes one), 'study' (the source study's URG-04LX model) or 'constant:SIGMA' in metres "
+                   "(default: each method's own constant)")
+
+
+def _add_calibrate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate the laser's range noise or the odometry's noise from data",
+        description="Estimate sensor and motion models from data: 'laser' fits sigma against distance (and "
+        "incidence) from repeated range measurements and writes a model file every method accepts "
+        "(--sensor-model); 'verify' checks a model against new measurements; 'odometry' estimates GMapping's "
+        "srr, srt, str, stt and the systematic scale errors against a reference trajectory.",
+    )
+    csub = p.add_subparsers(dest="calibrate_command", metavar="WHAT", required=True)
+    laser = csub.add_parser(
+        "laser",
+        help="range sigma per surface, angle and distance; fits; a sensor model file",
+        description="Reduce repeated range measurements as the source study did, for any laser: DATA is a tidy "
+        "CSV (material, angle_deg, distance_m, repetition, range_m, as 'slam2d repeatability' writes) or "
+        "recordings of a laser standing still before a static scene (per-beam statistics over the scans, "
+        "grouped by range and incidence). Writes OUT/report.html and OUT/report.md (sigma per surface and angle, "
+        "Gaussian probability plots, fits of sigma against distance with the degree chosen by "
+        "cross-validation, residuals and 95 %% bands, sigma at the reference distance) and OUT/model.yaml.",
+    )
+    laser.add_argument("data", type=Path, nargs="+", help="CSV file(s), or recording(s) of a static laser")
+    laser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    laser.add_argument("--reference-distance", type=float, default=2.5, metavar="M",
+                       help="distance at which to report one sigma [m] (default: 2.5, the study's)")
+    laser.add_argument("--degree", default="cv",
+                       help="polynomial degree of the fits, or 'cv' to choose it by leave-one-distance-out "
+                       "cross-validation (default: cv)")
+    laser.add_argument("--max-degree", type=int, default=3,
+                       help="highest degree cross-validation may choose (default: 3, the study's cubic)")
+    laser.add_argument("--range-bin", type=float, default=0.25, metavar="M",
+                       help="recordings: width of the range groups [m] (default: 0.25)")
+    laser.add_argument("--incidence-bin", type=float, default=15.0, metavar="DEG",
+                       help="recordings: width of the incidence groups [deg] (default: 15)")
+    laser.set_defaults(handler=cmd_calibrate_laser)
+    verify = csub.add_parser(
+        "verify",
+        help="measured repeatability under new conditions against a model's prediction",
+        description="Compare the sigma measured in DATA (CSV or static recordings, as for 'calibrate laser') "
+        "with MODEL's prediction at each set-up's distance, incidence and surface; count the set-ups inside "
+        "the model's band (prediction +- z x the model's own uncertainty and the sampling error combined). "
+        "Writes OUT/report.html, OUT/report.md and OUT/verification.json.",
+    )
+    verify.add_argument("model", help="a model file, 'study' or 'constant:SIGMA'")
+    verify.add_argument("data", type=Path, nargs="+", help="CSV file(s), or recording(s) of a static laser")
+    verify.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    verify.add_argument("--z", type=float, default=1.96, help="half-width of the band in standard deviations "
+                        "(default: 1.96, 95 %%)")
+    verify.add_argument("--range-bin", type=float, default=0.25, metavar="M",
+                        help="recordings: width of the range groups [m] (default: 0.25)")
+    verify.add_argument("--incidence-bin", type=float, default=15.0, metavar="DEG",
+                        help="recordings: width of the incidence groups [deg] (default: 15)")
+    verify.set_defaults(handler=cmd_calibrate_verify)
+    odo = csub.add_parser(
+        "odometry",
+        help="odometry noise (srr, srt, str, stt) and scale errors against a reference trajectory",
+        description="Maximum-likelihood estimates, with 95 %% intervals, of the odometry noise model the "
+        "simulator uses (GMapping's srr, srt, str, stt, see docs/robots.md) and of the systematic wheel radius "
+        "and track width scales, from DATA's odometry (a recording, or a TUM file of odometry poses) against "
+        "a reference trajectory. Writes OUT/gmapping-params.yaml (srr, srt, str, stt: 'slam2d run gmapping "
+        "--params' reads it), OUT/odometry.yaml (every estimate with its interval), OUT/report.html and "
+        "OUT/report.md.",
+    )
+    odo.add_argument("data", type=Path, help="a recording with odometry, or a TUM file of odometry poses")
+    odo.add_argument("--reference", type=Path, required=True, metavar="POSES.tum",
+                     help="reference trajectory (TUM), e.g. a simulation's truth.tum")
+    odo.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    odo.add_argument("--linear-update", type=float, default=1.0, metavar="M",
+                     help="translation over which srr is the spread per metre (GMapping linearUpdate; the "
+                     "simulator's reference_distance) [m] (default: 1.0)")
+    odo.add_argument("--angular-update", type=float, default=0.5, metavar="RAD",
+                     help="rotation over which stt is the spread per radian (GMapping angularUpdate; the "
+                     "simulator's reference_rotation) [rad] (default: 0.5)")
+    odo.add_argument("--exact-reference", action="store_true",
+                     help="the reference has no error of its own (a simulator's truth): do not estimate its noise")
+    odo.add_argument("--max-gap", type=float, default=0.5, metavar="S",
+                     help="longest gap between reference poses to interpolate across [s] (default: 0.5)")
+    odo.set_defaults(handler=cmd_calibrate_odometry)
+
+
+def _degree(text: str) -> int | None:
+    if text.strip().lower() == "cv":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{text!r} is not a whole number or 'cv'", field="--degree") from None
+
+
+def cmd_calibrate_laser(args: argparse.Namespace) -> int:
+    from slam2d.io.atomic import write_text_atomic
+    from slam2d.sensors.calibration.laser import calibrate_laser, load_laser_data
+    from slam2d.sensors.calibration.model import dump_model_yaml, model_from_document
+    from slam2d.sensors.calibration.report import laser_report
+
+    data = load_laser_data(args.data, range_bin=args.range_bin, incidence_bin=args.incidence_bin)
+    cal = calibrate_laser(data, reference_distance=args.reference_distance, degree=_degree(args.degree),
+                          max_degree=args.max_degree)
+    model_path = args.out / "model.yaml"
+    doc = cal.model_document({"command": _command_line()})
+    model_from_document(doc, model_path)  # what we write must read back
+    args.out.mkdir(parents=True, exist_ok=True)
+    header = f"slam2d sensor model (docs/sensor-model.md); use it with --sensor-model {model_path}"
+    write_text_atomic(model_path, dump_model_yaml(doc, header))
+    written = [model_path, *laser_report(cal, model_path, _command_line()).write(args.out)]
+    out = _console()
+    ref = cal.sigma_at_reference()
+    out.print(f"{len(data.setups)} set-ups; sigma at {cal.reference_distance:g} m: "
+              + ", ".join(f"{k} {1000 * v:.2f} mm" for k, v in ref.items()), markup=False)
+    for path in written[:3]:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
+def cmd_calibrate_verify(args: argparse.Namespace) -> int:
+    from slam2d.io.atomic import write_text_atomic
+    from slam2d.sensors.calibration.laser import load_laser_data, verify_model
+    from slam2d.sensors.calibration.model import sensor_model_from_spec
+    from slam2d.sensors.calibration.report import verify_report
+
+    model = sensor_model_from_spec(args.model)
+    data = load_laser_data(args.data, range_bin=args.range_bin, incidence_bin=args.incidence_bin)
+    ver = verify_model(model, data, z=args.z, source=args.model)
+    written = verify_report(ver, model, data.sources, _command_line()).write(args.out)
+    summary = {
+        "model": args.model, "data": data.sources, "z": ver.z, "share_inside": ver.share_inside,
+        "setups": [{"material": r.setup.material, "angle_deg": r.setup.angle_deg, "distance_m": r.setup.distance,
+                    "measured_sigma_m": r.setup.sigma, "predicted_sigma_m": r.predicted,
+                    "band_half_width_m": r.half_width, "inside": r.inside} for r in ver.rows],
+    }
+    write_text_atomic(args.out / "verification.json", json.dumps(summary, indent=2) + "\n")
+    out = _console()
+    out.print(f"{sum(r.inside for r in ver.rows)} of {len(ver.rows)} set-ups ({100 * ver.share_inside:.1f} %) "
+              f"inside the model's band", markup=False)
+    for path in [args.out / "verification.json", *written[:2]]:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
+def cmd_calibrate_odometry(args: argparse.Namespace) -> int:
+    from slam2d.io.atomic import write_text_atomic
+    from slam2d.sensors.calibration.model import dump_model_yaml
+    from slam2d.sensors.calibration.odometry import calibrate_odometry, load_odometry_pairs
+    from slam2d.sensors.calibration.report import odometry_report
+
+    if not args.max_gap > 0:
+        raise InputError(f"{args.max_gap} s must be positive", field="--max-gap")
+    pairs = load_odometry_pairs(args.data, args.reference, max_gap=args.max_gap)
+    cal = calibrate_odometry(pairs, reference_distance=args.linear_update, reference_rotation=args.angular_update,
+                             exact_reference=args.exact_reference)
+    args.out.mkdir(parents=True, exist_ok=True)
+    params = cal.gmapping_params()
+    lines = [f"# GMapping odometry noise from 'slam2d calibrate odometry' ({cal.intervals} intervals)",
+             f"# linearUpdate {cal.reference_distance:g} m, angularUpdate {cal.reference_rotation:g} rad; "
+             "95 % intervals in odometry.yaml"]
+    lines += [f"{k}: {v!r}" for k, v in params.items()]
+    gpath, fpath = args.out / "gmapping-params.yaml", args.out / "odometry.yaml"
+    write_text_atomic(gpath, "\n".join(lines) + "\n")
+    record = {**cal.as_dict(), "data": str(args.data), "reference": str(args.reference), "command": _command_line()}
+    write_text_atomic(fpath, dump_model_yaml(record, "odometry calibration (docs/commands/calibrate.md)"))
+    written = [gpath, fpath, *odometry_report(cal, [str(args.data), str(args.reference)], _command_line()).write(args.out)]
+    out = _console()
+    for k, e in cal.noise.items():
+        ci = f"[{e.low:.4g}, {e.high:.4g}]" if e.identifiable else "not identifiable"
+        out.print(f"  {k} = {e.value:.4g} {ci}", markup=False)
+    for k in ("wheel_radius_scale", "track_width_scale"):
+        e = getattr(cal, k)
+        out.print(f"  {k} = {e.value:.4f} [{e.low:.4f}, {e.high:.4f}]", markup=False)
+    for note in cal.notes:
+        out.print(f"  note: {note}", markup=False)
+    for path in written[:4]:
+        out.print(f"  wrote {path}", markup=False)
+    return 0
+
+
 # --------------------------------------------------------------------------- entry point
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
-    _add_repeatability, _add_demo,
+    _add_repeatability, _add_demo, _add_calibrate,
 ]
 
 

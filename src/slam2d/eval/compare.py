@@ -109,7 +109,7 @@ def _split_settings(
 
 
 def _child(method: str, data: str, run_dir: str, settings: dict[str, Any], seed: int | None,
-           options: dict[str, Any], command: str) -> None:
+           options: dict[str, Any], command: str, sensor_model: Any = None) -> None:
     """Body of a method's process: run it; on any failure leave ``error.json`` and exit 1."""
     import json
     import traceback
@@ -122,7 +122,7 @@ def _child(method: str, data: str, run_dir: str, settings: dict[str, Any], seed:
     out = Path(run_dir)
     try:
         run_method(method, data, out, settings=settings, seed=seed, read_options=ReadOptions(**options),
-                   command=command)
+                   command=command, sensor_model=sensor_model)
     except BaseException as exc:  # report everything, bugs included: the others go on
         line = str(exc) if isinstance(exc, Slam2dError) else f"{type(exc).__name__}: {exc}"
         out.mkdir(parents=True, exist_ok=True)
@@ -149,8 +149,12 @@ def run_all(
     jobs: int,
     command: str = "",
     on_done: Callable[[MethodOutcome, float], None] | None = None,
+    sensor_model: Any = None,
 ) -> list[MethodOutcome]:
-    """Run every method in its own process, ``jobs`` at a time; a failure is an outcome, not an exception."""
+    """Run every method in its own process, ``jobs`` at a time; a failure is an outcome, not an exception.
+
+    ``sensor_model`` (a model or its ``--sensor-model`` text) goes to every method.
+    """
     import json
 
     ctx = _process_context()
@@ -165,7 +169,7 @@ def run_all(
                 (run_dir / stale).unlink(missing_ok=True)
             proc = ctx.Process(
                 target=_child, name=f"slam2d-{m}",
-                args=(m, str(data), str(run_dir), settings.get(m, {}), seed, options, command),
+                args=(m, str(data), str(run_dir), settings.get(m, {}), seed, options, command, sensor_model),
             )
             proc.start()
             running[m] = (proc, time.perf_counter())
@@ -212,6 +216,7 @@ def compare(
     tolerance: float = 0.1,
     command: str = "",
     on_done: Callable[[MethodOutcome, float], None] | None = None,
+    sensor_model: Any = None,
 ) -> Comparison:
     """Run ``methods`` on ``data`` in parallel processes and evaluate each run the same way.
 
@@ -219,7 +224,9 @@ def compare(
     ``relations`` a :class:`~slam2d.io.relations.Relations`. ``known-poses``
     maps along the truth's trajectory unless its ``poses`` is set. Runs go to
     ``out_dir/runs/METHOD/``. The truth is checked against the recording's
-    time span before anything runs.
+    time span before anything runs. ``sensor_model`` (a range noise model, or
+    its ``--sensor-model`` text: a model file, ``study``, ``constant:SIGMA``)
+    is handed to every method; a text is checked here before anything runs.
     """
     import json
 
@@ -257,12 +264,16 @@ def compare(
             from_mapping(get_method(m).Params, per_method[m])
         except InputError as exc:
             raise InputError(f"{m}: {exc}") from None
+    if isinstance(sensor_model, str):
+        from slam2d.sensors.calibration.model import sensor_model_from_spec
+
+        sensor_model_from_spec(sensor_model)  # a bad file fails here, once
     recording.update(input_digest(data))
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     n_jobs = max(1, min(len(methods), jobs if jobs else (os.cpu_count() or 1)))
     outcomes = run_all(methods, data, runs_dir, settings=per_method, seed=seed, options=as_dict(options),
-                       jobs=n_jobs, command=command, on_done=on_done)
+                       jobs=n_jobs, command=command, on_done=on_done, sensor_model=sensor_model)
     for outcome in outcomes:
         if not outcome.ok:
             continue

@@ -87,22 +87,13 @@ def read_params_file(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """A YAML (or JSON) parameter file: ``(parameters, extras)``.
 
     Either a flat mapping ``name: value``, or a mapping with a ``params``
-    section (as ``run.json`` has), whose ``method`` and ``seed`` come back in
-    ``extras``.
+    section (as ``run.json`` has), whose ``method``, ``seed`` and
+    ``sensor_model`` come back in ``extras``.
     """
-    import yaml
+    from slam2d.io.yaml_file import read_yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError("no such parameter file" if not path.exists() else "is not a file", path=path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise InputError("is not text (a YAML parameter file was expected)", path=path) from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = mark.line + 1 if mark is not None else None
-        raise InputError(f"not valid YAML: {getattr(exc, 'problem', None) or exc}", path=path, where=where) from None
+    doc = read_yaml(path, "parameter file")
     if doc is None:
         return {}, {}
     if not isinstance(doc, dict):
@@ -111,7 +102,7 @@ def read_params_file(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
         params = doc["params"]
         if not isinstance(params, dict):
             raise InputError("'params' must be a mapping of parameter names to values", path=path, field="params")
-        extras = {k: doc[k] for k in ("method", "seed") if k in doc}
+        extras = {k: doc[k] for k in ("method", "seed", "sensor_model") if k in doc}
         return dict(params), extras
     return dict(doc), {}
 
@@ -127,9 +118,13 @@ def build_method(
     """Construct a method by name from a parameter file and ``name=value`` settings (settings win).
 
     The seed is the one given, else the parameter file's (a ``run.json``), else 0.
+    ``sensor_model`` is a range noise model, or its ``--sensor-model`` text (a
+    model file, ``study``, ``constant:SIGMA``); without one, a ``run.json``'s
+    model is used again.
     """
     cls = get_method(method)
     values: dict[str, Any] = {}
+    extras: dict[str, Any] = {}
     file_seed = None
     if params_file is not None:
         values, extras = read_params_file(params_file)
@@ -144,6 +139,14 @@ def build_method(
         values.update(settings)
     params = from_mapping(cls.Params, values)
     chosen_seed = seed if seed is not None else (int(file_seed) if file_seed is not None else 0)
+    if sensor_model is None and params_file is not None:
+        recorded = extras.get("sensor_model")
+        if isinstance(recorded, dict) and recorded.get("spec"):
+            sensor_model = recorded["spec"]
+    if isinstance(sensor_model, str):
+        from slam2d.sensors.calibration.model import sensor_model_from_spec
+
+        sensor_model = sensor_model_from_spec(sensor_model)
     return cls(params, seed=chosen_seed, sensor_model=sensor_model)
 
 
@@ -172,15 +175,19 @@ def run_method(
     read_options: ReadOptions | None = None,
     progress: ProgressCallback | None = None,
     command: str = "",
+    sensor_model: Any = None,
 ) -> RunSummary:
-    """Run a method (a name, or an instance already built) over every frame of ``data``; write the run folder."""
+    """Run a method (a name, or an instance already built) over every frame of ``data``; write the run folder.
+
+    ``sensor_model`` (a model or its ``--sensor-model`` text) is for a method given by name.
+    """
     from slam2d.io import detect_format, open_recording
 
     data = Path(data)
     out_dir = Path(out_dir)
     options = read_options if read_options is not None else ReadOptions()
     slam = method if isinstance(method, SlamMethod) else build_method(
-        method, settings=settings, params_file=params_file, seed=seed
+        method, settings=settings, params_file=params_file, seed=seed, sensor_model=sensor_model
     )
     recording = open_recording(data, options)
     digest = input_digest(data)
@@ -244,11 +251,14 @@ def _write_run(
     diag_path = out_dir / "diagnostics.json"
     write_text_atomic(diag_path, json.dumps(diag, default=_json_default) + "\n")
     written.append(diag_path)
+    from slam2d.sensors.calibration.model import describe_sensor_model
+
     record = {
         "format": RUN_FORMAT,
         "method": slam.name,
         "params": slam.parameters(),
         "seed": slam.seed,
+        "sensor_model": describe_sensor_model(slam.sensor_model),
         "data": {"path": str(data.resolve()), "format": data_format, **digest},
         "read_options": as_dict(options),
         "scans": frames,

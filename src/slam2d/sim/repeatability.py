@@ -285,10 +285,11 @@ def write_repeatability_csv(path: str | Path, rows: RepeatabilityRows) -> Path:
     return path
 
 
-def read_repeatability_csv(path: str | Path) -> RepeatabilityRows:
+def read_repeatability_csv(path: str | Path, *, any_material: bool = False) -> RepeatabilityRows:
     """Read a CSV written by :func:`write_repeatability_csv` (or any with the same columns).
 
-    Streams the file; a bad header or value raises
+    ``any_material`` accepts any surface name (a user's own measurements, for
+    calibration); otherwise a material must be one of the simulator's. Streams the file; a bad header or value raises
     :class:`~slam2d.errors.InputError` naming the file, the line and the column.
     """
     path = Path(path)
@@ -336,7 +337,9 @@ def read_repeatability_csv(path: str | Path) -> RepeatabilityRows:
                         ) from None
 
                 name = row[index["material"]].strip()
-                if name not in MATERIALS:
+                if not name:
+                    raise InputError("empty material name", path=path, where=line, field="material")
+                if not any_material and name not in MATERIALS:
                     raise InputError(
                         f"unknown material {name!r}; valid materials: {', '.join(MATERIALS)}",
                         path=path, where=line, field="material",
