@@ -25,7 +25,7 @@ from typing import Any
 
 from slam2d.errors import InputError
 from slam2d.sweep.execute import (
-    MAX_ATTEMPTS, base_row, clear_attempts, execute_run, prepare_dataset, read_result, write_result,
+    MAX_ATTEMPTS, RESULT, base_row, clear_attempts, execute_run, prepare_dataset, read_result, write_result,
 )
 from slam2d.sweep.expand import RunTask, expand
 from slam2d.sweep.spec import SweepSpec, check_methods
@@ -141,6 +141,7 @@ def run_sweep(
             rows[run.id] = row
             continue
         clear_attempts(run_dir)
+        (run_dir / RESULT).unlink(missing_ok=True)  # a failed run being retried, or an unreadable result
         todo.append(run)
     result = SweepResult(out_dir, [], reused=len(rows))
     if todo:
@@ -184,6 +185,9 @@ def run_sweep(
                     row["error"] = ("lost twice: " if lost_reasons[key] else "") + (error or "").splitlines()[0]
                     row["attempts"] = len(lost_reasons[key])
                     write_result(Path(tasks[key]["run_dir"]), row)
+                if row.get("lost") and not lost_reasons[key]:  # the scheduler retried it without telling us
+                    result.lost.append(f"run {key}: {row['lost']}")
+                    note(f"run {key}: {row['lost']}")
                 rows[key] = row
                 result.executed += 1
                 result.task_s += float(row.get("task_s") or 0.0)

@@ -153,6 +153,9 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     row = base_row(task)
     row["worker"] = _worker_name()
     run_dir.mkdir(parents=True, exist_ok=True)
+    done = read_result(run_dir)
+    if done is not None and done.get("run_id") == task["id"]:
+        return done  # an earlier attempt finished; only its reply was lost (the scheduler recomputes lost results)
     attempt = attempts_started(run_dir) + 1
     row["attempts"] = attempt
     if attempt > MAX_ATTEMPTS:

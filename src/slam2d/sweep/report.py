@@ -115,7 +115,7 @@ def _numeric(values: list[Any]) -> bool:
     return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values if v is not None)
 
 
-def plot_metric(rows: list[dict[str, Any]], metric: str, column: str) -> bytes | None:
+def plot_metric(rows: list[dict[str, Any]], metric: str, column: str, unit: str = "") -> bytes | None:
     """PNG of ``metric`` against one swept value (``param.NAME`` or ``data.NAME``): every ok run as a dot,
     a line through the median at each value, one colour per method and dataset. None if nothing to draw."""
     from slam2d.report.plots import _new_figure, _png, _style, method_colours
@@ -138,7 +138,6 @@ def plot_metric(rows: list[dict[str, Any]], metric: str, column: str) -> bytes |
     numeric = _numeric(all_x)
     categories = sorted({str(x) for x in all_x}) if not numeric else []
     m = METRICS[metric]
-    scale = m.column.scale
     with _style():
         fig = _new_figure(5.0, 3.4, layout="constrained")
         ax = fig.add_subplot(1, 1, 1)
@@ -157,14 +156,13 @@ def plot_metric(rows: list[dict[str, Any]], metric: str, column: str) -> bytes |
                 ax.set_xscale("log")
         else:
             ax.set_xticks(range(len(categories)), categories)
-        unit = f" [{m.unit}]" if m.unit else ""
-        ax.set_xlabel(name if kind == "param" else f"{name} (simulation)")
-        ax.set_ylabel(f"{metric}{unit}")
+        xunit = f" [{unit}]" if unit else ""
+        ax.set_xlabel((name if kind == "param" else f"{name} (simulation)") + xunit)
+        ax.set_ylabel(f"{metric} [{m.unit}]" if m.unit else metric)
         direction = {"lower": "lower is better", "higher": "higher is better"}.get(m.better or "", "")
         ax.set_title(f"{metric} against {name}" + (f" ({direction})" if direction else ""))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", frameon=False)
-        del scale  # values in the rows are already in the metric's unit
         return _png(fig)
 
 
@@ -179,13 +177,29 @@ def swept_columns(rows: list[dict[str, Any]]) -> list[str]:
     return [c for c, vals in seen.items() if len(vals) > 1]
 
 
+def _units(spec: SweepSpec) -> dict[str, str]:
+    """Unit of each swept column, from the methods' and the simulation's parameter declarations."""
+    from slam2d.methods.registry import available
+    from slam2d.params import describe
+    from slam2d.sensors.motion_noise import OdometryNoise
+    from slam2d.sim.simulate import SimulationParams
+
+    units = {f"data.{p.name}": p.unit for cls in (SimulationParams, OdometryNoise) for p in describe(cls)}
+    registered = available()
+    for sweep in spec.methods:
+        if sweep.method in registered:
+            units.update({f"param.{p.name}": p.unit for p in describe(registered[sweep.method].Params)})
+    return units
+
+
 def write_plots(rows: list[dict[str, Any]], spec: SweepSpec, out_dir: Path) -> list[Path]:
     from slam2d.io.atomic import write_bytes_atomic
 
     written = []
+    units = _units(spec)
     for metric in spec.metrics:
         for column in swept_columns(rows):
-            png = plot_metric(rows, metric.name, column)
+            png = plot_metric(rows, metric.name, column, units.get(column, ""))
             if png is None:
                 continue
             path = out_dir / "plots" / f"{metric.name}-vs-{column.split('.', 1)[1]}.png"
@@ -251,14 +265,18 @@ def summary_html(spec: SweepSpec, result: Any, plots: list[Path]) -> str:
         if not b["per_dataset"]:
             parts.append('<p class="note">no finished run with a value of the objective</p>')
             continue
-        head = "".join(f"<th>{_e(m.name)}</th>" for m in spec.metrics if m is not obj)
+        head = "".join(f"<th>{_e(m.name)}{_e(f' [{m.unit}]' if m.unit else '')}</th>"
+                       for m in spec.metrics if m is not obj)
         parts.append(f"<table><tr><th>dataset</th><th>best setting</th><th>{_e(obj.name)} mean ± sd{_e(unit)}</th>"
                      f"<th>min - max</th><th>runs</th>{head}</tr>")
         for d, s in b["per_dataset"].items():
+            ties = sum(1 for o in stats if o.method == method and o.dataset == d and o is not s and o.mean is not None
+                       and o.failed == s.failed == 0 and math.isclose(o.mean, s.mean, rel_tol=1e-12, abs_tol=0.0))
+            tie = f" (tied with {ties} other setting(s))" if ties else ""
             others = "".join(f'<td class="num">{_fmt(s.means.get(m.name))}</td>' for m in spec.metrics if m is not obj)
             failed = f', <span class="failed">{s.failed} failed</span>' if s.failed else ""
             parts.append(
-                f"<tr><td>{_e(d)}</td><td>{_e(_setting_text(s.setting))}</td>"
+                f"<tr><td>{_e(d)}</td><td>{_e(_setting_text(s.setting))}{_e(tie)}</td>"
                 f'<td class="num">{_fmt(s.mean)} ± {_fmt(s.std, 2)}</td>'
                 f'<td class="num">{_fmt(min(s.values))} - {_fmt(max(s.values))}</td>'
                 f'<td class="num">{s.n}{failed}</td>{others}</tr>'
