@@ -24,7 +24,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-__all__ = ["MAX_ATTEMPTS", "RESULT", "prepare_dataset", "execute_run", "read_result", "write_result",
+__all__ = ["MAX_ATTEMPTS", "RESULT", "warm_imports", "prepare_dataset", "execute_run", "read_result", "write_result",
            "clear_attempts", "attempts_started"]
 
 MAX_ATTEMPTS = 2  # a run whose worker dies is retried once
@@ -42,6 +42,23 @@ def _error_line(exc: BaseException) -> str:
 
     text = str(exc) if isinstance(exc, Slam2dError) else f"{type(exc).__name__}: {exc}"
     return text.strip().splitlines()[0] if text.strip() else type(exc).__name__
+
+
+def warm_imports() -> None:
+    """Import what every run needs, so that forked workers inherit it instead of each importing it again."""
+    import matplotlib.figure  # noqa: F401  (map previews)
+    import matplotlib.image  # noqa: F401
+
+    import slam2d.eval.evaluate  # noqa: F401
+    import slam2d.eval.map_metrics  # noqa: F401
+    import slam2d.eval.trajectory_metrics  # noqa: F401
+    import slam2d.io  # noqa: F401
+    import slam2d.io.carmen  # noqa: F401
+    import slam2d.methods.runner  # noqa: F401
+    import slam2d.report.map_outputs  # noqa: F401
+    from slam2d.methods.registry import available
+
+    available()  # imports every method module
 
 
 # --------------------------------------------------------------------------- datasets

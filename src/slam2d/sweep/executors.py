@@ -80,6 +80,10 @@ class LocalPool:
         return {w.key: w.proc.pid for w in self._workers if w.key is not None}
 
     def _start_worker(self) -> _Worker:
+        if not self._workers and self._ctx.get_start_method() == "fork":
+            from slam2d.sweep.execute import warm_imports
+
+            warm_imports()  # once, in the parent: every forked worker starts with it imported
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_loop, args=(child,), name="slam2d-sweep-worker", daemon=True)
         proc.start()
