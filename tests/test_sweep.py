@@ -367,3 +367,15 @@ def test_killing_a_dask_worker_mid_sweep_loses_no_finished_result(tmp_path, reco
     _check_kill_outcome(result, killed)
     assert len(result.rows) == 12
     cluster.wait_for_workers(2, timeout=60)  # the nanny restarted the killed worker
+
+
+def test_the_docs_page_lists_every_metric_and_the_shipped_sweeps_parse():
+    from slam2d.sweep.spec import METRICS
+
+    page = (ROOT / "docs" / "commands" / "sweep.md").read_text()
+    for name in METRICS:
+        assert f"| `{name}` |" in page, f"docs/commands/sweep.md does not list metric {name}"
+    spec = load_spec(ROOT / "sweeps" / "odometry-noise.yaml")
+    check_methods(spec)
+    _, runs = expand(spec, Path("unused"))
+    assert len(runs) == 3 * 4 * 3
