@@ -183,12 +183,16 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         row["lost"] = f"{attempt - 1} earlier attempt(s) lost: the worker died"
     (run_dir / f"{_MARKER}{attempt}").write_text(f"{row['worker']} {datetime.now(timezone.utc).isoformat()}\n")
     data = task["data"]
+    if task.get("data_error"):  # its recording could not be simulated
+        row["error"] = f"dataset {task['dataset']}: {task['data_error']}"
+        return _finish(row, run_dir, t0)
     try:
-        if task.get("data_error"):
-            raise RuntimeError(f"dataset {task['dataset']}: {task['data_error']}")
         from slam2d.eval.evaluate import evaluate_run, load_run
         from slam2d.io.atomic import write_text_atomic
         from slam2d.methods.runner import run_method
+
+        from slam2d.methods.registry import get_method
+        from slam2d.params import as_dict, from_mapping
 
         settings = dict(task["settings"])
         if task["method"] == "known-poses" and "poses" not in settings:
@@ -196,6 +200,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
             if poses is None:
                 raise ValueError("known-poses needs a dataset with 'truth' or 'reference' (or set its 'poses')")
             settings["poses"] = str(poses)
+        row["params"] = as_dict(from_mapping(get_method(task["method"]).Params, settings))  # every value, even if it fails
         summary = run_method(task["method"], data["recording"], run_dir, settings=settings, seed=task["seed"],
                              command=f"slam2d sweep (run {task['id']})")
         row["params"] = summary.record["params"]
