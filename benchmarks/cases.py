@@ -213,9 +213,11 @@ def sweep_scaling(workdir: Path) -> tuple[float, str]:
     spec = _sweep_spec(workdir, _sweep_recording(workdir, 60.0), 40)
     one, cpu_one, r1 = _timed_sweep(workdir, spec, "sweep-1", workers=1)
     two, _, r2 = _timed_sweep(workdir, spec, "sweep-2", workers=2)
+    cpu1 = sum(r["cpu_s"] for r in r1.rows) / len(r1.rows)
+    cpu2 = sum(r["cpu_s"] for r in r2.rows) / len(r2.rows)
     return two, (f"1 worker {one:.1f} s, 2 workers {two:.1f} s: speedup {one / two:.2f}x "
-                 f"(runs {r1.task_s / r1.executed:.2f} s each, overhead {1000 * r2.overhead_per_run_s:.0f} ms/run "
-                 f"with 2)")
+                 f"(a run: {r1.task_s / r1.executed:.2f} s wall, {cpu1:.2f} s CPU with 1 worker, {cpu2:.2f} s CPU "
+                 f"with 2; overhead {1000 * r2.overhead_per_run_s:.0f} ms/run with 2)")
 
 
 CASES: list[Case] = [

@@ -135,7 +135,7 @@ def base_row(task: dict[str, Any]) -> dict[str, Any]:
         "data_settings": dict(task["data_settings"]), "params": dict(task["settings"]),
         "metrics": {m: None for m in task["metrics"]}, "status": "failed", "error": None, "attempts": 0,
         "lost": "; ".join(task.get("lost", [])) or None, "scans": None, "run_s": None, "eval_s": None,
-        "task_s": None, "worker": None, "finished": None,
+        "task_s": None, "cpu_s": None, "worker": None, "finished": None,
     }
 
 
@@ -166,6 +166,7 @@ def _truth(data: dict[str, Any]) -> tuple[Any, Any]:
 def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     """Run one method on one recording, evaluate it, write ``result.json``; return the row. Never raises."""
     t0 = time.perf_counter()
+    c0 = time.process_time()
     run_dir = Path(task["run_dir"])
     row = base_row(task)
     row["worker"] = _worker_name()
@@ -178,14 +179,14 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     if attempt > MAX_ATTEMPTS:
         row["error"] = f"given up: the worker running it died in each of {attempt - 1} attempts"
         row["lost"] = row["lost"] or row["error"]
-        return _finish(row, run_dir, t0)
+        return _finish(row, run_dir, t0, c0)
     if attempt > 1 and not row["lost"]:
         row["lost"] = f"{attempt - 1} earlier attempt(s) lost: the worker died"
     (run_dir / f"{_MARKER}{attempt}").write_text(f"{row['worker']} {datetime.now(timezone.utc).isoformat()}\n")
     data = task["data"]
     if task.get("data_error"):  # its recording could not be simulated
         row["error"] = f"dataset {task['dataset']}: {task['data_error']}"
-        return _finish(row, run_dir, t0)
+        return _finish(row, run_dir, t0, c0)
     try:
         from slam2d.eval.evaluate import evaluate_run, load_run
         from slam2d.io.atomic import write_text_atomic
@@ -218,11 +219,12 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     except Exception as exc:  # a failed run is a row with its error; the sweep goes on (Ctrl-C is not a result)
         row["error"] = _error_line(exc)
         row["details"] = traceback.format_exc()
-    return _finish(row, run_dir, t0)
+    return _finish(row, run_dir, t0, c0)
 
 
-def _finish(row: dict[str, Any], run_dir: Path, t0: float) -> dict[str, Any]:
+def _finish(row: dict[str, Any], run_dir: Path, t0: float, c0: float) -> dict[str, Any]:
     row["task_s"] = time.perf_counter() - t0
+    row["cpu_s"] = time.process_time() - c0  # the worker's CPU time: a load-independent cost
     row["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
     write_result(run_dir, row)
     return row

@@ -5,7 +5,7 @@ Columns, in order: ``run_id``, ``method``, ``dataset``, ``dataset_seed``,
 (every parameter of the method as run: the swept ones first), one column per
 metric (units in :data:`slam2d.sweep.spec.METRICS`), then ``status``
 (``ok``/``failed``), ``error``, ``lost`` (attempts lost to a dead worker),
-``attempts``, ``scans``, ``run_s``, ``eval_s``, ``task_s``, ``worker``,
+``attempts``, ``scans``, ``run_s``, ``eval_s``, ``task_s``, ``cpu_s``, ``worker``,
 ``finished``. A missing value is null in Parquet and empty in CSV.
 """
 
@@ -19,9 +19,9 @@ from typing import Any
 __all__ = ["TIMING_COLUMNS", "columns", "flatten", "write_table", "read_table"]
 
 #: Columns that depend on the machine, the load and the executor, not on the seeds.
-TIMING_COLUMNS = ("attempts", "lost", "run_s", "eval_s", "task_s", "worker", "finished")
+TIMING_COLUMNS = ("attempts", "lost", "run_s", "eval_s", "task_s", "cpu_s", "worker", "finished")
 _HEAD = ("run_id", "method", "dataset", "dataset_seed", "seed")
-_TAIL = ("status", "error", "lost", "attempts", "scans", "run_s", "eval_s", "task_s", "worker", "finished")
+_TAIL = ("status", "error", "lost", "attempts", "scans", "run_s", "eval_s", "task_s", "cpu_s", "worker", "finished")
 
 
 def columns(rows: list[dict[str, Any]], metrics: list[str]) -> list[str]:
