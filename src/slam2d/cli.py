@@ -693,7 +693,8 @@ def _add_sweep(sub: argparse._SubParsersAction) -> None:
     p.add_argument("spec", type=Path, help="the sweep spec (YAML; see docs/commands/sweep.md)")
     p.add_argument("--out", type=Path, required=True, help="output folder (created if missing; reused to resume)")
     p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                   help="address of a running Dask scheduler (start one with dask-scheduler and dask-worker); "
+                   help="address of a running Dask scheduler (start one with 'dask scheduler' and 'dask worker', "
+                   "formerly dask-scheduler and dask-worker); "
                    "default: a local process pool")
     p.add_argument("--workers", type=int, metavar="N",
                    help="local worker processes (default: one per core); with --scheduler, wait until N "
