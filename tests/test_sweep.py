@@ -348,10 +348,12 @@ def cluster():
         yield c
 
 
-def test_a_dask_cluster_and_the_local_pool_give_identical_tables(tmp_path, recordings, cluster):
+def test_a_dask_cluster_and_the_local_pool_give_identical_tables(tmp_path, recordings, cluster, monkeypatch):
     spec = load_spec(_write(tmp_path, _spec_text(recordings, seeds=(0, 1))))
-    on_cluster = run_sweep(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, workers=2)
+    monkeypatch.chdir(tmp_path)  # a relative --out: the workers run elsewhere, yet write here
+    on_cluster = run_sweep(spec, Path("dask"), scheduler=cluster.scheduler_address, workers=2)
     assert on_cluster.executor.startswith("Dask scheduler") and on_cluster.executed == 16
+    assert len(list((tmp_path / "dask" / "runs").glob("*/result.json"))) == 16
     assert len({r["worker"] for r in on_cluster.rows}) == 2  # both workers ran runs
     local = run_sweep(spec, tmp_path / "pool", workers=2)
     a = _comparable(read_table(tmp_path / "dask" / "results.parquet"))

@@ -127,7 +127,7 @@ def run_sweep(
     note = on_note or (lambda _line: None)
     check_methods(spec)
     require_pyarrow()
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).resolve()  # workers (Dask's) have their own working directory: absolute paths only
     data, runs = expand(spec, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out_dir / "spec.yaml", spec.text)
