@@ -129,6 +129,29 @@ def test_the_cli_reports_a_spec_error_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+def test_missing_optional_dependencies_are_named_with_the_extra_to_install(tmp_path, monkeypatch):
+    import sys
+
+    from slam2d.sweep.executors import DaskExecutor
+
+    spec = load_spec(_write(tmp_path, "methods: [odometry]\ndatasets: [{world: paper-arena, duration: 5}]\n"))
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    with pytest.raises(InputError, match=r"pip install 'slam2d\[sweep\]'"):
+        run_sweep(spec, tmp_path / "out")
+    assert not (tmp_path / "out").exists()  # stopped before anything ran
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(InputError, match=r"--scheduler: .*pip install 'slam2d\[sweep\]'"):
+        DaskExecutor("tcp://127.0.0.1:1")
+
+
+def test_an_unreachable_scheduler_is_a_clear_error():
+    pytest.importorskip("distributed")
+    from slam2d.sweep.executors import DaskExecutor
+
+    with pytest.raises(InputError, match=r"--scheduler: cannot connect to the Dask scheduler at tcp://127.0.0.1:9"):
+        DaskExecutor("tcp://127.0.0.1:9", timeout=2.0)
+
+
 # --------------------------------------------------------------------------- expansion
 
 
