@@ -314,7 +314,10 @@ def _kill_a_running_run(runs_dir: Path, stop: threading.Event, killed: list) -> 
                 markers = sorted(run.glob("started-*"))
                 if not markers or (run / "result.json").exists():
                     continue
-                pid = int(markers[-1].read_text().split()[0].rsplit(":", 1)[1])
+                try:
+                    pid = int(markers[-1].read_text().split()[0].rsplit(":", 1)[1])
+                except (IndexError, ValueError):  # caught between the marker's creation and its first write
+                    continue
                 try:
                     os.kill(pid, signal.SIGSTOP)
                 except ProcessLookupError:
@@ -354,7 +357,7 @@ def _check_kill_outcome(result, killed) -> None:
 
 
 def test_killing_a_local_worker_loses_only_its_run_which_is_retried(tmp_path, recordings):
-    spec = load_spec(_write(tmp_path, _spec_text(recordings)))
+    spec = load_spec(_write(tmp_path, _spec_text(recordings, resolutions=(0.05, 0.1, 0.2))))
     result, killed = _sweep_with_a_kill(spec, tmp_path / "out", workers=2)
     _check_kill_outcome(result, killed)
 
