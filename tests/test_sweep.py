@@ -266,7 +266,8 @@ def test_a_failing_run_is_a_row_with_its_error_and_the_others_go_on(tmp_path, re
     assert by["broken"]["status"] == "failed" and "broken.log" in by["broken"]["error"]
     table = read_table(tmp_path / "out" / "results.parquet")
     assert table["status"] == ["ok", "failed"] and table["ate"][1] is None
-    assert "broken.log" in (tmp_path / "out" / "summary.html").read_text()
+    summary = (tmp_path / "out" / "summary.html").read_text()
+    assert "broken.log" in summary and "No value in any finished run" not in summary
     # a rerun keeps the failure (it is finished); --retry-failed runs it again
     assert run_sweep(spec, tmp_path / "out", workers=1).executed == 0
     assert run_sweep(spec, tmp_path / "out", workers=1, retry_failed=True).executed == 1
@@ -407,3 +408,27 @@ def test_the_docs_page_lists_every_metric_and_the_shipped_sweeps_parse():
     check_methods(spec)
     _, runs = expand(spec, Path("unused"))
     assert len(runs) == 3 * 4 * 3
+
+
+def test_summary_names_the_best_setting_with_its_spread_and_the_metrics_a_dataset_cannot_give(tmp_path):
+    from slam2d.sweep.report import _unmeasured, best_settings, setting_stats
+
+    spec = parse_spec("methods: [odometry]\ndatasets: [{world: paper-arena}]\nmetrics: [ate, map_error]\n",
+                      tmp_path / "s.yaml")
+
+    def row(res, data, seed, ate, map_error, status="ok"):
+        return {"method": "odometry", "dataset": data, "swept": {"resolution": res}, "data_settings": {},
+                "status": status, "metrics": {"ate": ate, "map_error": map_error}}
+
+    rows = [row(0.05, "a", 0, 0.10, 0.2), row(0.05, "a", 1, 0.14, 0.3), row(0.1, "a", 0, 0.11, 0.1),
+            row(0.1, "a", 1, 0.12, 0.1), row(0.05, "b", 0, 0.5, None), row(0.1, "b", 0, 0.4, None),
+            row(0.2, "a", 0, 0.01, 0.1), row(0.2, "a", 1, None, None, status="failed")]
+    stats = setting_stats(rows, spec)
+    best = best_settings(stats, spec)["odometry"]
+    a = best["per_dataset"]["a"]
+    # 0.2 has the lowest mean but a failed run: a setting that ran cleanly wins
+    assert a.setting == {"resolution": 0.1} and a.n == 2 and abs(a.mean - 0.115) < 1e-12
+    assert abs(a.std - 0.00707106781) < 1e-9
+    assert best["per_dataset"]["b"].setting == {"resolution": 0.1}
+    assert best["overall"] == ({"resolution": 0.1}, 1.0)
+    assert _unmeasured(rows, spec) == {"map_error": ["b"]}

@@ -238,6 +238,17 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: now
 """
 
 
+def _unmeasured(rows: list[dict[str, Any]], spec: SweepSpec) -> dict[str, list[str]]:
+    """Metric -> datasets on which no finished run has a value for it."""
+    out: dict[str, list[str]] = {}
+    for m in spec.metrics:
+        for d in dict.fromkeys(r["dataset"] for r in rows):
+            ok = [r for r in rows if r["dataset"] == d and r["status"] == "ok"]
+            if ok and all((r.get("metrics") or {}).get(m.name) is None for r in ok):
+                out.setdefault(m.name, []).append(d)
+    return out
+
+
 def summary_html(spec: SweepSpec, result: Any, plots: list[Path]) -> str:
     rows = result.rows
     stats = setting_stats(rows, spec)
@@ -257,6 +268,11 @@ def summary_html(spec: SweepSpec, result: Any, plots: list[Path]) -> str:
         f"({_e(obj.better)} is better): the mean over every run of a setting on a dataset (all method seeds "
         "and simulation seeds), with its spread over those seeds.</p>",
     ]
+    missing = _unmeasured(rows, spec)
+    if missing:
+        parts.append('<p class="note">No value in any finished run (the dataset lacks what the metric is judged '
+                     "against, e.g. a truth map or a relations file): "
+                     + "; ".join(f"{_e(m)} on {_e(', '.join(ds))}" for m, ds in missing.items()) + ".</p>")
     for method, b in best.items():
         parts.append(f"<h3>{_e(method)}</h3>")
         if b["overall"] is not None:
