@@ -205,6 +205,77 @@ def calibrate_odometry_office(workdir: Path) -> tuple[float, str]:
     parts.append(f"track scale {doc['track_width_scale']['value']:.4f} (0.97)")
     return seconds, f"{doc['intervals']} intervals; " + ", ".join(parts)
 
+def _sweep_recording(workdir: Path, duration: float) -> Path:
+    """A simulated paper-arena recording with its truth, written once per workdir (not timed)."""
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+    folder = workdir / f"sweep-arena-{duration:g}s"
+    if not (folder / "simulation.json").is_file():
+        write_outputs(simulate("paper-arena", SimulationParams(duration=duration, seed=0)), folder)
+    return folder
+
+
+def _sweep_spec(workdir: Path, folder: Path, runs: int) -> Path:
+    """A spec of ``runs`` odometry runs (a resolution grid) on one recording judged against its truth."""
+    values = [round(0.02 + 0.002 * i, 4) for i in range(runs)]
+    spec = workdir / f"sweep-{folder.name}-{runs}.yaml"
+    spec.write_text(
+        f"name: bench\nmethods:\n  odometry:\n    grid:\n      resolution: {values}\n"
+        f"datasets:\n  - {{file: {folder / 'recording.log.gz'}, truth: {folder}}}\n"
+        "metrics: [ate, map_error, time_per_scan]\n"
+    )
+    return spec
+
+
+def _timed_sweep(workdir: Path, spec_path: Path, out: str, **kwargs) -> tuple[float, float, object]:
+    import shutil
+
+    from slam2d.sweep import load_spec, run_sweep
+
+    shutil.rmtree(workdir / out, ignore_errors=True)
+    c0 = time.process_time()
+    t0 = time.perf_counter()
+    result = run_sweep(load_spec(spec_path), workdir / out, **kwargs)
+    wall = time.perf_counter() - t0
+    if result.failed:
+        raise RuntimeError(f"{len(result.failed)} runs failed: {result.failed[0]['error']}")
+    return wall, time.process_time() - c0, result
+
+
+def sweep_overhead(workdir: Path) -> tuple[float, str]:
+    """40 tiny runs (50 scans each) on one local worker: the time per run spent outside the runs themselves."""
+    spec = _sweep_spec(workdir, _sweep_recording(workdir, 5.0), 40)
+    _, _, result = _timed_sweep(workdir, spec, "sweep-overhead", workers=1)
+    per_run = result.overhead_per_run_s
+    return per_run, (f"{result.executed} runs; run phase {result.run_phase_s:.2f} s, of it inside runs "
+                     f"{result.task_s:.2f} s; overhead {1000 * per_run:.0f} ms per run")
+
+
+def sweep_overhead_dask(workdir: Path) -> tuple[float, str]:
+    """The same 40 tiny runs on a Dask LocalCluster with one worker process (loopback)."""
+    from distributed import LocalCluster
+
+    spec = _sweep_spec(workdir, _sweep_recording(workdir, 5.0), 40)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=40) as cluster:
+        _timed_sweep(workdir, spec, "sweep-warm", scheduler=cluster.scheduler_address)  # worker imports
+        _, _, result = _timed_sweep(workdir, spec, "sweep-overhead-dask", scheduler=cluster.scheduler_address)
+    per_run = result.overhead_per_run_s
+    return per_run, (f"{result.executed} runs; run phase {result.run_phase_s:.2f} s, of it inside runs "
+                     f"{result.task_s:.2f} s; overhead {1000 * per_run:.0f} ms per run")
+
+
+def sweep_scaling(workdir: Path) -> tuple[float, str]:
+    """A 40-run sweep (odometry on 60 s of paper-arena) on 1 and on 2 local workers; seconds with 2."""
+    spec = _sweep_spec(workdir, _sweep_recording(workdir, 60.0), 40)
+    one, cpu_one, r1 = _timed_sweep(workdir, spec, "sweep-1", workers=1)
+    two, _, r2 = _timed_sweep(workdir, spec, "sweep-2", workers=2)
+    cpu1 = sum(r["cpu_s"] for r in r1.rows) / len(r1.rows)
+    cpu2 = sum(r["cpu_s"] for r in r2.rows) / len(r2.rows)
+    return two, (f"1 worker {one:.1f} s, 2 workers {two:.1f} s: speedup {one / two:.2f}x "
+                 f"(a run: {r1.task_s / r1.executed:.2f} s wall, {cpu1:.2f} s CPU with 1 worker, {cpu2:.2f} s CPU "
+                 f"with 2; overhead {1000 * r2.overhead_per_run_s:.0f} ms/run with 2)")
+
 
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
@@ -227,6 +298,12 @@ CASES: list[Case] = [
          spa_5000, target="< 0.3 s", max_seconds=0.3),
     Case("lago-5000", "LAGO + 1 Gauss-Newton step on the same graph from no initial guess (all poses at 0)",
          lago_5000, target="cost within 10% of SPA, faster than spa-5000"),
+    Case("sweep-overhead", "`slam2d sweep` scheduling + result collection per run: 40 tiny runs, 1 local worker "
+         "(seconds = overhead per run)", sweep_overhead, target="< 0.2 s per run", max_seconds=0.2, repeat=1),
+    Case("sweep-overhead-dask", "the same on a Dask LocalCluster with 1 worker (seconds = overhead per run)",
+         sweep_overhead_dask, target="< 0.2 s per run", max_seconds=0.2, repeat=1),
+    Case("sweep-scaling", "a 40-run sweep on 2 local workers vs 1 (seconds = with 2; speedup in the note)",
+         sweep_scaling, target="speedup close to 2x on 2 cores", repeat=1, warmup=False),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -864,11 +864,81 @@ def cmd_calibrate_odometry(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- sweep
+
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="run a parameter study (methods x parameters x datasets x seeds) on a local pool or a Dask cluster",
+        description="Run every run a sweep spec (YAML: methods with parameter grids or seeded random ranges, "
+        "datasets as files or simulated worlds with seeds, metrics) describes, evaluate each, and write "
+        "OUT/results.parquet and OUT/results.csv (one row per run), OUT/plots/ (each metric against each swept "
+        "value) and OUT/summary.html (the best settings per method with their spread over seeds). Runs go to a "
+        "local process pool, or to a Dask cluster with --scheduler. Rerunning the same command skips the "
+        "finished runs; a run whose worker dies is retried once.",
+    )
+    p.add_argument("spec", type=Path, help="the sweep spec (YAML; see docs/commands/sweep.md)")
+    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing; reused to resume)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="address of a running Dask scheduler (start one with 'dask scheduler' and 'dask worker', "
+                   "formerly dask-scheduler and dask-worker); "
+                   "default: a local process pool")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="local worker processes (default: one per core); with --scheduler, wait until N "
+                   "workers have joined")
+    p.add_argument("--retry-failed", action="store_true", help="rerun the runs that failed before (default: keep them)")
+    p.add_argument("--dry-run", action="store_true", help="check the spec and list the runs; run nothing")
+    p.set_defaults(handler=cmd_sweep)
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from slam2d.sweep import check_methods, load_spec, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"{args.workers} must be at least 1", field="--workers")
+    spec = load_spec(args.spec)
+    out = _console()
+    if args.dry_run:
+        from slam2d.sweep.expand import expand
+
+        check_methods(spec)
+        data, runs = expand(spec, args.out)
+        per_method = {m.method: sum(r.method == m.method for r in runs) for m in spec.methods}
+        out.print(f"{spec.path}: {len(runs)} runs on {len(data)} recording(s) "
+                  f"({', '.join(f'{m}: {n}' for m, n in per_method.items())}); "
+                  f"metrics {', '.join(m.name for m in spec.metrics)}, best by {spec.objective.name}", markup=False)
+        return 0
+
+    def row_done(row: dict[str, Any], done: int, total: int) -> None:
+        swept = ", ".join(f"{k}={v}" for k, v in row.get("swept", {}).items())
+        sim = f" (simulation seed {row['dataset_seed']})" if row.get("dataset_seed") is not None else ""
+        what = f"{row['method']} {swept} on {row['dataset']}{sim}, seed {row['seed']}".replace("  ", " ")
+        if row["status"] == "ok":
+            value = row["metrics"].get(spec.objective.name)
+            shown = "-" if value is None else f"{value:.4g}"
+            out.print(f"  [{done}/{total}] {what}: {spec.objective.name} {shown} ({row['task_s']:.1f} s)",
+                      markup=False)
+        else:
+            out.print(f"  [{done}/{total}] {what}: FAILED: {row['error']}", markup=False)
+
+    result = run_sweep(spec, args.out, scheduler=args.scheduler, workers=args.workers,
+                       retry_failed=args.retry_failed, on_row=row_done,
+                       on_note=lambda line: out.print(line, markup=False))
+    failed = len(result.failed)
+    out.print(f"{len(result.rows)} runs: {len(result.rows) - failed} finished, {failed} failed "
+              f"({result.executed} run now, {result.reused} reused)", markup=False)
+    for path in result.written:
+        if path.parent == args.out or path.name == "summary.html":
+            out.print(f"  wrote {path}", markup=False)
+    return 1 if result.rows and failed == len(result.rows) else 0
+
+
 # --------------------------------------------------------------------------- entry point
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
-    _add_repeatability, _add_demo, _add_calibrate,
+    _add_repeatability, _add_demo, _add_calibrate, _add_sweep,
 ]
 
 
