@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from slam2d.grids.likelihood_field import bilinear_gradient_at
+from slam2d.grids.likelihood_field import bilinear_at, bilinear_gradient_at
 from slam2d.grids.pyramid import MapPyramid
 
 __all__ = ["MatchSettings", "MatchResult", "GaussNewtonMatcher", "accumulate", "gauss_newton_level"]
@@ -50,10 +50,14 @@ _OUTSIDE = -1.0
 
 
 @njit(cache=True)
-def accumulate(prob, origin_x, origin_y, resolution, points, weights, pose):
-    """Normal equations at ``pose``: ``(H (3, 3), b (3,), sum w r^2, sum w, sum w M, points on the map)``.
+def accumulate(prob, known, origin_x, origin_y, resolution, points, weights, pose):
+    """Normal equations at ``pose``.
 
-    ``r = 1 - M`` per point; ``J = [dM/dx, dM/dy, dM/dtheta]``.
+    Returns ``(H (3, 3), b (3,), sum w r^2, sum w, sum w M, points on the map, Hk, points on known map)``
+    with ``r = 1 - M`` per point and ``J = [dM/dx, dM/dy, dM/dtheta]``. ``Hk`` sums
+    only the points whose interpolation touches observed cells alone (``known``
+    interpolates to 1): at the edge of the explored map the step from occupied to
+    unknown looks like a feature, and ``Hk`` leaves it out.
     """
     c = math.cos(pose[2])
     s = math.sin(pose[2])
@@ -63,6 +67,8 @@ def accumulate(prob, origin_x, origin_y, resolution, points, weights, pose):
     wsum = 0.0
     msum = 0.0
     used = 0
+    hk = np.zeros((3, 3))
+    nk = 0
     for i in range(points.shape[0]):
         px = points[i, 0]
         py = points[i, 1]
@@ -89,10 +95,19 @@ def accumulate(prob, origin_x, origin_y, resolution, points, weights, pose):
         wsum += w
         msum += w * m
         used += 1
-    h[1, 0] = h[0, 1]
-    h[2, 0] = h[0, 2]
-    h[2, 1] = h[1, 2]
-    return h, b, ss, wsum, msum, used
+        if bilinear_at(known, origin_x, origin_y, resolution, x, y, 0.0) > 0.9999:
+            hk[0, 0] += w * j0 * j0
+            hk[0, 1] += w * j0 * j1
+            hk[0, 2] += w * j0 * j2
+            hk[1, 1] += w * j1 * j1
+            hk[1, 2] += w * j1 * j2
+            hk[2, 2] += w * j2 * j2
+            nk += 1
+    for m3 in (h, hk):
+        m3[1, 0] = m3[0, 1]
+        m3[2, 0] = m3[0, 2]
+        m3[2, 1] = m3[1, 2]
+    return h, b, ss, wsum, msum, used, hk, nk
 
 
 @njit(cache=True, inline="always")
@@ -128,7 +143,7 @@ def _solve3(a, b):
 
 @njit(cache=True)
 def gauss_newton_level(
-    prob, origin_x, origin_y, resolution, points, weights, pose, max_iterations,
+    prob, known, origin_x, origin_y, resolution, points, weights, pose, max_iterations,
     tol_xy, tol_theta, max_angle_step, prior_pose, prior_info,
 ):
     """Gauss-Newton on one map level from ``pose``.
@@ -137,13 +152,15 @@ def gauss_newton_level(
     steps or when a step is below ``tol_xy`` (m) and ``tol_theta`` (rad). The
     normal equations are re-evaluated at the final pose.
 
-    Returns ``(pose, H, b, sum w r^2, sum w, sum w M, used, steps)``.
+    Returns ``(pose, H, b, sum w r^2, sum w, sum w M, used, steps, Hk, used on known cells)``.
     """
     xi = pose.copy()
     has_prior = prior_info[0, 0] > 0.0 or prior_info[1, 1] > 0.0 or prior_info[2, 2] > 0.0
     steps = 0
     while True:
-        h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
+        h, b, ss, wsum, msum, used, hk, nk = accumulate(
+            prob, known, origin_x, origin_y, resolution, points, weights, xi
+        )
         if steps >= max_iterations or used < 3:
             break
         a = h.copy()
@@ -172,9 +189,11 @@ def gauss_newton_level(
         xi[2] = _wrap(xi[2] + delta[2])
         steps += 1
         if math.hypot(delta[0], delta[1]) < tol_xy and abs(delta[2]) < tol_theta:
-            h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
+            h, b, ss, wsum, msum, used, hk, nk = accumulate(
+            prob, known, origin_x, origin_y, resolution, points, weights, xi
+        )
             break
-    return xi, h, b, ss, wsum, msum, used, steps
+    return xi, h, b, ss, wsum, msum, used, steps, hk, nk
 
 
 @dataclass(frozen=True)
@@ -195,13 +214,15 @@ class MatchResult:
 
     pose: NDArray[np.float64]
     covariance: NDArray[np.float64]  # (3, 3), m^2 / rad^2
-    hessian: NDArray[np.float64]  # H = sum w J^T J at the final pose (finest level)
+    hessian: NDArray[np.float64]  # sum w J^T J over the points on explored map, final pose, finest level
     residual_variance: float  # s^2
     score: float  # weighted mean occupancy probability at the scan points (1 = every point on a wall)
     inverse_condition: float  # lambda_min / lambda_max of the heading-scaled H (0 = degenerate)
+    geometric_condition: float  # the same for the scan's point-to-line information (NaN without normals)
     degenerate: bool
     degenerate_directions: NDArray[np.float64]  # (k, 3) unit directions in (x, y, L theta)
     used: int  # points that landed on the map (finest level)
+    used_known: int  # of those, points whose lookup touched observed cells only
     iterations: int  # Gauss-Newton steps over all levels
     prior_used_along_degeneracy: bool = False
 
@@ -209,6 +230,35 @@ class MatchResult:
     def sigma_worst(self) -> float:
         """Standard deviation (m) along the least constrained direction, heading scaled to metres."""
         return float(math.sqrt(max(np.linalg.eigvalsh(self.covariance[:2, :2]).max(), 0.0)))
+
+
+def _weak_directions(
+    hn: NDArray[np.float64], usable: bool, threshold: float
+) -> tuple[float, NDArray[np.bool_], NDArray[np.float64]]:
+    """``(lambda_min / lambda_max, weak eigenvalue mask, eigenvectors)`` of a 3x3 information matrix."""
+    evals, evecs = np.linalg.eigh(hn)
+    top = float(evals[-1])
+    if not usable or not top > 0.0:
+        return 0.0, np.ones(3, dtype=bool), evecs
+    return float(max(evals[0], 0.0) / top), evals <= threshold * top, evecs
+
+
+def _geometric_information(
+    points: NDArray[np.float64], normals: NDArray[np.float64], weights: NDArray[np.float64], theta: float
+) -> NDArray[np.float64]:
+    """Point-to-line information ``sum w J^T J``, ``J = [n_x, n_y, p x n]`` in the world frame.
+
+    A translation along a wall moves no point off it, so in a corridor the
+    axis direction gets no information, whatever the map's texture.
+    """
+    ok = np.isfinite(normals).all(axis=1)
+    p, n, w = points[ok], normals[ok], weights[ok]
+    length = np.hypot(n[:, 0], n[:, 1])
+    good = length > 0
+    p, n, w = p[good], n[good] / length[good, None], w[good]
+    c, s = math.cos(theta), math.sin(theta)
+    j = np.stack([c * n[:, 0] - s * n[:, 1], s * n[:, 0] + c * n[:, 1], p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]], axis=1)
+    return (j * w[:, None]).T @ j
 
 
 class GaussNewtonMatcher:
@@ -226,12 +276,15 @@ class GaussNewtonMatcher:
         *,
         prior: NDArray[np.float64] | None = None,
         prior_information: NDArray[np.float64] | None = None,
+        normals: NDArray[np.float64] | None = None,
     ) -> MatchResult:
         """Match scan ``points`` (robot frame, ``(N, 2)``) with per-point ``weights`` from ``initial``.
 
         ``prior`` / ``prior_information`` (3,) and (3, 3): a pose prediction and
         its information (odometry); it enters the optimisation and replaces the
-        match along degenerate directions.
+        match along degenerate directions. ``normals`` ``(N, 2)`` (robot frame,
+        NaN where unknown): the surface normal at each point, for the geometric
+        degeneracy test.
         """
         st = self.settings
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
@@ -251,52 +304,61 @@ class GaussNewtonMatcher:
             ox, oy = level.origin
             iterations = st.iterations_fine if i == 0 else st.iterations_coarse
             out = gauss_newton_level(
-                level.probability, ox, oy, level.resolution, pts, w, xi, iterations,
+                level.probability, level.known, ox, oy, level.resolution, pts, w, xi, iterations,
                 st.tolerance_xy, st.tolerance_theta, st.max_angle_step, p_pose, p_info,
             )
             xi = out[0]
             steps_total += int(out[7])
         assert out is not None
-        _, h, _b, ss, wsum, msum, used, _ = out
+        _, h, _b, ss, wsum, msum, used, _, hk, nk = out
         s2 = float(ss / max(wsum - 3.0, 1.0))
         s2 = max(s2, 1e-12)
         # Heading scaled by the RMS point distance: a rotation then moves points about as far as a translation.
         length = float(np.sqrt(np.mean(np.sum(pts * pts, axis=1)))) if pts.shape[0] else 1.0
         length = max(length, 1e-3)
         scale = np.array([1.0, 1.0, 1.0 / length])
-        hn = h * scale[:, None] * scale[None, :]
-        evals, evecs = np.linalg.eigh(hn)
-        top = float(evals[-1])
-        inv_cond = float(max(evals[0], 0.0) / top) if top > 0.0 else 0.0
-        weak = evals <= st.degeneracy_threshold * top if top > 0.0 else np.ones(3, dtype=bool)
-        degenerate = bool(weak.any())
-        directions = evecs[:, weak].T.copy()
+        # Degeneracy from the points on explored map only (see accumulate), and, given the
+        # surface normals, from the scan's geometry: map texture (a noisy wall's rough edge)
+        # gives the Hessian information along a featureless corridor that the world does not.
+        hn = hk * scale[:, None] * scale[None, :]
+        inv_cond, weak_map, evecs_map = _weak_directions(hn, nk >= 3, st.degeneracy_threshold)
+        geo_cond = math.nan
+        weak_dirs = evecs_map[:, weak_map]
+        if normals is not None:
+            gn = _geometric_information(pts, np.asarray(normals, dtype=np.float64).reshape(-1, 2), w, xi[2])
+            gn = gn * scale[:, None] * scale[None, :]
+            geo_cond, weak_geo, evecs_geo = _weak_directions(gn, True, st.degeneracy_threshold)
+            if weak_geo.any():
+                weak_dirs = evecs_geo[:, weak_geo]
+        degenerate = weak_dirs.shape[1] > 0
         used_prior = False
         if degenerate and has_prior:
             # Along the unobservable directions the scan says nothing: take the prediction there.
             d = p_pose - xi
             d[2] = (d[2] + np.pi) % (2 * np.pi) - np.pi
-            dn = d / scale
-            v = evecs[:, weak]
-            xi = xi + (v @ (v.T @ dn)) * scale
+            xi = xi + (weak_dirs @ (weak_dirs.T @ (d / scale))) * scale
             xi[2] = (xi[2] + np.pi) % (2 * np.pi) - np.pi
             used_prior = True
-        info = h / s2 + p_info
-        # Information too small to invert is floored, so an unobservable direction gets a huge but finite variance.
-        ie, iv = np.linalg.eigh(info * scale[:, None] * scale[None, :])
+        # Covariance: the scan's information without its degenerate directions, plus the prior's.
+        keep = np.eye(3) - weak_dirs @ weak_dirs.T
+        info_n = keep @ hn @ keep / s2 + p_info * scale[:, None] * scale[None, :]
+        ie, iv = np.linalg.eigh(info_n)
+        # Information too small to invert is floored: an unobservable direction gets a huge, finite variance.
         floor = max(float(ie[-1]), 1e-300) * 1e-12
         cov_n = (iv / np.maximum(ie, floor)) @ iv.T
         cov = cov_n * scale[:, None] * scale[None, :]
         return MatchResult(
             pose=xi,
             covariance=cov,
-            hessian=h,
+            hessian=hk,
             residual_variance=s2,
             score=float(msum / wsum) if wsum > 0 else 0.0,
             inverse_condition=inv_cond,
+            geometric_condition=geo_cond,
             degenerate=degenerate,
-            degenerate_directions=directions,
+            degenerate_directions=weak_dirs.T.copy(),
             used=int(used),
+            used_known=int(nk),
             iterations=steps_total,
             prior_used_along_degeneracy=used_prior,
         )

@@ -24,7 +24,7 @@ from slam2d.matching.gauss_newton import GaussNewtonMatcher, MatchSettings
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
-from slam2d.sensors.beam_model import beam_sigmas
+from slam2d.sensors.beam_model import beam_sigmas, surface_tangents
 
 __all__ = ["HectorParams", "Hector"]
 
@@ -64,6 +64,9 @@ class HectorParams(GridParams):
         0.01, low=0.0, high=1.0,
         help="a match is degenerate when an eigenvalue of its Hessian (heading scaled by the scan's RMS "
         "point distance) is below this fraction of the largest")
+    normal_baseline: float = param(
+        0.2, unit="m", low=0.0,
+        help="surface normals for the geometric degeneracy test come from endpoints about this far apart")
     use_odometry: bool = param(False, help="predict with odometry, use it as a prior and along "
                                            "degenerate directions")
     odometry_sigma_xy: float = param(0.05, unit="m", low=1e-6,
@@ -86,7 +89,9 @@ class Hector(SlamMethod):
         "score": "mean occupancy probability at the matched scan points (1 = every point on a wall)",
         "inverse_condition": "smallest / largest eigenvalue of the match Hessian, heading scaled "
         "by the RMS point distance (near 0 = under-constrained)",
-        "degenerate": "1 when the match was under-constrained (inverse_condition below degeneracy_threshold)",
+        "geometric_condition": "the same for the scan's point-to-line information (surface normals from "
+        "neighbouring beams): blind to map texture",
+        "degenerate": "1 when the match was under-constrained (either condition below degeneracy_threshold)",
         "sigma_x": "standard deviation of x from the match covariance [m]",
         "sigma_y": "standard deviation of y from the match covariance [m]",
         "sigma_theta": "standard deviation of the heading from the match covariance [rad]",
@@ -151,7 +156,8 @@ class Hector(SlamMethod):
             sigma = beam_sigmas(scan, self.sensor_model, p.range_sigma)[ok]
             weights = np.where(np.isfinite(sigma) & (sigma > 0), (p.range_sigma / sigma) ** 2, 0.0)
             result = self.matcher.match(self.pyramid, points, weights, self._pose,
-                                        prior=None if info is None else self._pose, prior_information=info)
+                                        prior=None if info is None else self._pose, prior_information=info,
+                                        normals=_normals(scan, p.normal_baseline)[ok])
             if not (np.all(np.isfinite(result.pose)) and np.all(np.isfinite(result.covariance))):
                 self.diagnostics.count("match_failures")
                 return {"points": float(points.shape[0]), "map_updated": 0.0}
@@ -162,6 +168,7 @@ class Hector(SlamMethod):
             values = {
                 "score": result.score,
                 "inverse_condition": result.inverse_condition,
+                "geometric_condition": result.geometric_condition,
                 "degenerate": float(result.degenerate),
                 "sigma_x": float(np.sqrt(result.covariance[0, 0])),
                 "sigma_y": float(np.sqrt(result.covariance[1, 1])),
@@ -206,3 +213,13 @@ class Hector(SlamMethod):
 
     def map(self) -> OccupancyGrid:
         return self.pyramid.finest
+
+
+def _normals(scan, baseline: float) -> NDArray[np.float64]:
+    """Surface normal at every beam's endpoint in the robot frame, ``(n, 2)``; NaN where unknown."""
+    tx, ty, usable = surface_tangents(scan.ranges, scan.angles, baseline)
+    c, s = np.cos(scan.mount[2]), np.sin(scan.mount[2])
+    nx, ny = -ty, tx  # the tangent turned a quarter: a normal (its sign does not matter)
+    out = np.stack([c * nx - s * ny, s * nx + c * ny], axis=-1)
+    out[~usable] = np.nan
+    return out
