@@ -22,11 +22,17 @@ What the match reports beyond the pose:
 * a covariance: ``inverse(H / s^2 + Lambda)`` at the final pose, with
   ``s^2 = sum w r^2 / (sum w - 3)`` the a-posteriori residual variance (the
   original publishes ``H`` itself);
-* degeneracy: the eigenvalues of ``H`` with the heading scaled by the scan's
-  RMS point distance (so a radian and a metre weigh alike); the inverse
-  condition ``lambda_min / lambda_max`` below a threshold flags an
-  under-constrained match (a featureless corridor), and the directions below
-  the threshold are taken from the prior (odometry) when there is one.
+* degeneracy: the eigenvalues of an information matrix with the heading
+  scaled by the scan's RMS point distance (so a radian and a metre weigh
+  alike); the inverse condition ``lambda_min / lambda_max`` below a threshold
+  flags an under-constrained match (a featureless corridor), and the
+  directions below the threshold are taken from the prior (odometry) when
+  there is one. Given surface normals the test uses the scan's point-to-line
+  information ``sum w [n, p x n]^T [n, p x n]``, otherwise ``H``: ``H`` sees
+  map texture (a noisy wall's rough edge, the edge of the explored map) as
+  information along a featureless corridor, the normals do not. The
+  scan's information along a degenerate direction is dropped from the
+  covariance.
 
 The inner loop over points is compiled (numba); Python only loops over levels.
 """
@@ -144,10 +150,11 @@ def _solve3(a, b):
 @njit(cache=True)
 def gauss_newton_level(
     prob, known, origin_x, origin_y, resolution, points, weights, pose, max_iterations,
-    tol_xy, tol_theta, max_angle_step, prior_pose, prior_info,
+    tol_xy, tol_theta, max_angle_step, max_step, prior_pose, prior_info,
 ):
     """Gauss-Newton on one map level from ``pose``.
 
+    A step is at most ``max_step`` (m) long and turns at most ``max_angle_step`` (rad).
     ``prior_info`` (3, 3) all zero means no prior. Stops after ``max_iterations``
     steps or when a step is below ``tol_xy`` (m) and ``tol_theta`` (rad). The
     normal equations are re-evaluated at the final pose.
@@ -180,6 +187,12 @@ def gauss_newton_level(
         ok, delta = _solve3(a, rhs)
         if not ok or not (math.isfinite(delta[0]) and math.isfinite(delta[1]) and math.isfinite(delta[2])):
             break
+        # Trust region: the map's gradient reaches about a cell from a wall, so a step much longer
+        # than that comes from a nearly singular H (few points near walls), not from the data.
+        length = math.hypot(delta[0], delta[1])
+        if length > max_step:
+            delta[0] *= max_step / length
+            delta[1] *= max_step / length
         if delta[2] > max_angle_step:
             delta[2] = max_angle_step
         elif delta[2] < -max_angle_step:
@@ -205,6 +218,7 @@ class MatchSettings:
     tolerance_xy: float = 1e-4
     tolerance_theta: float = 1e-4
     max_angle_step: float = 0.2
+    max_step_cells: float = 2.0
     degeneracy_threshold: float = 0.01
 
 
@@ -214,7 +228,7 @@ class MatchResult:
 
     pose: NDArray[np.float64]
     covariance: NDArray[np.float64]  # (3, 3), m^2 / rad^2
-    hessian: NDArray[np.float64]  # sum w J^T J over the points on explored map, final pose, finest level
+    hessian: NDArray[np.float64]  # H = sum w J^T J at the final pose, finest level
     residual_variance: float  # s^2
     score: float  # weighted mean occupancy probability at the scan points (1 = every point on a wall)
     inverse_condition: float  # lambda_min / lambda_max of the heading-scaled H (0 = degenerate)
@@ -305,7 +319,8 @@ class GaussNewtonMatcher:
             iterations = st.iterations_fine if i == 0 else st.iterations_coarse
             out = gauss_newton_level(
                 level.probability, level.known, ox, oy, level.resolution, pts, w, xi, iterations,
-                st.tolerance_xy, st.tolerance_theta, st.max_angle_step, p_pose, p_info,
+                st.tolerance_xy, st.tolerance_theta, st.max_angle_step, st.max_step_cells * level.resolution,
+                p_pose, p_info,
             )
             xi = out[0]
             steps_total += int(out[7])
@@ -317,10 +332,10 @@ class GaussNewtonMatcher:
         length = float(np.sqrt(np.mean(np.sum(pts * pts, axis=1)))) if pts.shape[0] else 1.0
         length = max(length, 1e-3)
         scale = np.array([1.0, 1.0, 1.0 / length])
-        # Degeneracy from the points on explored map only (see accumulate), and, given the
-        # surface normals, from the scan's geometry: map texture (a noisy wall's rough edge)
+        # Degeneracy from the map Hessian, or, given the surface normals, from the scan's
+        # geometry: map texture (a noisy wall's rough edge, the edge of the explored map)
         # gives the Hessian information along a featureless corridor that the world does not.
-        hn = hk * scale[:, None] * scale[None, :]
+        hn = h * scale[:, None] * scale[None, :]
         inv_cond, weak_map, evecs_map = _weak_directions(hn, nk >= 3, st.degeneracy_threshold)
         geo_cond = math.nan
         weak_dirs = evecs_map[:, weak_map]
@@ -328,8 +343,7 @@ class GaussNewtonMatcher:
             gn = _geometric_information(pts, np.asarray(normals, dtype=np.float64).reshape(-1, 2), w, xi[2])
             gn = gn * scale[:, None] * scale[None, :]
             geo_cond, weak_geo, evecs_geo = _weak_directions(gn, True, st.degeneracy_threshold)
-            if weak_geo.any():
-                weak_dirs = evecs_geo[:, weak_geo]
+            weak_dirs = evecs_geo[:, weak_geo]
         degenerate = weak_dirs.shape[1] > 0
         used_prior = False
         if degenerate and has_prior:
@@ -344,13 +358,13 @@ class GaussNewtonMatcher:
         info_n = keep @ hn @ keep / s2 + p_info * scale[:, None] * scale[None, :]
         ie, iv = np.linalg.eigh(info_n)
         # Information too small to invert is floored: an unobservable direction gets a huge, finite variance.
-        floor = max(float(ie[-1]), 1e-300) * 1e-12
+        floor = max(float(ie[-1]) * 1e-12, 1e-30)
         cov_n = (iv / np.maximum(ie, floor)) @ iv.T
         cov = cov_n * scale[:, None] * scale[None, :]
         return MatchResult(
             pose=xi,
             covariance=cov,
-            hessian=hk,
+            hessian=h,
             residual_variance=s2,
             score=float(msum / wsum) if wsum > 0 else 0.0,
             inverse_condition=inv_cond,

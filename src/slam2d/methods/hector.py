@@ -57,6 +57,8 @@ class HectorParams(GridParams):
                                   help="a level stops when a step moves less than this and ...")
     convergence_theta: float = param(1e-4, unit="rad", low=0.0, help="... turns less than this")
     max_angle_step: float = param(0.2, unit="rad", low=0.001, help="largest heading change of one step")
+    max_step_cells: float = param(2.0, low=0.01,
+                                  help="longest translation of one step, in cells of the level being matched")
     range_sigma: float = param(0.01, unit="m", low=1e-6,
                                help="range noise of every beam when no sensor model is given; a beam's "
                                "residual weight is (range_sigma / its sigma)^2")
@@ -107,7 +109,8 @@ class Hector(SlamMethod):
         self.matcher = GaussNewtonMatcher(MatchSettings(
             iterations_coarse=p.iterations_coarse, iterations_fine=p.iterations_fine,
             tolerance_xy=p.convergence_xy, tolerance_theta=p.convergence_theta,
-            max_angle_step=p.max_angle_step, degeneracy_threshold=p.degeneracy_threshold,
+            max_angle_step=p.max_angle_step, max_step_cells=p.max_step_cells,
+            degeneracy_threshold=p.degeneracy_threshold,
         ))
         self._pose: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
