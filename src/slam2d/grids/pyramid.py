@@ -7,10 +7,8 @@ levels. Level 0 is the finest (``params.resolution``); level ``i`` has cells
 the same beams, so each grows on its own as the robot explores.
 
 Matchers read occupancy *probability*, not log-odds, so each level keeps a
-float32 probability array next to its grid (0.5 where unknown), and a float32
-``known`` mask (1 observed, 0 never) that interpolates to exactly 1 only where
-every cell a lookup touches was observed. After an update only the window
-the scan touched is recomputed (the whole array when the grid grew), which
+float32 probability array next to its grid (0.5 where unknown). After an
+update only the window the scan touched is recomputed (the whole array when the grid grew), which
 keeps a map update's cost proportional to the scan, not to the map.
 """
 
@@ -32,8 +30,6 @@ class PyramidLevel:
     def __init__(self, grid: OccupancyGrid) -> None:
         self.grid = grid
         self.probability = grid.probability()
-        #: 1.0 where a cell was ever observed, else 0.0 (float, so it interpolates like the probability).
-        self.known = grid.observed.astype(np.float32)
 
     @property
     def resolution(self) -> float:
@@ -46,7 +42,6 @@ class PyramidLevel:
     def _refresh(self, xmin: float, ymin: float, xmax: float, ymax: float, grew: bool) -> None:
         if grew or self.probability.shape != self.grid.shape:
             self.probability = self.grid.probability()
-            self.known = self.grid.observed.astype(np.float32)
             return
         (r0, c0), (r1, c1) = self.grid.world_to_cell([[xmin, ymin], [xmax, ymax]])
         rows, cols = self.grid.shape
@@ -54,7 +49,6 @@ class PyramidLevel:
         r1, c1 = min(int(r1) + 2, rows), min(int(c1) + 2, cols)
         window = self.grid.logodds[r0:r1, c0:c1]
         self.probability[r0:r1, c0:c1] = 1.0 / (1.0 + np.exp(-window))
-        self.known[r0:r1, c0:c1] = self.grid.observed[r0:r1, c0:c1]
 
 
 class MapPyramid:

@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from slam2d.grids.likelihood_field import bilinear_at, bilinear_gradient_at
+from slam2d.grids.likelihood_field import bilinear_gradient_at
 from slam2d.grids.pyramid import MapPyramid
 
 __all__ = ["MatchSettings", "MatchResult", "GaussNewtonMatcher", "accumulate", "gauss_newton_level"]
@@ -56,14 +56,10 @@ _OUTSIDE = -1.0
 
 
 @njit(cache=True)
-def accumulate(prob, known, origin_x, origin_y, resolution, points, weights, pose):
-    """Normal equations at ``pose``.
+def accumulate(prob, origin_x, origin_y, resolution, points, weights, pose):
+    """Normal equations at ``pose``: ``(H (3, 3), b (3,), sum w r^2, sum w, sum w M, points on the map)``.
 
-    Returns ``(H (3, 3), b (3,), sum w r^2, sum w, sum w M, points on the map, Hk, points on known map)``
-    with ``r = 1 - M`` per point and ``J = [dM/dx, dM/dy, dM/dtheta]``. ``Hk`` sums
-    only the points whose interpolation touches observed cells alone (``known``
-    interpolates to 1): at the edge of the explored map the step from occupied to
-    unknown looks like a feature, and ``Hk`` leaves it out.
+    ``r = 1 - M`` per point; ``J = [dM/dx, dM/dy, dM/dtheta]``.
     """
     c = math.cos(pose[2])
     s = math.sin(pose[2])
@@ -73,8 +69,6 @@ def accumulate(prob, known, origin_x, origin_y, resolution, points, weights, pos
     wsum = 0.0
     msum = 0.0
     used = 0
-    hk = np.zeros((3, 3))
-    nk = 0
     for i in range(points.shape[0]):
         px = points[i, 0]
         py = points[i, 1]
@@ -101,19 +95,10 @@ def accumulate(prob, known, origin_x, origin_y, resolution, points, weights, pos
         wsum += w
         msum += w * m
         used += 1
-        if bilinear_at(known, origin_x, origin_y, resolution, x, y, 0.0) > 0.9999:
-            hk[0, 0] += w * j0 * j0
-            hk[0, 1] += w * j0 * j1
-            hk[0, 2] += w * j0 * j2
-            hk[1, 1] += w * j1 * j1
-            hk[1, 2] += w * j1 * j2
-            hk[2, 2] += w * j2 * j2
-            nk += 1
-    for m3 in (h, hk):
-        m3[1, 0] = m3[0, 1]
-        m3[2, 0] = m3[0, 2]
-        m3[2, 1] = m3[1, 2]
-    return h, b, ss, wsum, msum, used, hk, nk
+    h[1, 0] = h[0, 1]
+    h[2, 0] = h[0, 2]
+    h[2, 1] = h[1, 2]
+    return h, b, ss, wsum, msum, used
 
 
 @njit(cache=True, inline="always")
@@ -149,7 +134,7 @@ def _solve3(a, b):
 
 @njit(cache=True)
 def gauss_newton_level(
-    prob, known, origin_x, origin_y, resolution, points, weights, pose, max_iterations,
+    prob, origin_x, origin_y, resolution, points, weights, pose, max_iterations,
     tol_xy, tol_theta, max_angle_step, max_step, prior_pose, prior_info,
 ):
     """Gauss-Newton on one map level from ``pose``.
@@ -159,15 +144,13 @@ def gauss_newton_level(
     steps or when a step is below ``tol_xy`` (m) and ``tol_theta`` (rad). The
     normal equations are re-evaluated at the final pose.
 
-    Returns ``(pose, H, b, sum w r^2, sum w, sum w M, used, steps, Hk, used on known cells)``.
+    Returns ``(pose, H, b, sum w r^2, sum w, sum w M, used, steps)``.
     """
     xi = pose.copy()
     has_prior = prior_info[0, 0] > 0.0 or prior_info[1, 1] > 0.0 or prior_info[2, 2] > 0.0
     steps = 0
     while True:
-        h, b, ss, wsum, msum, used, hk, nk = accumulate(
-            prob, known, origin_x, origin_y, resolution, points, weights, xi
-        )
+        h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
         if steps >= max_iterations or used < 3:
             break
         a = h.copy()
@@ -202,11 +185,9 @@ def gauss_newton_level(
         xi[2] = _wrap(xi[2] + delta[2])
         steps += 1
         if math.hypot(delta[0], delta[1]) < tol_xy and abs(delta[2]) < tol_theta:
-            h, b, ss, wsum, msum, used, hk, nk = accumulate(
-            prob, known, origin_x, origin_y, resolution, points, weights, xi
-        )
+            h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
             break
-    return xi, h, b, ss, wsum, msum, used, steps, hk, nk
+    return xi, h, b, ss, wsum, msum, used, steps
 
 
 @dataclass(frozen=True)
@@ -236,7 +217,6 @@ class MatchResult:
     degenerate: bool
     degenerate_directions: NDArray[np.float64]  # (k, 3) unit directions in (x, y, L theta)
     used: int  # points that landed on the map (finest level)
-    used_known: int  # of those, points whose lookup touched observed cells only
     iterations: int  # Gauss-Newton steps over all levels
     prior_used_along_degeneracy: bool = False
 
@@ -318,14 +298,14 @@ class GaussNewtonMatcher:
             ox, oy = level.origin
             iterations = st.iterations_fine if i == 0 else st.iterations_coarse
             out = gauss_newton_level(
-                level.probability, level.known, ox, oy, level.resolution, pts, w, xi, iterations,
+                level.probability, ox, oy, level.resolution, pts, w, xi, iterations,
                 st.tolerance_xy, st.tolerance_theta, st.max_angle_step, st.max_step_cells * level.resolution,
                 p_pose, p_info,
             )
             xi = out[0]
             steps_total += int(out[7])
         assert out is not None
-        _, h, _b, ss, wsum, msum, used, _, hk, nk = out
+        _, h, _b, ss, wsum, msum, used, _ = out
         s2 = float(ss / max(wsum - 3.0, 1.0))
         s2 = max(s2, 1e-12)
         # Heading scaled by the RMS point distance: a rotation then moves points about as far as a translation.
@@ -336,7 +316,7 @@ class GaussNewtonMatcher:
         # geometry: map texture (a noisy wall's rough edge, the edge of the explored map)
         # gives the Hessian information along a featureless corridor that the world does not.
         hn = h * scale[:, None] * scale[None, :]
-        inv_cond, weak_map, evecs_map = _weak_directions(hn, nk >= 3, st.degeneracy_threshold)
+        inv_cond, weak_map, evecs_map = _weak_directions(hn, used >= 3, st.degeneracy_threshold)
         geo_cond = math.nan
         weak_dirs = evecs_map[:, weak_map]
         if normals is not None:
@@ -372,7 +352,6 @@ class GaussNewtonMatcher:
             degenerate=degenerate,
             degenerate_directions=weak_dirs.T.copy(),
             used=int(used),
-            used_known=int(nk),
             iterations=steps_total,
             prior_used_along_degeneracy=used_prior,
         )

@@ -69,6 +69,9 @@ class HectorParams(GridParams):
     normal_baseline: float = param(
         0.2, unit="m", low=0.0,
         help="surface normals for the geometric degeneracy test come from endpoints about this far apart")
+    constant_velocity: bool = param(
+        False, help="without odometry, start each match from the last pose plus the last scan-to-scan motion "
+        "(the original starts from the last pose)")
     use_odometry: bool = param(False, help="predict with odometry, use it as a prior and along "
                                            "degenerate directions")
     odometry_sigma_xy: float = param(0.05, unit="m", low=1e-6,
@@ -115,6 +118,7 @@ class Hector(SlamMethod):
         self._pose: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
         self._map_pose: NDArray[np.float64] | None = None
+        self._previous: NDArray[np.float64] | None = None  # the pose one scan before
         #: Covariance (3, 3) of the last match; None before the first.
         self.covariance: NDArray[np.float64] | None = None
 
@@ -123,6 +127,8 @@ class Hector(SlamMethod):
         p = self.params
         odom = frame.odometry
         if not p.use_odometry:
+            if p.constant_velocity and self._previous is not None:
+                return se2.compose(self._pose, se2.relative(self._previous, self._pose)), None
             return self._pose, None
         if odom is None or not np.all(np.isfinite(odom)):
             self.diagnostics.count("frames_without_odometry")
@@ -152,7 +158,9 @@ class Hector(SlamMethod):
             if not np.all(np.isfinite(self._pose)):
                 self._pose = np.zeros(3)
         else:
+            before = self._pose
             self._pose, info = self._prediction(frame)
+            self._previous = before
             if points.shape[0] < p.min_points:
                 self.diagnostics.count("scans_too_few_points")
                 return {"points": float(points.shape[0]), "map_updated": 0.0}
