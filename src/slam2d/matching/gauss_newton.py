@@ -297,9 +297,11 @@ class GaussNewtonMatcher:
             level = pyramid[i]
             ox, oy = level.origin
             iterations = st.iterations_fine if i == 0 else st.iterations_coarse
+            # A coarse level only has to bring the pose within the next level's reach.
+            loosen = level.resolution / pyramid[0].resolution
             out = gauss_newton_level(
                 level.probability, ox, oy, level.resolution, pts, w, xi, iterations,
-                st.tolerance_xy, st.tolerance_theta, st.max_angle_step, st.max_step_cells * level.resolution,
+                st.tolerance_xy * loosen, st.tolerance_theta * loosen, st.max_angle_step, st.max_step_cells * level.resolution,
                 p_pose, p_info,
             )
             xi = out[0]
