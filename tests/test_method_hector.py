@@ -227,7 +227,7 @@ def test_hector_tracks_without_odometry_and_is_deterministic():
     frames = _frames(ROOM, path)
     runs = []
     for _ in range(2):
-        slam = Hector(HectorParams(resolution=0.025))  # walls through cell centres
+        slam = Hector(HectorParams(resolution=0.025, map_update_distance_thresh=0.4, map_update_angle_thresh=0.9))
         slam.run(frames)
         runs.append(slam)
     _, est = runs[0].trajectory()
@@ -290,3 +290,15 @@ def test_hector_cli_run_on_a_simulated_arena(tmp_path):
     assert ate is not None and ate < 0.03
     diag = json.loads((out / "diagnostics.json").read_text())
     assert all(v is None or math.isfinite(v) for v in diag["series"]["sigma_x"])
+
+
+def test_pyramid_unknown_cells_read_as_chosen():
+    pyr = MapPyramid(GridParams(resolution=0.05), levels=2, unknown=0.3)
+    for pose in [(1.0, 3.0, 0.0), (4.5, 1.0, 2.5)]:
+        world = se2.transform_points(np.asarray(pose, float), _points(ROOM, pose))
+        pyr.integrate_points(np.asarray(pose[:2], float), world)
+    for level in pyr.levels:
+        seen = level.grid.observed
+        assert (~seen).any() and seen.any()
+        assert np.all(level.probability[~seen] == np.float32(0.3))
+        assert np.allclose(level.probability[seen], level.grid.probability()[seen])

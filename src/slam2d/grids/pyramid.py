@@ -25,11 +25,18 @@ __all__ = ["MapPyramid", "PyramidLevel"]
 
 
 class PyramidLevel:
-    """One level: the grid and its occupancy probability (0.5 where unknown)."""
+    """One level: the grid and its occupancy probability (``unknown`` where never observed)."""
 
-    def __init__(self, grid: OccupancyGrid) -> None:
+    def __init__(self, grid: OccupancyGrid, unknown: float = 0.5) -> None:
         self.grid = grid
-        self.probability = grid.probability()
+        self.unknown = float(unknown)
+        self.probability = self._whole()
+
+    def _whole(self) -> NDArray[np.float32]:
+        prob = self.grid.probability()
+        if self.unknown != 0.5:
+            prob[~self.grid.observed] = self.unknown
+        return prob
 
     @property
     def resolution(self) -> float:
@@ -41,29 +48,34 @@ class PyramidLevel:
 
     def _refresh(self, xmin: float, ymin: float, xmax: float, ymax: float, grew: bool) -> None:
         if grew or self.probability.shape != self.grid.shape:
-            self.probability = self.grid.probability()
+            self.probability = self._whole()
             return
         (r0, c0), (r1, c1) = self.grid.world_to_cell([[xmin, ymin], [xmax, ymax]])
         rows, cols = self.grid.shape
         r0, c0 = max(int(r0) - 1, 0), max(int(c0) - 1, 0)
         r1, c1 = min(int(r1) + 2, rows), min(int(c1) + 2, cols)
         window = self.grid.logodds[r0:r1, c0:c1]
-        self.probability[r0:r1, c0:c1] = 1.0 / (1.0 + np.exp(-window))
+        prob = 1.0 / (1.0 + np.exp(-window))
+        if self.unknown != 0.5:
+            # the grid's own "observed" stamp, read for the window only
+            prob[self.grid._stamp[r0:r1, c0:c1] == 0] = self.unknown
+        self.probability[r0:r1, c0:c1] = prob
 
 
 class MapPyramid:
     """``levels`` occupancy grids at ``resolution * 2**i``, updated together.
 
     ``params`` lays out the finest level; the coarser levels copy it with the
-    resolution doubled per level.
+    resolution doubled per level. ``unknown`` is the probability matchers see
+    in never-observed cells (0.5: what the log-odds say).
     """
 
-    def __init__(self, params: GridParams | None = None, levels: int = 3) -> None:
+    def __init__(self, params: GridParams | None = None, levels: int = 3, *, unknown: float = 0.5) -> None:
         if levels < 1:
             raise ValueError(f"levels: {levels} must be at least 1")
         params = params if params is not None else GridParams()
         self.levels = [
-            PyramidLevel(OccupancyGrid(replace(params, resolution=params.resolution * 2**i)))
+            PyramidLevel(OccupancyGrid(replace(params, resolution=params.resolution * 2**i)), unknown)
             for i in range(int(levels))
         ]
 

@@ -33,7 +33,9 @@ __all__ = ["HectorParams", "Hector"]
 class HectorParams(GridParams):
     """Hector's defaults (``hector_mapping``'s ROS node) where the original has the parameter.
 
-    Except ``resolution``: 0.05 m, not the original's 0.025 m (see docs/methods/hector.md).
+    Except ``resolution`` (0.05 m, not 0.025 m), the map update thresholds (0.1 m / 0.1 rad, not
+    0.4 m / 0.9 rad) and what the matcher reads in unknown cells (0.3, not 0.5), and the starting
+    guess (constant velocity, not the last pose): see docs/methods/hector.md for the measurements.
     """
 
     resolution: float = param(0.05, unit="m", low=0.001, high=10.0,
@@ -47,10 +49,15 @@ class HectorParams(GridParams):
                           "(original: update_factor_free)")
     map_multi_res_levels: int = param(3, low=1, high=8,
                                       help="map pyramid levels, each half the resolution of the one below")
+    unknown_probability: float = param(
+        0.3, low=0.0, high=1.0,
+        help="occupancy the matcher reads in never-observed cells (the original: 0.5, which pulls scans "
+        "back towards the explored part of the map; see the method page)")
     map_update_distance_thresh: float = param(
-        0.4, unit="m", low=0.0, help="update the map only after the robot moved this far since the last update")
+        0.1, unit="m", low=0.0,
+        help="update the map only after the robot moved this far since the last update (the original: 0.4)")
     map_update_angle_thresh: float = param(
-        0.9, unit="rad", low=0.0, help="... or turned this far since the last update")
+        0.1, unit="rad", low=0.0, help="... or turned this far since the last update (the original: 0.9)")
     laser_min_dist: float = param(0.4, unit="m", low=0.0, help="returns shorter than this are ignored")
     laser_max_dist: float = param(30.0, unit="m", low=0.0, help="returns longer than this are ignored")
     iterations_coarse: int = param(10, low=1, high=1000,
@@ -74,7 +81,7 @@ class HectorParams(GridParams):
         0.2, unit="m", low=0.0,
         help="surface normals for the geometric degeneracy test come from endpoints about this far apart")
     constant_velocity: bool = param(
-        False, help="without odometry, start each match from the last pose plus the last scan-to-scan motion "
+        True, help="without odometry, start each match from the last pose plus the last scan-to-scan motion "
         "(the original starts from the last pose)")
     use_odometry: bool = param(False, help="predict with odometry, use it as a prior and along "
                                            "degenerate directions")
@@ -112,7 +119,7 @@ class Hector(SlamMethod):
     def __init__(self, params: HectorParams | None = None, **kwargs) -> None:
         super().__init__(params, **kwargs)
         p = self.params
-        self.pyramid = MapPyramid(p, p.map_multi_res_levels)
+        self.pyramid = MapPyramid(p, p.map_multi_res_levels, unknown=p.unknown_probability)
         self.matcher = GaussNewtonMatcher(MatchSettings(
             iterations_coarse=p.iterations_coarse, iterations_fine=p.iterations_fine,
             tolerance_xy=p.convergence_xy, tolerance_theta=p.convergence_theta,
