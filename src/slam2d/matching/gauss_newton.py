@@ -141,26 +141,45 @@ def gauss_newton_level(
 
     A step is at most ``max_step`` (m) long and turns at most ``max_angle_step`` (rad).
     ``prior_info`` (3, 3) all zero means no prior. Stops after ``max_iterations``
-    steps or when a step is below ``tol_xy`` (m) and ``tol_theta`` (rad). The
-    normal equations are re-evaluated at the final pose.
+    steps, when a step is below ``tol_xy`` (m) and ``tol_theta`` (rad), or when a
+    step raised the cost (then the pose before it is kept). The normal equations
+    are re-evaluated at the final pose.
 
     Returns ``(pose, H, b, sum w r^2, sum w, sum w M, used, steps)``.
     """
     xi = pose.copy()
     has_prior = prior_info[0, 0] > 0.0 or prior_info[1, 1] > 0.0 or prior_info[2, 2] > 0.0
     steps = 0
+    s2_ref = -1.0
+    best_cost = np.inf
+    best = xi.copy()
     while True:
         h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
+        d = np.empty(3)
+        d[0] = prior_pose[0] - xi[0]
+        d[1] = prior_pose[1] - xi[1]
+        d[2] = _wrap(prior_pose[2] - xi[2])
+        if s2_ref < 0.0:
+            s2_ref = ss / max(wsum - 3.0, 1.0)
+        cost = ss
+        if has_prior:
+            for r in range(3):
+                for k in range(3):
+                    cost += s2_ref * d[r] * prior_info[r, k] * d[k]
+        if cost > best_cost:
+            # The step made it worse (the interpolated map is only piecewise smooth): keep the last
+            # pose and stop, instead of oscillating until the iteration cap.
+            xi = best
+            h, b, ss, wsum, msum, used = accumulate(prob, origin_x, origin_y, resolution, points, weights, xi)
+            break
+        best_cost = cost
+        best = xi.copy()
         if steps >= max_iterations or used < 3:
             break
         a = h.copy()
         rhs = b.copy()
         if has_prior:
             s2 = ss / max(wsum - 3.0, 1.0)
-            d = np.empty(3)
-            d[0] = prior_pose[0] - xi[0]
-            d[1] = prior_pose[1] - xi[1]
-            d[2] = _wrap(prior_pose[2] - xi[2])
             for r in range(3):
                 for k in range(3):
                     a[r, k] += s2 * prior_info[r, k]
