@@ -304,3 +304,33 @@ def test_pyramid_unknown_cells_read_as_chosen():
         assert (~seen).any() and seen.any()
         assert np.all(level.probability[~seen] == np.float32(0.3))
         assert np.allclose(level.probability[seen], level.grid.probability()[seen])
+
+
+def test_hector_weighs_beams_by_the_sensor_model():
+    """A sensor model reaches the residual weights through beam_sigmas: the estimate changes."""
+    from slam2d.sensors.range_noise import StudyModel
+
+    frames = _frames(ROOM, _room_path()[:25])
+    plain = Hector(HectorParams()).run(frames)
+    modelled = Hector(HectorParams(), sensor_model=StudyModel()).run(frames)
+    a, b = plain.trajectory()[1], modelled.trajectory()[1]
+    assert not np.array_equal(a, b)
+    assert np.max(np.hypot(*(a[:, :2] - b[:, :2]).T)) < 0.02  # both track the same exact scans
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_hector_maps_mines_exp1_without_odometry_better_than_odometry(tmp_path):
+    from tests.conftest import dataset_file
+
+    data = dataset_file("mines-exp1/mines-exp1.clf.gz")
+    counts = {}
+    for method in ("hector", "odometry"):
+        out = tmp_path / method
+        assert main(["run", method, str(data), "--out", str(out)]) == 0
+        assert main(["evaluate", str(out)]) == 0
+        quality = json.loads((out / "evaluation.json").read_text())["map_quality"]
+        counts[method] = (quality["corners"], quality["enclosed_areas"])
+    assert counts["hector"][0] < counts["odometry"][0] and counts["hector"][1] < counts["odometry"][1]
+    diag = json.loads((tmp_path / "hector" / "diagnostics.json").read_text())
+    assert diag["counters"].get("match_failures", 0) == 0
