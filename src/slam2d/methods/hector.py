@@ -81,8 +81,8 @@ class HectorParams(GridParams):
         0.2, unit="m", low=0.0,
         help="surface normals for the geometric degeneracy test come from endpoints about this far apart")
     constant_velocity: bool = param(
-        True, help="without odometry, start each match from the last pose plus the last scan-to-scan motion "
-        "(the original starts from the last pose)")
+        True, help="without (usable) odometry, start each match from the last pose plus the last scan-to-scan "
+        "motion (the original starts from the last pose)")
     use_odometry: bool = param(False, help="predict with odometry, use it as a prior and along "
                                            "degenerate directions")
     odometry_sigma_xy: float = param(0.05, unit="m", low=1e-6,
@@ -136,23 +136,22 @@ class Hector(SlamMethod):
     def _prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
         """Where the robot should be, and the prior's information (None: no odometry prior)."""
         p = self.params
-        odom = frame.odometry
-        if not p.use_odometry:
-            if p.constant_velocity and self._previous is not None:
-                return se2.compose(self._pose, se2.relative(self._previous, self._pose)), None
-            return self._pose, None
-        if odom is None or not np.all(np.isfinite(odom)):
-            self.diagnostics.count("frames_without_odometry")
-            return self._pose, None
-        last, self._last_odom = self._last_odom, np.asarray(odom, dtype=np.float64)
-        if last is None:
-            return self._pose, None
-        step = se2.relative(last, self._last_odom)
-        if np.hypot(step[0], step[1]) > p.odometry_max_step:
-            self.diagnostics.count("odometry_jumps")
-            return self._pose, None
-        info = np.diag([p.odometry_sigma_xy ** -2, p.odometry_sigma_xy ** -2, p.odometry_sigma_theta ** -2])
-        return se2.compose(self._pose, step), info
+        if p.use_odometry:
+            odom = frame.odometry
+            if odom is None or not np.all(np.isfinite(odom)):
+                self.diagnostics.count("frames_without_odometry")
+            else:
+                last, self._last_odom = self._last_odom, np.asarray(odom, dtype=np.float64)
+                if last is not None:
+                    step = se2.relative(last, self._last_odom)
+                    if np.hypot(step[0], step[1]) <= p.odometry_max_step:
+                        sx, st = p.odometry_sigma_xy, p.odometry_sigma_theta
+                        return se2.compose(self._pose, step), np.diag([sx**-2, sx**-2, st**-2])
+                    self.diagnostics.count("odometry_jumps")
+        # No usable odometry: the last pose, or the last pose plus the last motion.
+        if p.constant_velocity and self._previous is not None:
+            return se2.compose(self._pose, se2.relative(self._previous, self._pose)), None
+        return self._pose, None
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
