@@ -161,49 +161,55 @@ class Hector(SlamMethod):
             ok = (r >= p.laser_min_dist) & (r <= p.laser_max_dist)
         a = scan.angles[ok]
         points = se2.transform_points(scan.mount, np.stack([r[ok] * np.cos(a), r[ok] * np.sin(a)], axis=-1))
+        values: dict[str, float] = {"points": float(points.shape[0]), "map_updated": 0.0}
+        enough = points.shape[0] >= p.min_points
+        if not enough:
+            self.diagnostics.count("scans_too_few_points")
         if self._pose is None:
-            start = frame.odometry if p.use_odometry and frame.odometry is not None else np.zeros(3)
-            self._pose = np.asarray(start, dtype=np.float64).copy()
-            self._last_odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=np.float64)
-            if not np.all(np.isfinite(self._pose)):
-                self._pose = np.zeros(3)
+            # The first scan defines the map frame (at the first odometry pose when odometry is used).
+            odom = frame.odometry
+            usable = odom is not None and bool(np.all(np.isfinite(odom)))
+            self._pose = np.array(odom if p.use_odometry and usable else np.zeros(3), dtype=np.float64)
+            self._last_odom = np.array(odom, dtype=np.float64) if usable else None
         else:
             before = self._pose
             self._pose, info = self._prediction(frame)
             self._previous = before
-            if points.shape[0] < p.min_points:
-                self.diagnostics.count("scans_too_few_points")
-                return {"points": float(points.shape[0]), "map_updated": 0.0}
-            sigma = beam_sigmas(scan, self.sensor_model, p.range_sigma)[ok]
-            weights = np.where(np.isfinite(sigma) & (sigma > 0), (p.range_sigma / sigma) ** 2, 0.0)
-            result = self.matcher.match(self.pyramid, points, weights, self._pose,
-                                        prior=None if info is None else self._pose, prior_information=info,
-                                        normals=_normals(scan, p.normal_baseline)[ok])
-            if not (np.all(np.isfinite(result.pose)) and np.all(np.isfinite(result.covariance))):
-                self.diagnostics.count("match_failures")
-                return {"points": float(points.shape[0]), "map_updated": 0.0}
-            self._pose = result.pose
-            self.covariance = result.covariance
-            if result.degenerate:
-                self.diagnostics.count("degenerate_matches")
-            values = {
-                "score": result.score,
-                "inverse_condition": result.inverse_condition,
-                "geometric_condition": result.geometric_condition,
-                "degenerate": float(result.degenerate),
-                "sigma_x": float(np.sqrt(result.covariance[0, 0])),
-                "sigma_y": float(np.sqrt(result.covariance[1, 1])),
-                "sigma_theta": float(np.sqrt(result.covariance[2, 2])),
-                "iterations": float(result.iterations),
-                "points": float(points.shape[0]),
-            }
+            if not enough:
+                return values
+            matched = self._match(scan, points, ok, info)
+            if matched is None:
+                return values
+            values.update(matched)
+        if enough:
             values["map_updated"] = float(self._update_map(scan, points, ok))
-            return values
-        if points.shape[0] < p.min_points:
-            self.diagnostics.count("scans_too_few_points")
-            self._map_pose = None
-            return {"points": float(points.shape[0]), "map_updated": 0.0}
-        return {"points": float(points.shape[0]), "map_updated": float(self._update_map(scan, points, ok))}
+        return values
+
+    def _match(self, scan, points, ok, info) -> dict[str, float] | None:
+        """Match the scan from the predicted pose; the values to log, None when the match failed."""
+        p = self.params
+        sigma = beam_sigmas(scan, self.sensor_model, p.range_sigma)[ok]
+        weights = np.where(np.isfinite(sigma) & (sigma > 0), (p.range_sigma / sigma) ** 2, 0.0)
+        result = self.matcher.match(self.pyramid, points, weights, self._pose,
+                                    prior=None if info is None else self._pose, prior_information=info,
+                                    normals=_normals(scan, p.normal_baseline)[ok])
+        if not (np.all(np.isfinite(result.pose)) and np.all(np.isfinite(result.covariance))):
+            self.diagnostics.count("match_failures")
+            return None
+        self._pose = result.pose
+        self.covariance = result.covariance
+        if result.degenerate:
+            self.diagnostics.count("degenerate_matches")
+        return {
+            "score": result.score,
+            "inverse_condition": result.inverse_condition,
+            "geometric_condition": result.geometric_condition,
+            "degenerate": float(result.degenerate),
+            "sigma_x": float(np.sqrt(result.covariance[0, 0])),
+            "sigma_y": float(np.sqrt(result.covariance[1, 1])),
+            "sigma_theta": float(np.sqrt(result.covariance[2, 2])),
+            "iterations": float(result.iterations),
+        }
 
     def _update_map(self, scan, points: NDArray[np.float64], ok: NDArray[np.bool_]) -> bool:
         p = self.params
@@ -211,8 +217,6 @@ class Hector(SlamMethod):
             moved = se2.relative(self._map_pose, self._pose)
             if np.hypot(moved[0], moved[1]) < p.map_update_distance_thresh and abs(moved[2]) < p.map_update_angle_thresh:
                 return False
-        if points.shape[0] < p.min_points:
-            return False
         world = se2.transform_points(self._pose, points)
         hits = np.ones(world.shape[0], dtype=bool)
         laser = se2.compose(self._pose, scan.mount)
