@@ -14,8 +14,9 @@ units). Each iteration solves ``(H + s^2 Lambda) d = b + s^2 Lambda (xi_p - xi)`
 with ``H = sum w J^T J``, ``b = sum w J^T (1 - M)``, ``J = dM/dxi``.
 
 It runs coarse to fine over a :class:`~slam2d.grids.pyramid.MapPyramid`, with
-an iteration cap per level and a convergence test (step below a tolerance),
-where the original runs a fixed 3 (coarse) / 5 (finest) iterations.
+an iteration cap per level and a convergence test (a step below a tolerance,
+or a step that raised the cost: the pose before it is kept), where the
+original runs a fixed 3 (coarse) / 5 (finest) iterations.
 
 What the match reports beyond the pose:
 
@@ -238,11 +239,6 @@ class MatchResult:
     used: int  # points that landed on the map (finest level)
     iterations: int  # Gauss-Newton steps over all levels
     prior_used_along_degeneracy: bool = False
-
-    @property
-    def sigma_worst(self) -> float:
-        """Standard deviation (m) along the least constrained direction, heading scaled to metres."""
-        return float(math.sqrt(max(np.linalg.eigvalsh(self.covariance[:2, :2]).max(), 0.0)))
 
 
 def _weak_directions(
