@@ -275,6 +275,103 @@ def sweep_scaling(workdir: Path) -> tuple[float, str]:
     return two, (f"1 worker {one:.1f} s, 2 workers {two:.1f} s: speedup {one / two:.2f}x "
                  f"(a run: {r1.task_s / r1.executed:.2f} s wall, {cpu1:.2f} s CPU with 1 worker, {cpu2:.2f} s CPU "
                  f"with 2; overhead {1000 * r2.overhead_per_run_s:.0f} ms/run with 2)")
+def _hector_run(data: Path, out: Path, *settings: str) -> tuple[float, list[float]]:
+    """`hector` on a recording in this process: (CPU seconds of the updates, per-scan CPU seconds).
+
+    Reading is excluded; the run folder is written to ``out`` for evaluation.
+    """
+    from slam2d.io import open_recording
+    from slam2d.io.tum import write_tum
+    from slam2d.methods.runner import build_method
+
+    frames = list(open_recording(data).frames())
+    values = dict(kv.split("=", 1) for kv in settings)
+    build_method("hector", settings=values).run(frames[:20])  # numba's cache load is not the method's cost
+    slam = build_method("hector", settings=values)
+    t0 = time.process_time()
+    slam.run(frames)
+    cpu = time.process_time() - t0
+    out.mkdir(parents=True, exist_ok=True)
+    times, poses = slam.trajectory()
+    write_tum(out / "trajectory.tum", times, poses)
+    return cpu, slam.diagnostics.series["cpu_s"]
+
+
+def hector_mines_speed(workdir: Path) -> tuple[float, str]:
+    """CPU time of `hector` over mines-exp1 (no odometry), and its per-scan latency."""
+    import statistics
+
+    cpu, per_scan = _hector_run(DATA / "mines-exp1" / "mines-exp1.clf.gz", workdir / "hector-mines")
+    ms = sorted(v * 1e3 for v in per_scan)
+    p95 = ms[int(0.95 * (len(ms) - 1))]
+    return cpu, f"{len(ms)} scans of 682 beams; per scan median {statistics.median(ms):.2f} ms, p95 {p95:.2f} ms (CPU)"
+
+
+def hector_long_corridor(workdir: Path) -> tuple[None, str]:
+    """`long-corridor` simulated, `hector` with odometry: ATE against the truth, degeneracy flags."""
+    import numpy as np
+
+    sim = workdir / "long-corridor"
+    if not (sim / "truth.tum").is_file():
+        _slam2d("simulate", "long-corridor", "--out", str(sim), "--seed", "0")
+    out = {}
+    for name, extra in (("odometry", ["--set", "use_odometry=true"]), ("blind", [])):
+        run = workdir / f"hector-corridor-{name}"
+        _slam2d("run", "hector", str(sim / "recording.log.gz"), "--out", str(run), *extra)
+        _slam2d("evaluate", str(run), "--truth", str(sim))
+        ev = json.loads((run / "evaluation.json").read_text())
+        diag = json.loads((run / "diagnostics.json").read_text())["series"]
+        truth_x = np.loadtxt(sim / "truth.tum")[:, 1]
+        flags = np.array([np.nan if v is None else v for v in diag["degenerate"]])
+        # the featureless stretch: more than the laser's 5.6 m from both ends of the 30 m corridor
+        middle = (truth_x[: len(flags)] > 6.0) & (truth_x[: len(flags)] < 24.0)
+        out[name] = (ev["trajectory"]["ate"]["translation_m"]["rmse"], np.nanmean(flags[middle]),
+                     np.nanmean(flags[~middle]))
+    (ate, mid, ends), (ate_blind, mid_b, _) = out["odometry"], out["blind"]
+    return None, (f"with odometry ATE {ate:.3f} m, degenerate flagged on {100 * mid:.0f} % of the featureless "
+                  f"stretch, {100 * ends:.0f} % near the ends; without odometry ATE {ate_blind:.2f} m, "
+                  f"flagged {100 * mid_b:.0f} %")
+
+
+def hector_fr079_odometry(workdir: Path) -> tuple[None, str]:
+    """`hector` with odometry on fr079: ATE against reference.tum (GMapping's, not ground truth)."""
+    run = workdir / "hector-fr079"
+    _slam2d("run", "hector", str(DATA / "fr079" / "fr079.clf.gz"), "--out", str(run), "--set", "use_odometry=true")
+    _slam2d("evaluate", str(run), "--reference", str(DATA / "fr079" / "reference.tum"))
+    ev = json.loads((run / "evaluation.json").read_text())
+    ate = ev["trajectory"]["ate"]["translation_m"]["rmse"]
+    cost = ev["cost"]
+    return None, f"ATE {ate:.3f} m vs reference.tum; {1e3 * cost['cpu_s_per_scan']['median']:.2f} ms CPU per scan"
+
+
+def hector_paper_arena(workdir: Path) -> tuple[None, str]:
+    """`paper-arena` simulated, `hector` without odometry: ATE against the truth."""
+    sim = workdir / "paper-arena"
+    if not (sim / "truth.tum").is_file():
+        _slam2d("simulate", "paper-arena", "--out", str(sim), "--seed", "0")
+    run = workdir / "hector-arena"
+    _slam2d("run", "hector", str(sim / "recording.log.gz"), "--out", str(run))
+    _slam2d("evaluate", str(run), "--truth", str(sim))
+    ev = json.loads((run / "evaluation.json").read_text())
+    cpu_ms = 1e3 * ev["cost"]["cpu_s_per_scan"]["median"]
+    return None, (f"ATE {ev['trajectory']['ate']['translation_m']['rmse']:.4f} m without odometry; "
+                  f"{cpu_ms:.2f} ms CPU per scan (median, 682 beams, most with a return)")
+
+
+def hector_mines_maps(workdir: Path) -> tuple[None, str]:
+    """Filatov corner and enclosed-area counts of `hector` (no odometry) vs the odometry baseline, mines logs."""
+    notes = []
+    for ds in ("mines-exp1", "mines-exp2"):
+        counts = {}
+        for method in ("hector", "odometry"):
+            run = workdir / f"{method}-{ds}"
+            _slam2d("run", method, str(DATA / ds / f"{ds}.clf.gz"), "--out", str(run))
+            _slam2d("evaluate", str(run))
+            q = json.loads((run / "evaluation.json").read_text())["map_quality"]
+            counts[method] = (q["corners"], q["enclosed_areas"])
+        (hc, he), (oc, oe) = counts["hector"], counts["odometry"]
+        notes.append(f"{ds}: corners {hc} vs {oc}, enclosed areas {he} vs {oe}")
+    return None, "hector vs odometry; " + "; ".join(notes)
 
 
 CASES: list[Case] = [
@@ -304,6 +401,19 @@ CASES: list[Case] = [
          sweep_overhead_dask, target="< 0.2 s per run", max_seconds=0.2, repeat=1),
     Case("sweep-scaling", "a 40-run sweep on 2 local workers vs 1 (seconds = with 2; speedup in the note)",
          sweep_scaling, target="speedup close to 2x on 2 cores", repeat=1, warmup=False),
+    Case("hector-mines-exp1", "`hector` over mines-exp1 (756 scans of 682 beams, 75 s), no odometry: CPU time of "
+         "the updates, reading excluded", hector_mines_speed, target="< 3 s; < 2 ms median per scan",
+         max_seconds=3.0, needs=(SHARED,)),
+    Case("hector-long-corridor", "`long-corridor` simulated, `hector` with and without odometry (whole commands)",
+         hector_long_corridor, target="with odometry ATE < 0.2 m; degeneracy flagged on the featureless stretch",
+         repeat=1),
+    Case("hector-paper-arena", "`paper-arena` simulated, `hector` without odometry (whole commands)",
+         hector_paper_arena, target="ATE < 0.03 m", repeat=1),
+    Case("hector-fr079-odometry", "`hector` with odometry on fr079, evaluated against reference.tum (whole commands)",
+         hector_fr079_odometry, target="ATE < 0.3 m", needs=(SHARED,), repeat=1),
+    Case("hector-mines-maps", "`hector` (no odometry) and `odometry` on mines-exp1/2: Filatov map counts",
+         hector_mines_maps, target="corners and enclosed areas below the odometry baseline's", needs=(SHARED,),
+         repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from slam2d.core.scan import LaserScan
 from slam2d.sensors.range_noise import TABLE_I_MM, RangeNoiseModel, material_index
 
-__all__ = ["incidence_angles", "beam_sigmas", "TABULATED_MATERIALS"]
+__all__ = ["surface_tangents", "incidence_angles", "beam_sigmas", "TABULATED_MATERIALS"]
 
 #: Indices of the materials the study measured (Table I); the default material mix.
 TABULATED_MATERIALS: tuple[int, ...] = tuple(material_index(m) for m in TABLE_I_MM)
@@ -40,49 +40,71 @@ _SAME_SURFACE_FACTOR = 5.0
 _SAME_SURFACE_FLOOR = 0.05  # m
 
 
-def incidence_angles(ranges: NDArray[np.float64], angles: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Incidence angle (rad, 0 = square to the surface, < pi/2) of every beam, NaN where no return.
+def surface_tangents(
+    ranges: NDArray[np.float64], angles: NDArray[np.float64], baseline: float = 0.0
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Direction of the surface at every beam's endpoint, laser frame: ``(tx, ty, usable)``.
 
-    Whole-array numpy: central differences of the endpoints where both
-    neighbours are on the same surface, one-sided where only one is, 0 where
-    neither is.
+    The tangent is the difference of the endpoints ``k`` beams either side on
+    the same surface (a run of beams without a depth jump), cut at the
+    surface's ends; ``k`` is 1, or with ``baseline`` (m) > 0 the number of beams
+    spanning about ``baseline`` at the beam's range, so range noise tilts the
+    tangent less. ``usable`` is False where the beam has no return or no
+    neighbour on its surface. Tangents are not normalised. Whole-array numpy.
     """
     r = np.asarray(ranges, dtype=np.float64)
     a = np.asarray(angles, dtype=np.float64)
     n = r.shape[0]
-    out = np.full(n, np.nan)
     if n == 0:
-        return out
-    c, s = np.cos(a), np.sin(a)
-    x, y = r * c, r * s
+        return np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool)
+    x, y = r * np.cos(a), r * np.sin(a)
     ok = ~np.isnan(r)
     step = np.abs(np.diff(a)) if n > 1 else np.zeros(0)
     # link k joins beam k and k + 1
-    dx, dy = np.diff(x), np.diff(y)
-    gap = np.hypot(dx, dy)
+    gap = np.hypot(np.diff(x), np.diff(y))
     near = np.fmin(r[:-1], r[1:])
     limit = np.maximum(_SAME_SURFACE_FACTOR * near * step, _SAME_SURFACE_FLOOR)
     link = ok[:-1] & ok[1:] & (gap <= limit)
     link = np.where(np.isnan(gap), False, link)
-    has_prev = np.zeros(n, bool)
-    has_next = np.zeros(n, bool)
-    has_prev[1:] = link
-    has_next[:-1] = link
-    # tangent: next - prev endpoint where both links hold, else the one link that does
-    ip = np.clip(np.arange(n) - 1, 0, n - 1)
-    inx = np.clip(np.arange(n) + 1, 0, n - 1)
-    tx0 = np.where(has_prev, x[ip], x)
-    ty0 = np.where(has_prev, y[ip], y)
-    tx1 = np.where(has_next, x[inx], x)
-    ty1 = np.where(has_next, y[inx], y)
-    tx, ty = tx1 - tx0, ty1 - ty0
+    # surfaces: runs of linked beams; first and last beam of each beam's run
+    index = np.arange(n)
+    breaks = np.ones(n, dtype=bool)
+    breaks[1:] = ~link
+    first = np.maximum.accumulate(np.where(breaks, index, 0))
+    ends = np.ones(n, dtype=bool)
+    ends[:-1] = ~link
+    last = np.minimum.accumulate(np.where(ends, index, n - 1)[::-1])[::-1]
+    if baseline > 0.0 and n > 1:
+        spacing = np.fmax(np.nan_to_num(r, nan=1.0) * float(np.median(step)), 1e-9)
+        k = np.clip(np.ceil(baseline / spacing), 1, n).astype(np.int64)
+    else:
+        k = np.ones(n, dtype=np.int64)
+    lo = np.maximum(index - k, first)
+    hi = np.minimum(index + k, last)
+    tx, ty = x[hi] - x[lo], y[hi] - y[lo]
+    usable = ok & (hi > lo) & (np.hypot(tx, ty) > 0)
+    return tx, ty, usable
+
+
+def incidence_angles(ranges: NDArray[np.float64], angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Incidence angle (rad, 0 = square to the surface, < pi/2) of every beam, NaN where no return.
+
+    Whole-array numpy: from :func:`surface_tangents`; 0 where a beam has no
+    neighbour on its surface.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    out = np.full(r.shape[0], np.nan)
+    if r.shape[0] == 0:
+        return out
+    tx, ty, usable = surface_tangents(r, a)
+    c, s = np.cos(a), np.sin(a)
     norm = np.hypot(tx, ty)
-    usable = ok & (has_prev | has_next) & (norm > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
         # |beam x tangent| / |tangent| = cos(incidence)
         cos_inc = np.abs(c * ty - s * tx) / norm
     inc = np.arccos(np.clip(cos_inc, 0.0, 1.0))
-    out[ok] = 0.0
+    out[~np.isnan(r)] = 0.0
     out[usable] = inc[usable]
     return out
 
