@@ -1,0 +1,97 @@
+"""Random-mutation hill climbing (RMHC) on a tinySLAM hole map, as BreezySLAM searches.
+
+The search (one compiled call per scan):
+
+1. Draw a candidate around the last accepted pose: ``x, y ~ N(last, sigma_xy)``,
+   ``theta ~ N(last, sigma_theta)``; score it with
+   :func:`~slam2d.grids.hole_map.hole_distance` (lower is better).
+2. A candidate better than the best so far becomes the best; otherwise a
+   failure counter goes up.
+3. When the counter passes a third of ``max_iter`` and the best improved on
+   the last accepted pose, the best is accepted as the new centre, the
+   counter restarts and both sigmas halve: the spread shrinks as it converges.
+4. The search ends when the counter reaches ``max_iter``.
+
+Random numbers come from numba's own generator, seeded per call from the
+method's seed, so a run repeats bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from slam2d.grids.hole_map import HoleMap, hole_distance
+
+__all__ = ["rmhc_search", "RmhcResult", "rmhc_match"]
+
+
+@njit(cache=True)
+def rmhc_search(values, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0,
+                sigma_xy, sigma_theta, max_iter, seed):
+    """``(x, y, theta, distance, evaluations, halvings)`` of the RMHC search from ``(x0, y0, theta0)``."""
+    np.random.seed(seed)
+    inv = 1.0 / resolution
+    bx, by, bt = x0, y0, theta0  # best so far
+    lx, ly, lt = x0, y0, theta0  # last accepted centre
+    best = hole_distance(values, origin_x, origin_y, inv, qx, qy, x0, y0, theta0)
+    last_best = best
+    evaluations = 1
+    halvings = 0
+    counter = 0
+    while counter < max_iter:
+        cx = lx + sigma_xy * np.random.standard_normal()
+        cy = ly + sigma_xy * np.random.standard_normal()
+        ct = lt + sigma_theta * np.random.standard_normal()
+        d = hole_distance(values, origin_x, origin_y, inv, qx, qy, cx, cy, ct)
+        evaluations += 1
+        if d < best:
+            best = d
+            bx, by, bt = cx, cy, ct
+        else:
+            counter += 1
+        if counter > max_iter // 3 and best < last_best:
+            lx, ly, lt = bx, by, bt
+            last_best = best
+            counter = 0
+            sigma_xy *= 0.5
+            sigma_theta *= 0.5
+            halvings += 1
+    return bx, by, bt, best, evaluations, halvings
+
+
+class RmhcResult:
+    """Outcome of one search: ``pose``, ``distance`` (mean cell value, lower better), ``evaluations``, ``halvings``."""
+
+    __slots__ = ("pose", "distance", "evaluations", "halvings")
+
+    def __init__(self, pose: NDArray[np.float64], distance: float, evaluations: int, halvings: int) -> None:
+        self.pose = pose
+        self.distance = distance
+        self.evaluations = evaluations
+        self.halvings = halvings
+
+
+def rmhc_match(
+    hole_map: HoleMap,
+    points: NDArray[np.float64],
+    start: NDArray[np.float64],
+    *,
+    sigma_xy: float,
+    sigma_theta: float,
+    max_iter: int,
+    seed: int,
+) -> RmhcResult:
+    """Search the pose near ``start`` where the robot-frame ``points`` (N, 2) sit deepest in the holes."""
+    ox, oy = hole_map.origin
+    x, y, t, d, n, h = rmhc_search(
+        hole_map.values, ox, oy, hole_map.resolution,
+        np.ascontiguousarray(points[:, 0], dtype=np.float64), np.ascontiguousarray(points[:, 1], dtype=np.float64),
+        float(start[0]), float(start[1]), float(start[2]),
+        float(sigma_xy), float(sigma_theta), int(max_iter), int(seed),
+    )
+    theta = math.atan2(math.sin(t), math.cos(t))
+    return RmhcResult(np.array([x, y, theta]), float(d), int(n), int(h))
