@@ -12,8 +12,8 @@ The search (one compiled call per scan):
    counter restarts and both sigmas halve: the spread shrinks as it converges.
 4. The search ends when the counter reaches ``max_iter``.
 
-Random numbers come from numba's own generator, seeded per call from the
-method's seed, so a run repeats bit for bit.
+Random numbers come from :mod:`slam2d.matching.random_numbers`, seeded from
+the method's seed, so a run repeats bit for bit.
 """
 
 from __future__ import annotations
@@ -25,15 +25,18 @@ from numba import njit
 from numpy.typing import NDArray
 
 from slam2d.grids.hole_map import HoleMap, hole_distance
+from slam2d.matching.random_numbers import normal_pair
 
 __all__ = ["rmhc_search", "RmhcResult", "rmhc_match"]
 
 
 @njit(cache=True)
 def rmhc_search(values, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0,
-                sigma_xy, sigma_theta, max_iter, seed):
-    """``(x, y, theta, distance, evaluations, halvings)`` of the RMHC search from ``(x0, y0, theta0)``."""
-    np.random.seed(seed)
+                sigma_xy, sigma_theta, max_iter, state):
+    """``(x, y, theta, distance, evaluations, halvings)`` of the RMHC search from ``(x0, y0, theta0)``.
+
+    ``state`` is a :mod:`~slam2d.matching.random_numbers` generator state (advanced in place).
+    """
     inv = 1.0 / resolution
     bx, by, bt = x0, y0, theta0  # best so far
     lx, ly, lt = x0, y0, theta0  # last accepted centre
@@ -42,10 +45,21 @@ def rmhc_search(values, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0,
     evaluations = 1
     halvings = 0
     counter = 0
+    spare = 0.0
+    have_spare = False
     while counter < max_iter:
-        cx = lx + sigma_xy * np.random.standard_normal()
-        cy = ly + sigma_xy * np.random.standard_normal()
-        ct = lt + sigma_theta * np.random.standard_normal()
+        # three normals per candidate from Box-Muller pairs; the fourth is kept for the next one
+        if have_spare:
+            n1 = spare
+            n2, n3 = normal_pair(state)
+            have_spare = False
+        else:
+            n1, n2 = normal_pair(state)
+            n3, spare = normal_pair(state)
+            have_spare = True
+        cx = lx + sigma_xy * n1
+        cy = ly + sigma_xy * n2
+        ct = lt + sigma_theta * n3
         d = hole_distance(values, origin_x, origin_y, inv, qx, qy, cx, cy, ct)
         evaluations += 1
         if d < best:
@@ -83,15 +97,22 @@ def rmhc_match(
     sigma_xy: float,
     sigma_theta: float,
     max_iter: int,
-    seed: int,
+    state: NDArray[np.uint64],
 ) -> RmhcResult:
-    """Search the pose near ``start`` where the robot-frame ``points`` (N, 2) sit deepest in the holes."""
+    """Search the pose near ``start`` where the robot-frame ``points`` (N, 2) sit deepest in the holes.
+
+    The map is first grown to hold the scan around ``start`` (plus three
+    sigmas), so candidates see unexplored cells as unknown (BreezySLAM's map
+    is one large square) instead of dropping points.
+    """
+    reach = float(np.sqrt((points**2).sum(axis=1)).max()) + 3.0 * sigma_xy
+    hole_map.ensure_contains(start[0] - reach, start[1] - reach, start[0] + reach, start[1] + reach)
     ox, oy = hole_map.origin
     x, y, t, d, n, h = rmhc_search(
         hole_map.values, ox, oy, hole_map.resolution,
-        np.ascontiguousarray(points[:, 0], dtype=np.float64), np.ascontiguousarray(points[:, 1], dtype=np.float64),
+        np.ascontiguousarray(points[:, 0], dtype=np.float32), np.ascontiguousarray(points[:, 1], dtype=np.float32),
         float(start[0]), float(start[1]), float(start[2]),
-        float(sigma_xy), float(sigma_theta), int(max_iter), int(seed),
+        float(sigma_xy), float(sigma_theta), int(max_iter), state,
     )
     theta = math.atan2(math.sin(t), math.cos(t))
     return RmhcResult(np.array([x, y, theta]), float(d), int(n), int(h))

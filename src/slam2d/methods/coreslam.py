@@ -20,6 +20,7 @@ from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.hole_map import FREE, HoleMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.matching.random_numbers import new_state
 from slam2d.matching.rmhc import rmhc_match
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -97,6 +98,7 @@ class CoreSlam(SlamMethod):
         self._pose: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
         self._scans_in_map = 0
+        self._random = new_state(self.rng)
 
     def _predict(self, frame: Frame) -> NDArray[np.float64]:
         odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=np.float64)
@@ -128,7 +130,7 @@ class CoreSlam(SlamMethod):
         if self._scans_in_map > 0:
             result = rmhc_match(
                 self._map, points, pose, sigma_xy=p.sigma_xy, sigma_theta=p.sigma_theta,
-                max_iter=p.max_search_iter, seed=int(self.rng.integers(2**31 - 1)),
+                max_iter=p.max_search_iter, state=self._random,
             )
             if math.isfinite(result.distance):
                 pose = result.pose
