@@ -45,7 +45,7 @@ def uniform(state):
 @njit(cache=True, inline="always")
 def randint(state, n):
     """Uniform integer in [0, n) (n > 0); the top bits, so no modulo bias worth noting for small n."""
-    return int((next_u64(state) >> np.uint64(33)) * np.uint64(n) >> np.uint64(31))
+    return np.int64((next_u64(state) >> np.uint64(33)) * np.uint64(n) >> np.uint64(31))
 
 
 @njit(cache=True, inline="always")
