@@ -79,6 +79,10 @@ class CrsmParams:
         0.035, unit="rad", low=0.0,
         help="the warm-up ends early when a match turns the robot more than this",
     )
+    warmup_end_confirm: int = param(
+        2, low=1, help="consecutive scans that must see the motion before the warm-up ends early "
+        "(a match on a one-scan map can jump spuriously)",
+    )
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
     )
@@ -111,6 +115,7 @@ class Crsm(SlamMethod):
         self._pose = np.zeros(3)
         self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
         self._warm = True
+        self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
         self._scans = 0
         self._random = new_state(self.rng)
 
@@ -128,7 +133,9 @@ class Crsm(SlamMethod):
             d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays
         )
         values.update(rays=float(selected.shape[0]), mean_density=float(mean_density))
-        if selected.shape[0] >= _MIN_RAYS:
+        if self._scans == 0:
+            moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
+        elif selected.shape[0] >= _MIN_RAYS:
             ang = scan.angles[selected]
             pts = se2.transform_points(scan.mount, np.stack([d[selected] * np.cos(ang), d[selected] * np.sin(ang)], -1))
             ox, oy = self._map.origin
@@ -149,6 +156,10 @@ class Crsm(SlamMethod):
             moved = self._pose
         if self._warm and self._scans < p.warmup_scans:
             if math.hypot(moved[0], moved[1]) > p.warmup_end_translation or abs(moved[2]) > p.warmup_end_rotation:
+                self._moves_seen += 1
+            else:
+                self._moves_seen = 0
+            if self._moves_seen >= p.warmup_end_confirm:
                 self._warm = False
                 self.diagnostics.summary["warmup_ended_at_scan"] = self._scans
             else:
