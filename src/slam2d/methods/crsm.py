@@ -29,7 +29,7 @@ from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
 
-__all__ = ["CrsmParams", "Crsm"]
+__all__ = ["CrsmParams", "Crsm", "ray_points"]
 
 # The original's mean density during the first scans (then clamped to the update's range).
 _WARMUP_DENSITY = 0.5
@@ -88,6 +88,19 @@ class CrsmParams:
     )
 
 
+def ray_points(scan, d: NDArray[np.float64], selected: NDArray[np.int64], resolution: float) -> NDArray[np.float64]:
+    """Robot-frame endpoints of the selected rays, truncated to whole cells in the laser frame as the original does.
+
+    The map update marks a beam's wall ``int(range / cell)`` cells out, up
+    to a cell short of the true endpoint; truncating the matched endpoints
+    towards the laser the same way keeps them on the marked cells.
+    """
+    a = scan.angles[selected]
+    r = d[selected] / resolution
+    cells = np.stack([np.trunc(r * np.cos(a)), np.trunc(r * np.sin(a))], axis=-1) * resolution
+    return se2.transform_points(scan.mount, cells)
+
+
 @register
 class Crsm(SlamMethod):
     name = "crsm"
@@ -136,8 +149,7 @@ class Crsm(SlamMethod):
         if self._scans == 0:
             moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
         elif selected.shape[0] >= _MIN_RAYS:
-            ang = scan.angles[selected]
-            pts = se2.transform_points(scan.mount, np.stack([d[selected] * np.cos(ang), d[selected] * np.sin(ang)], -1))
+            pts = ray_points(scan, d, selected, p.resolution)
             ox, oy = self._map.origin
             dx, dy, dk, fit, n, restarts, better = rrhc_search(
                 self._map.values, ox, oy, p.resolution,
