@@ -120,6 +120,11 @@ def test_coreslam_uses_odometry_as_the_prediction_when_asked():
     frames[3] = frame(frames[3].scan, None, 3)
     odo2 = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
     assert odo2.diagnostics.counters["frames_without_odometry"] == 1
+    # an odometry jump (a reset, a corrupt reading) is counted and predicts no motion
+    frames[6] = frame(frames[6].scan, frames[6].odometry + np.array([500.0, 0.0, 0.0]), 6)
+    odo3 = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
+    assert odo3.diagnostics.counters["odometry_jumps"] == 2  # into the bad reading and out of it
+    assert np.all(np.isfinite(odo3.trajectory()[1]))
 
 
 def test_a_sensor_model_widens_the_holes():

@@ -31,6 +31,8 @@ __all__ = ["CoreSlamParams", "CoreSlam"]
 
 # Fewer endpoints than this cannot pin a pose down: the scan is placed at the prediction.
 _MIN_POINTS = 10
+# An odometry increment longer than this between two scans is a reset or corruption, not motion.
+_MAX_ODOMETRY_STEP = 5.0  # m
 
 
 @dataclass
@@ -106,7 +108,12 @@ class CoreSlam(SlamMethod):
             start = odom if (self.params.use_odometry and odom is not None) else np.zeros(3)
             pred = np.array(start, dtype=np.float64)
         elif self.params.use_odometry and odom is not None and self._last_odom is not None:
-            pred = se2.compose(self._pose, se2.relative(self._last_odom, odom))
+            step = se2.relative(self._last_odom, odom)
+            if np.all(np.isfinite(step)) and math.hypot(step[0], step[1]) <= _MAX_ODOMETRY_STEP:
+                pred = se2.compose(self._pose, step)
+            else:
+                self.diagnostics.count("odometry_jumps")  # a reset or corrupt reading: predict no motion
+                pred = self._pose.copy()
         else:
             if self.params.use_odometry:
                 self.diagnostics.count("frames_without_odometry")
