@@ -83,6 +83,20 @@ class CrsmParams:
         2, low=1, help="consecutive scans that must see the motion before the warm-up ends early "
         "(a match on a one-scan map can jump spuriously)",
     )
+    min_range: float = param(
+        0.02, unit="m", low=0.0,
+        help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
+        "the scan's own range_min applies too",
+    )
+    refine_rounds: int = param(
+        0, low=0, high=1000,
+        help="rounds of a final deterministic climb over the 26 neighbours (1 cell, 1/180 rad) after the "
+        "random search; 0 = the original (headings stay on the restart lattice)",
+    )
+    motion_model: str = param(
+        "none", choices=("none", "constant_velocity"),
+        help="search centre: the last pose (the original) or the last pose plus the last matched motion",
+    )
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
     )
@@ -113,6 +127,7 @@ class Crsm(SlamMethod):
         "iterations": "candidate transformations scored [-]",
         "restarts": "random restarts of the climb [-]",
         "improvements": "candidates that improved the best [-]",
+        "refine_steps": "rounds of the final neighbour climb that moved the pose [-]",
         "rays": "critical rays matched [-]",
         "mean_density": "the scan's mean range jump between neighbouring beams, before clamping [m]",
         "cells_updated": "cells walked by the map update [cells]",
@@ -126,6 +141,7 @@ class Crsm(SlamMethod):
         self._map.ensure_contains(-half, -half, half, half, margin=0)
         self._map.draw_patch(np.zeros(3), p.robot_length, p.robot_width)
         self._pose = np.zeros(3)
+        self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
         self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
         self._warm = True
         self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
@@ -137,6 +153,12 @@ class Crsm(SlamMethod):
         scan = frame.scan
         laser_max = scan.range_max if math.isfinite(scan.range_max) else float(np.nanmax(scan.ranges, initial=0.0))
         d = np.nan_to_num(scan.ranges, nan=0.0)
+        # error codes as no return: as "returns" at the laser they are critical rays (every one a jump) that
+        # all land on one cell, and pull the matched pose onto any wall the robot is near
+        short = (d > 0) & (d < max(p.min_range, scan.range_min))
+        if short.any():
+            self.diagnostics.count("short_readings", int(short.sum()))
+            d[short] = 0.0
         values: dict[str, float] = {}
         if not (d > 0).any():
             self.diagnostics.count("scans_without_returns")
@@ -150,18 +172,23 @@ class Crsm(SlamMethod):
             moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
         elif selected.shape[0] >= _MIN_RAYS:
             pts = ray_points(scan, d, selected, p.resolution)
+            centre = self._pose
+            if p.motion_model == "constant_velocity" and not self._warm:
+                centre = se2.compose(self._pose, self._step)
+                # the map must hold the search window around a centre that may lie ahead of the old map
+                self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
             ox, oy = self._map.origin
-            dx, dy, dk, fit, n, restarts, better = rrhc_search(
+            dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
                 self._map.values, ox, oy, p.resolution,
                 np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
-                float(self._pose[0]), float(self._pose[1]), float(self._pose[2]),
-                p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random,
+                float(centre[0]), float(centre[1]), float(centre[2]),
+                p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
             )
-            values.update(score=fit, iterations=n, restarts=restarts, improvements=better)
+            values.update(score=fit, iterations=n, restarts=restarts, improvements=better, refine_steps=refined)
             moved = np.array([
-                self._pose[0] + dx * p.resolution,
-                self._pose[1] + dy * p.resolution,
-                math.remainder(self._pose[2] + dk * HEADING_STEP, 2 * math.pi),
+                centre[0] + dx * p.resolution,
+                centre[1] + dy * p.resolution,
+                math.remainder(centre[2] + dk * HEADING_STEP, 2 * math.pi),
             ])
         else:
             self.diagnostics.count("scans_too_few_rays")
@@ -176,6 +203,7 @@ class Crsm(SlamMethod):
                 self.diagnostics.summary["warmup_ended_at_scan"] = self._scans
             else:
                 moved = np.zeros(3)  # held at the start while the first map builds
+        self._step = se2.relative(self._pose, moved)
         self._pose = moved
         if self._scans < p.warmup_density_scans:
             mean_density = _WARMUP_DENSITY
