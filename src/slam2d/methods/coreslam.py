@@ -66,6 +66,19 @@ class CoreSlamParams:
     use_odometry: bool = param(
         False, help="predict each pose with the odometry increment (else: the last pose, BreezySLAM's default)"
     )
+    motion_model: str = param(
+        "none", choices=("none", "constant_velocity"),
+        help="prediction without odometry: the last pose (BreezySLAM) or the last pose plus the last matched motion",
+    )
+    refine: bool = param(
+        True, help="end each search with a deterministic compass search (one cell and 1/3 cell per 3 m of heading, "
+        "halving to 1/8); not in BreezySLAM",
+    )
+    min_range: float = param(
+        0.02, unit="m", low=0.0,
+        help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
+        "the scan's own range_min applies too",
+    )
     no_return_range: float | None = param(
         None, unit="m", low=0.0,
         help="beams with no return clear free space up to this range (BreezySLAM's distance_no_detection); "
@@ -99,6 +112,7 @@ class CoreSlam(SlamMethod):
         self._map = HoleMap(p.resolution, grow_margin=p.grow_margin, max_extent=p.max_extent)
         self._pose: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
+        self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
         self._scans_in_map = 0
         self._random = new_state(self.rng)
 
@@ -117,7 +131,10 @@ class CoreSlam(SlamMethod):
         else:
             if self.params.use_odometry:
                 self.diagnostics.count("frames_without_odometry")
-            pred = self._pose.copy()
+            if self.params.motion_model == "constant_velocity":
+                pred = se2.compose(self._pose, self._step)
+            else:
+                pred = self._pose.copy()
         if odom is not None:
             self._last_odom = odom
         return pred
@@ -125,34 +142,46 @@ class CoreSlam(SlamMethod):
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
         scan = frame.scan
+        previous = self._pose
         pose = self._predict(frame)
-        valid = scan.valid
+        ranges = scan.ranges
+        short = ranges < max(p.min_range, scan.range_min)  # NaN compares False
+        if short.any():
+            # error codes as no return: as endpoints at the laser they would score the robot's own cell
+            self.diagnostics.count("short_readings", int(short.sum()))
+            ranges = np.where(short, np.nan, ranges)
+        valid = ~np.isnan(ranges)
         n_points = int(valid.sum())
         values: dict[str, float] = {"points": float(n_points)}
         if n_points < _MIN_POINTS:
             self.diagnostics.count("scans_too_few_returns")
-            self._pose = pose
+            self._set_pose(previous, pose)
             return values
-        points = scan.points_in_base()
+        a = scan.angles[valid]
+        r = ranges[valid]
+        points = se2.transform_points(scan.mount, np.stack([r * np.cos(a), r * np.sin(a)], axis=-1))
         if self._scans_in_map > 0:
             result = rmhc_match(
                 self._map, points, pose, sigma_xy=p.sigma_xy, sigma_theta=p.sigma_theta,
-                max_iter=p.max_search_iter, state=self._random,
+                max_iter=p.max_search_iter, state=self._random, refine=p.refine,
             )
             if math.isfinite(result.distance):
                 pose = result.pose
                 values.update(score=result.distance / FREE, iterations=result.evaluations, halvings=result.halvings)
             else:
                 self.diagnostics.count("match_failures")  # no endpoint on the map
-        self._pose = pose
-        values["cells_updated"] = self._integrate(scan, pose)
+        self._set_pose(previous, pose)
+        values["cells_updated"] = self._integrate(scan, ranges, pose)
         self._scans_in_map += 1
         return values
 
-    def _integrate(self, scan, pose: NDArray[np.float64]) -> float:
+    def _set_pose(self, previous: NDArray[np.float64] | None, pose: NDArray[np.float64]) -> None:
+        self._step = np.zeros(3) if previous is None else se2.relative(previous, pose)
+        self._pose = pose
+
+    def _integrate(self, scan, ranges: NDArray[np.float64], pose: NDArray[np.float64]) -> float:
         p = self.params
         laser = se2.compose(pose, scan.mount)
-        ranges = scan.ranges
         hit = ~np.isnan(ranges)
         if p.no_return_range is not None:
             ranges = np.where(hit, ranges, p.no_return_range)
