@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from slam2d.cli import main
+from slam2d.core import se2
 from slam2d.core import make_scan
 from slam2d.errors import InputError
 from slam2d.grids.hole_map import FREE, UNKNOWN, HoleMap, hole_distance
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rmhc import rmhc_match
+from slam2d.matching.rmhc import pattern_refine, rmhc_match
 from slam2d.methods import get_method
 from slam2d.methods.coreslam import CoreSlam, CoreSlamParams
 from slam2d.params import from_mapping
@@ -169,4 +170,70 @@ def test_coreslam_on_the_simulated_arena(tmp_path):
     assert main(["evaluate", str(tmp_path / "run"), "--truth", str(sim), "--json"]) == 0
     report = json.loads((tmp_path / "run" / "evaluation.json").read_text())
     ate = report["trajectory"]["ate"]["translation_m"]["rmse"]
+    assert ate < 0.05, ate
+
+
+def test_the_compass_search_walks_to_the_fit_from_near_it():
+    """The deterministic refinement, alone, finds a correction of a few centimetres and a degree."""
+    hm = _room_map()
+    points = room_scan(np.zeros(3)).points()
+    qx = np.ascontiguousarray(points[:, 0], dtype=np.float32)
+    qy = np.ascontiguousarray(points[:, 1], dtype=np.float32)
+    start = np.array([0.05, -0.03, math.radians(1.5)])
+    d0 = hm.distance(points, start)
+    ox, oy = hm.origin
+    x, y, t, d, n = pattern_refine(hm.values, ox, oy, hm.resolution, qx, qy, *start, d0, hm.resolution,
+                                   hm.resolution / 3.0, hm.resolution / 8.0, 100)
+    assert d < d0 and 6 <= n <= 600
+    # the map is read at the nearest 4 cm cell, so the landscape is bumpy below a cell: within one cell
+    assert math.hypot(x, y) < 0.03 and abs(t) < math.radians(0.75), (x, y, math.degrees(t))
+    # rmhc_match runs it after the random search unless asked not to
+    state = new_state(np.random.default_rng(3))
+    a = rmhc_match(hm, points, start, sigma_xy=0.1, sigma_theta=0.35, max_iter=30, state=state.copy(), refine=False)
+    b = rmhc_match(hm, points, start, sigma_xy=0.1, sigma_theta=0.35, max_iter=30, state=state.copy(), refine=True)
+    assert b.distance <= a.distance and b.evaluations > a.evaluations
+
+
+def test_error_code_readings_are_no_return():
+    """URG-04LX error codes (a few mm) are counted and neither matched nor drawn as walls at the laser."""
+    scan = room_scan(np.zeros(3))
+    r = scan.ranges.copy()
+    r[50:200:5] = 0.007
+    bad = make_scan(0.0, r, scan.angle_min, scan.angle_increment, 0.0, scan.range_max)
+    m = CoreSlam(seed=2)
+    for i in range(3):
+        m.feed(frame(bad, index=i))
+    assert m.diagnostics.counters["short_readings"] == 3 * 30
+    assert np.hypot(*m.pose[:2]) < 0.02
+    assert m._map.distance(np.zeros((1, 2)), np.zeros(3)) > UNKNOWN  # the laser's cell: free, not a wall
+
+
+def test_constant_velocity_prediction():
+    """motion_model=constant_velocity predicts the last pose plus the last matched motion (without odometry)."""
+    frames, _ = _drive(n=6)
+    m = CoreSlam(CoreSlamParams(motion_model="constant_velocity"), seed=1)
+    poses = []
+    for f in frames[:5]:
+        m.feed(f)
+        poses.append(m.pose.copy())
+    expect = se2.compose(poses[-1], se2.relative(poses[-2], poses[-1]))
+    assert np.allclose(m._predict(frame(frames[5].scan, None, 5)), expect)
+    plain = CoreSlam(seed=1)
+    for f in frames[:5]:
+        plain.feed(f)
+    assert np.allclose(plain._predict(frame(frames[5].scan, None, 5)), plain.pose)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(6))
+def test_coreslam_on_the_simulated_arena_over_seeds(tmp_path, seed):
+    """The arena target must hold for seeds generally, not for one."""
+    import json
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", "paper-arena", "--out", str(sim)]) == 0
+    run = tmp_path / "run"
+    assert main(["run", "coreslam", str(sim / "recording.log.gz"), "--out", str(run), "--seed", str(seed)]) == 0
+    assert main(["evaluate", str(run), "--truth", str(sim), "--json"]) == 0
+    ate = json.loads((run / "evaluation.json").read_text())["trajectory"]["ate"]["translation_m"]["rmse"]
     assert ate < 0.05, ate

@@ -135,14 +135,71 @@ def test_rrhc_recovers_a_known_offset(offset):
     m, scan = _room_map()
     qx, qy = _rays(scan)
     ox, oy = m.origin
-    dx, dy, dk, fit, n, restarts, better = rrhc_search(
+    dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
         m.values, ox, oy, m.resolution, qx, qy, *offset, 40, 40000, new_state(np.random.default_rng(2)))
     x = offset[0] + dx * m.resolution
     y = offset[1] + dy * m.resolution
     t = offset[2] + dk * HEADING_STEP
     assert math.hypot(x, y) <= 1.5 * m.resolution, (x, y)
     assert abs(t) <= 2.5 * HEADING_STEP, t
-    assert n == 40002 and restarts + better == n and better >= 1 and 0 < fit <= 1
+    assert n == 40002 and restarts + better == n and better >= 1 and 0 < fit <= 1 and refined == 0
+
+
+def test_the_final_neighbour_climb_walks_to_the_fit_from_near_it():
+    """With (almost) no random search, refine_rounds climbs from a few cells and heading steps off to the fit."""
+    m, scan = _room_map()
+    qx, qy = _rays(scan)
+    ox, oy = m.origin
+    start = (3 * m.resolution, -2 * m.resolution, 3 * HEADING_STEP)
+    state = new_state(np.random.default_rng(5))
+    plain = rrhc_search(m.values, ox, oy, m.resolution, qx, qy, *start, 40, 0, state.copy())
+    dx, dy, dk, fit, n, _, _, refined = rrhc_search(m.values, ox, oy, m.resolution, qx, qy, *start, 40, 0,
+                                                    state.copy(), 50)
+    assert refined >= 2 and fit > plain[3] and n > plain[4]
+    x, y, t = start[0] + dx * m.resolution, start[1] + dy * m.resolution, start[2] + dk * HEADING_STEP
+    assert math.hypot(x, y) <= 1.5 * m.resolution and abs(t) <= 1.5 * HEADING_STEP, (x, y, t)
+
+
+def test_error_code_readings_are_no_return():
+    """URG-04LX error codes (a few mm) are not returns: counted, never critical rays, never on the map."""
+    scan = room_scan(np.zeros(3), n=URG_BEAMS)
+    r = scan.ranges.copy()
+    r[100:140:3] = 0.007
+    bad = make_scan(0.0, r, scan.angle_min, scan.angle_increment, 0.0, scan.range_max)
+    m = Crsm(seed=1)
+    for i in range(3):
+        m.feed(frame(bad, index=i))
+    assert m.diagnostics.counters["short_readings"] == 3 * 14
+    assert np.hypot(*m.pose[:2]) < 0.03
+    # the laser's own cell stays free: no beam ended there
+    ox, oy = m._map.origin
+    assert m._map.values[int(-oy / 0.02), int(-ox / 0.02)] > 127
+
+
+def test_constant_velocity_moves_the_search_centre(monkeypatch):
+    """motion_model=constant_velocity searches around the last pose plus the last matched motion."""
+    import slam2d.methods.crsm as crsm_module
+
+    centres = []
+    real = crsm_module.rrhc_search
+
+    def spy(values, ox, oy, res, qx, qy, x, y, theta, *rest):
+        centres.append((x, y, theta))
+        return real(values, ox, oy, res, qx, qy, x, y, theta, *rest)
+
+    monkeypatch.setattr(crsm_module, "rrhc_search", spy)
+    frames, _ = _drive(n=8, step=0.05, turn=0.02)
+    for model in ("none", "constant_velocity"):
+        centres.clear()
+        m = Crsm(CrsmParams(motion_model=model, warmup_scans=0), seed=3)
+        poses = []
+        for f in frames:
+            m.feed(f)
+            poses.append(m.pose.copy())
+        for i in range(2, len(frames)):
+            expect = poses[i - 1] if model == "none" else se2.compose(poses[i - 1], se2.relative(poses[i - 2], poses[i - 1]))
+            assert np.allclose(centres[i - 1], expect), (model, i)
+
 
 
 def _drive(n=50, step=0.05, turn=0.015):

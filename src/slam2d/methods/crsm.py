@@ -173,7 +173,7 @@ class Crsm(SlamMethod):
         elif selected.shape[0] >= _MIN_RAYS:
             pts = ray_points(scan, d, selected, p.resolution)
             centre = self._pose
-            if p.motion_model == "constant_velocity" and not self._warm:
+            if p.motion_model == "constant_velocity":
                 centre = se2.compose(self._pose, self._step)
                 # the map must hold the search window around a centre that may lie ahead of the old map
                 self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
@@ -203,7 +203,10 @@ class Crsm(SlamMethod):
                 self.diagnostics.summary["warmup_ended_at_scan"] = self._scans
             else:
                 moved = np.zeros(3)  # held at the start while the first map builds
-        self._step = se2.relative(self._pose, moved)
+            step = np.zeros(3)  # held, or the jump out of the hold: no velocity to keep
+        else:
+            step = se2.relative(self._pose, moved)
+        self._step = step
         self._pose = moved
         if self._scans < p.warmup_density_scans:
             mean_density = _WARMUP_DENSITY
