@@ -11,7 +11,7 @@ from slam2d.cli import main
 from slam2d.core import se2
 from slam2d.core import make_scan
 from slam2d.errors import InputError
-from slam2d.grids.hole_map import FREE, UNKNOWN, HoleMap, hole_distance
+from slam2d.grids.hole_map import FREE, UNKNOWN, HoleMap, hole_distance, hole_distance_inside
 from slam2d.matching.random_numbers import new_state
 from slam2d.matching.rmhc import pattern_refine, rmhc_match
 from slam2d.methods import get_method
@@ -61,6 +61,11 @@ def test_distance_is_the_mean_cell_value_under_the_points():
     # moved by the pose: (0.35, 0.25) shifted by (0.2, 0.3) lands on cell [5, 5]
     d = hole_distance(values, 0.0, 0.0, 10.0, pts[:1, 0], pts[:1, 1], 0.2, 0.3, 0.0)
     assert d == pytest.approx(3000)
+    # the unchecked version RMHC uses gives the same mean when every point is on the map
+    inside = pts[:2]
+    args = (values, 0.0, 0.0, 10.0, inside[:, 0].copy(), inside[:, 1].copy())
+    for pose in [(0.0, 0.0, 0.0), (0.2, 0.3, 0.0), (0.31, 0.12, 0.4)]:
+        assert hole_distance_inside(*args, *pose) == hole_distance(*args, *pose)
     far = np.array([50.0], dtype=np.float32)
     assert hole_distance(values, 0.0, 0.0, 10.0, far, far, 0.0, 0.0, 0.0) == np.inf
 

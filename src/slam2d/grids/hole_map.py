@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from slam2d.grids.value_grid import ValueGrid
 
-__all__ = ["HoleMap", "OBSTACLE", "FREE", "UNKNOWN", "hole_update", "hole_distance"]
+__all__ = ["HoleMap", "OBSTACLE", "FREE", "UNKNOWN", "hole_update", "hole_distance", "hole_distance_inside"]
 
 OBSTACLE = 0
 FREE = 65500
@@ -123,6 +123,27 @@ def hole_distance(values, origin_x, origin_y, inv_resolution, qx, qy, x, y, thet
     if n == 0:
         return np.inf
     return total / n
+
+
+@njit(cache=True)
+def hole_distance_inside(values, origin_x, origin_y, inv_resolution, qx, qy, x, y, theta):
+    """:func:`hole_distance` for a pose whose every point is known to fall on the map: no bounds checks.
+
+    The caller guarantees it (RMHC grows the map to hold the scan around
+    every candidate it may draw); about a third faster than the checked loop.
+    """
+    cols = values.shape[1]
+    flat = values.reshape(-1)
+    c = np.float32(math.cos(theta) * inv_resolution)
+    s = np.float32(math.sin(theta) * inv_resolution)
+    bx = np.float32((x - origin_x) * inv_resolution)
+    by = np.float32((y - origin_y) * inv_resolution)
+    total = 0
+    for i in range(qx.shape[0]):
+        col = np.int32(bx + c * qx[i] - s * qy[i])
+        row = np.int32(by + s * qx[i] + c * qy[i])
+        total += flat[row * cols + col]
+    return total / qx.shape[0]
 
 
 class HoleMap(ValueGrid):

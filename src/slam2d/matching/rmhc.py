@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from slam2d.grids.hole_map import HoleMap, hole_distance
+from slam2d.grids.hole_map import HoleMap, hole_distance, hole_distance_inside
 from slam2d.matching.random_numbers import normal_pair
 
 __all__ = ["rmhc_search", "pattern_refine", "RmhcResult", "rmhc_match"]
@@ -38,6 +38,10 @@ def rmhc_search(values, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0,
     ``state`` is a :mod:`~slam2d.matching.random_numbers` generator state (advanced in place).
     """
     inv = 1.0 / resolution
+    # candidates are kept within 3 initial sigmas of the start, where the caller made the map hold the
+    # whole scan, so the unchecked distance is safe (a draw beyond 3 sigma, 0.3 % of them, is clamped)
+    reach = 3.0 * sigma_xy
+    xlo, xhi, ylo, yhi = x0 - reach, x0 + reach, y0 - reach, y0 + reach
     bx, by, bt = x0, y0, theta0  # best so far
     lx, ly, lt = x0, y0, theta0  # last accepted centre
     best = hole_distance(values, origin_x, origin_y, inv, qx, qy, x0, y0, theta0)
@@ -57,10 +61,10 @@ def rmhc_search(values, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0,
             n1, n2 = normal_pair(state)
             n3, spare = normal_pair(state)
             have_spare = True
-        cx = lx + sigma_xy * n1
-        cy = ly + sigma_xy * n2
+        cx = min(max(lx + sigma_xy * n1, xlo), xhi)
+        cy = min(max(ly + sigma_xy * n2, ylo), yhi)
         ct = lt + sigma_theta * n3
-        d = hole_distance(values, origin_x, origin_y, inv, qx, qy, cx, cy, ct)
+        d = hole_distance_inside(values, origin_x, origin_y, inv, qx, qy, cx, cy, ct)
         evaluations += 1
         if d < best:
             best = d
