@@ -372,6 +372,42 @@ def hector_mines_maps(workdir: Path) -> tuple[None, str]:
         (hc, he), (oc, oe) = counts["hector"], counts["odometry"]
         notes.append(f"{ds}: corners {hc} vs {oc}, enclosed areas {he} vs {oe}")
     return None, "hector vs odometry; " + "; ".join(notes)
+def _feed_timed(name: str, rel: str, settings: dict[str, str] | None = None):
+    """Run a method on a shared log (reading excluded, first scan's compile excluded); the method and CPU times."""
+    from slam2d.io import open_recording
+    from slam2d.methods.runner import build_method
+
+    frames = list(open_recording(DATA / rel).frames())
+    warm = build_method(name, settings=settings)
+    warm.feed(frames[0])  # numba compiles (or loads its cache) outside the timing
+    slam = build_method(name, settings=settings)
+    cpu0 = time.process_time()
+    wall0 = time.perf_counter()
+    for frame in frames:
+        slam.feed(frame)
+    return slam, time.process_time() - cpu0, time.perf_counter() - wall0
+
+
+def coreslam_mines_exp1(_: Path) -> tuple[float, str]:
+    """coreslam (1000 RMHC iterations, no odometry) over mines-exp1's 756 scans: CPU seconds, the issue's measure."""
+    import numpy as np
+
+    slam, cpu, wall = _feed_timed("coreslam", "mines-exp1/mines-exp1.clf.gz", {"max_search_iter": "1000"})
+    iters = np.nanmean(slam.diagnostics.array("iterations"))
+    return cpu, f"CPU s (wall {wall:.2f} s); {len(slam.diagnostics)} scans, {iters:.0f} candidates per scan"
+
+
+def crsm_latency(_: Path) -> tuple[float, str]:
+    """crsm with its defaults on mines-exp1 (URG-04LX, 682 beams): median CPU time per scan."""
+    import numpy as np
+
+    slam, cpu, wall = _feed_timed("crsm", "mines-exp1/mines-exp1.clf.gz")
+    per_scan = slam.diagnostics.array("cpu_s")
+    rays = np.nanmean(slam.diagnostics.array("rays"))
+    return float(np.median(per_scan)), (
+        f"median CPU s per scan; p95 {np.percentile(per_scan, 95) * 1e3:.2f} ms, total {cpu:.2f} s CPU "
+        f"for {len(per_scan)} scans, {rays:.0f} critical rays per scan"
+    )
 
 
 CASES: list[Case] = [
@@ -414,6 +450,11 @@ CASES: list[Case] = [
     Case("hector-mines-maps", "`hector` (no odometry) and `odometry` on mines-exp1/2: Filatov map counts",
          hector_mines_maps, target="corners and enclosed areas below the odometry baseline's", needs=(SHARED,),
          repeat=1),
+    Case("coreslam-mines-exp1", "coreslam, 1000 RMHC iterations, no odometry, mines-exp1's 756 scans (CPU s, reading "
+         "excluded)", coreslam_mines_exp1, target="< 2 s (BreezySLAM's C core: 2.1-2.6 s)", max_seconds=2.0,
+         needs=(SHARED,)),
+    Case("crsm-latency", "crsm with its defaults on mines-exp1: median CPU time per scan", crsm_latency,
+         target="< 3 ms", max_seconds=0.003, needs=(SHARED,)),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -1,0 +1,83 @@
+#!/usr/bin/env python3
+"""Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/).
+
+Each picture: the method's map of the simulated paper-arena (no odometry
+used), its trajectory against the true one, and the per-scan match score and
+CPU time from its diagnostics.
+
+Run from the repository root: ``.venv/bin/python docs/plot_lightweight.py``.
+The pictures depend only on the code and the fixed seeds.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from slam2d.eval.trajectory_metrics import align_se2  # noqa: E402
+from slam2d.core import se2  # noqa: E402
+from slam2d.io import open_recording  # noqa: E402
+from slam2d.io.atomic import atomic_path  # noqa: E402
+from slam2d.io.tum import read_tum  # noqa: E402
+from slam2d.methods import get_method  # noqa: E402
+from slam2d.sim.simulate import SimulationParams, simulate, write_outputs  # noqa: E402
+
+IMAGES = Path(__file__).resolve().parent / "images"
+
+
+def draw(name: str, frames, t_truth, p_truth) -> None:
+    slam = get_method(name)(seed=0).run(frames)
+    t, p = slam.trajectory()
+    truth = np.stack([np.interp(t, t_truth, p_truth[:, k]) for k in range(2)], axis=-1)
+    aligned = se2.compose(align_se2(p[:, :2], truth), p)
+    ate = float(np.sqrt(np.mean(np.sum((aligned[:, :2] - truth) ** 2, axis=1))))
+    grid = slam.map().crop_to_observed(margin=10)
+    fig, (ax, diag) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.2, 1]})
+    x0, y0, x1, y1 = grid.extent()
+    ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
+    # draw the estimate in the map's frame, the truth moved onto it
+    back = se2.inverse(align_se2(p[:, :2], truth))
+    truth_in_map = se2.transform_points(back, truth)
+    ax.plot(truth_in_map[:, 0], truth_in_map[:, 1], color="black", lw=1.5, label="true path")
+    ax.plot(p[:, 0], p[:, 1], color="tab:red", lw=1.0, label=f"{name} (ATE {ate * 100:.1f} cm)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{name} on the simulated paper-arena, no odometry")
+    ax.legend(loc="upper right", fontsize=8)
+    d = slam.diagnostics
+    diag.plot(d.array("score"), color="tab:blue", lw=1.0, label="score (diagnostics 'score')")
+    diag.set_xlabel("scan")
+    diag.set_ylabel("score")
+    cpu = diag.twinx()
+    cpu.plot(1e3 * d.array("cpu_s"), color="tab:orange", lw=0.8, label="CPU time per scan")
+    cpu.set_ylabel("CPU ms per scan")
+    cpu.set_ylim(0, max(10.0, float(np.nanpercentile(1e3 * d.array("cpu_s")[1:], 99)) * 1.2))
+    diag.set_title("per scan")
+    lines = diag.get_lines() + cpu.get_lines()
+    diag.legend(lines, [line.get_label() for line in lines], loc="lower right", fontsize=8)
+    fig.tight_layout()
+    out = IMAGES / f"{name}-paper-arena.png"
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
+    print(f"wrote {out} (ATE {ate:.3f} m)")
+
+
+def main() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = simulate("paper-arena", SimulationParams(seed=1))
+        write_outputs(sim, Path(tmp))
+        frames = list(open_recording(Path(tmp) / "recording.log.gz").frames())
+        t_truth, p_truth = read_tum(Path(tmp) / "truth.tum")
+    for name in ("coreslam", "crsm"):
+        draw(name, frames, t_truth, p_truth)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,227 @@
+"""CRSM's random-restart hill climbing (RRHC) over the critical rays, in map cells.
+
+A candidate is an offset ``(dx, dy, dtheta)`` from the current pose: whole
+cells in x and y, and multiples of 1/180 rad in heading (the original draws
+``(rand() % d - d / 2) / 90`` rad). Its fitness is, over the selected rays'
+endpoints,
+
+    sum (10 (255 - m) + the four neighbours' (255 - m)) / 255 / (14 N)
+
+(``m`` the 8-bit map value; endpoints on unknown cells, 127, add nothing):
+higher is better. Starting from the zero offset:
+
+* a candidate better than the best so far becomes the best and the climb
+  continues from it: ``dx, dy += rand in [-d/8, d/8)``, ``dtheta += [-d/2, d/2)/90``;
+* otherwise the climb restarts at random: ``dx, dy in [-d/4, d/4)``,
+  ``dtheta in [-d/2, d/2)/45`` (``d`` = ``hill_climbing_disparity``),
+
+for ``max_iter`` candidates. This is not BreezySLAM's RMHC
+(:mod:`slam2d.matching.rmhc`): there the spread halves around an accepted
+centre and the search ends on failures; here every failure restarts around
+the current pose and the budget is fixed, so the two stay separate.
+
+Speed: because x and y move by whole cells, a ray's cell is its cell at the
+candidate's heading plus ``(dy, dx)``. The cells of every ray at each heading
+the search visits are computed once per scan and reused, so scoring a
+candidate is integer additions and five lookups per ray.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from slam2d.matching.random_numbers import randint
+
+__all__ = ["rrhc_search", "HEADING_STEP"]
+
+#: Heading lattice of the search, rad.
+HEADING_STEP = 1.0 / 180.0
+
+
+@njit(cache=True, inline="always")
+def _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qx, qy, out_r, out_c):
+    """Cells of every ray at heading offset ``k`` steps; cached in ``rows_k/cols_k`` when ``|k| <= kmax``."""
+    n = qx.shape[0]
+    cached = -kmax <= k <= kmax
+    if cached and ready[k + kmax]:
+        return rows_k[k + kmax], cols_k[k + kmax]
+    t = theta + k * HEADING_STEP
+    c = math.cos(t)
+    s = math.sin(t)
+    if cached:
+        r_out = rows_k[k + kmax]
+        c_out = cols_k[k + kmax]
+    else:
+        r_out = out_r
+        c_out = out_c
+    for j in range(n):
+        c_out[j] = int(math.floor(bx + c * qx[j] - s * qy[j]))
+        r_out[j] = int(math.floor(by + s * qx[j] + c * qy[j]))
+    if cached:
+        ready[k + kmax] = True
+    return r_out, c_out
+
+
+@njit(cache=True)
+def _fitness(values, r_k, c_k, dx, dy):
+    """Integer fitness sum (before the 255 * 14 * N normalisation) of the rays' cells shifted by ``(dx, dy)``."""
+    rmax, cmax = values.shape
+    total = 0
+    for j in range(r_k.shape[0]):
+        r = r_k[j] + dy
+        c = c_k[j] + dx
+        if r < 1 or c < 1 or r >= rmax - 1 or c >= cmax - 1:
+            continue  # the original skips endpoints at the map's edge
+        v = np.int64(values[r, c])
+        if v == 127:
+            continue
+        total += 10 * (255 - v) + (1020 - np.int64(values[r - 1, c]) - np.int64(values[r + 1, c])
+                                   - np.int64(values[r, c - 1]) - np.int64(values[r, c + 1]))
+    return total
+
+
+@njit(cache=True)
+def _restart_table(values, cells_r, cells_c, lo, width):
+    """Fitness of every restart offset: ``table[i, dy - lo, dx - lo]`` for heading ``i`` of the restart lattice.
+
+    ``cells_r[i, j], cells_c[i, j]`` are ray ``j``'s cells at restart heading
+    ``i``. The per-cell fitness ``10 (255 - m) + neighbours`` (0 on unknown
+    cells and on the map's border, which the direct score skips) is computed
+    once over the region the windows cover, then each ray adds its
+    ``width x width`` window of it: the same integers :func:`_fitness` sums,
+    for every restart candidate at once.
+    """
+    nk, n = cells_r.shape
+    rmax, cmax = values.shape
+    r0 = cells_r.min() + lo
+    c0 = cells_c.min() + lo
+    r1 = cells_r.max() + lo + width
+    c1 = cells_c.max() + lo + width
+    g = np.zeros((r1 - r0, c1 - c0), dtype=np.int32)
+    for r in range(max(r0, 1), min(r1, rmax - 1)):
+        for c in range(max(c0, 1), min(c1, cmax - 1)):
+            v = np.int32(values[r, c])
+            if v != 127:
+                g[r - r0, c - c0] = 10 * (255 - v) + (1020 - np.int32(values[r - 1, c]) - np.int32(values[r + 1, c])
+                                                      - np.int32(values[r, c - 1]) - np.int32(values[r, c + 1]))
+    table = np.zeros((nk, width, width), dtype=np.int64)
+    for i in range(nk):
+        t = table[i]
+        for j in range(n):
+            br = cells_r[i, j] + lo - r0
+            bc = cells_c[i, j] + lo - c0
+            for a in range(width):
+                row = g[br + a]
+                for b in range(width):
+                    t[a, b] += row[bc + b]
+    return table
+
+
+@njit(cache=True)
+def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, disparity, max_iter, state,
+                refine_rounds=0):
+    """Search offsets from pose ``(x, y, theta)`` (m, rad) for the rays' endpoints ``(qx, qy)`` (robot frame, m).
+
+    ``refine_rounds`` > 0 ends the search with :func:`_refine` (not in the original).
+    Returns ``(dx cells, dy cells, dtheta steps, fitness, evaluations, restarts, improvements, refine steps)``.
+    """
+    n = qx.shape[0]
+    inv = 1.0 / resolution
+    bx = (x - origin_x) * inv
+    by = (y - origin_y) * inv
+    qxc = qx * inv
+    qyc = qy * inv
+    kmax = 4 * disparity + 2 * disparity  # restarts reach 2d steps; climbs wander a few d further
+    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
+    tmp_r = np.empty(n, dtype=np.int64)
+    tmp_c = np.empty(n, dtype=np.int64)
+    # restarts: dx, dy = rand(d) // 2 - d // 4 in [lo, lo + width); k = 4 rand(d) - 2 d
+    lo = -(disparity // 4)
+    width = (disparity - 1) // 2 + 1
+    cells_r = np.empty((disparity, n), dtype=np.int64)
+    cells_c = np.empty((disparity, n), dtype=np.int64)
+    for i in range(disparity):
+        r_k, c_k = _cells_at(4 * i - 2 * disparity, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc,
+                             tmp_r, tmp_c)
+        cells_r[i] = r_k
+        cells_c[i] = c_k
+    table = _restart_table(values, cells_r, cells_c, lo, width)
+    norm = 255.0 * 14.0 * max(n, 1)
+    best = 0
+    bdx, bdy, bk = 0, 0, 0
+    dx, dy, k = 0, 0, 0
+    restart_index = -1  # >= 0: the candidate is a restart, its fitness is in the table
+    restarts = 0
+    improvements = 0
+    evaluations = 0
+    counter = 0
+    while True:
+        if restart_index >= 0:
+            f = table[restart_index, dy - lo, dx - lo]
+        else:
+            r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
+            f = _fitness(values, r_k, c_k, dx, dy)
+        evaluations += 1
+        if f > best:
+            best = f
+            bdx, bdy, bk = dx, dy, k
+            improvements += 1
+            dx += randint(state, disparity) // 4 - disparity // 8
+            dy += randint(state, disparity) // 4 - disparity // 8
+            k += 2 * randint(state, disparity) - disparity
+            restart_index = -1
+        else:
+            dx = randint(state, disparity) // 2 - disparity // 4
+            dy = randint(state, disparity) // 2 - disparity // 4
+            restart_index = randint(state, disparity)
+            k = 4 * restart_index - 2 * disparity
+            restarts += 1
+        if counter > max_iter:
+            break
+        counter += 1
+    steps = 0
+    if refine_rounds > 0:
+        bdx, bdy, bk, best, steps, n_eval = _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc,
+                                                   tmp_r, tmp_c, bdx, bdy, bk, best, refine_rounds)
+        evaluations += n_eval
+    return bdx, bdy, bk, best / norm, evaluations, restarts, improvements, steps
+
+
+@njit(cache=True)
+def _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c, dx, dy, k, best, rounds):
+    """Steepest ascent over the 26 neighbours (one cell, one heading step) until none improves.
+
+    Why: restarts land on a 1/45 rad heading lattice and the climb's random
+    steps (up to d/8 cells, d/2/90 rad) are too coarse to settle in a wall's
+    two-cell basin, so most scans end on the lattice. A heading off by half a
+    lattice step (0.64 degrees) misses walls a few metres away by more than a
+    cell, and the best translation then compensates sideways: per-scan
+    errors of several centimetres and a drifting heading. The neighbours of
+    the 1/180 rad lattice fix that in a few rounds of 26 evaluations.
+    Returns ``(dx, dy, k, fitness, rounds that moved, evaluations)``.
+    """
+    moved = 0
+    evaluations = 0
+    for _ in range(rounds):
+        cdx, cdy, ck, cbest = dx, dy, k, best
+        for dk in (-1, 0, 1):
+            r_k, c_k = _cells_at(k + dk, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
+            for ex in (-1, 0, 1):
+                for ey in (-1, 0, 1):
+                    if dk == 0 and ex == 0 and ey == 0:
+                        continue
+                    f = _fitness(values, r_k, c_k, dx + ex, dy + ey)
+                    evaluations += 1
+                    if f > cbest:
+                        cbest = f
+                        cdx, cdy, ck = dx + ex, dy + ey, k + dk
+        if cbest <= best:
+            break
+        dx, dy, k, best = cdx, cdy, ck, cbest
+        moved += 1
+    return dx, dy, k, best, moved, evaluations

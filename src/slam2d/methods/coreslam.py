@@ -1,0 +1,206 @@
+"""``coreslam``: tinySLAM as BreezySLAM runs it: a hole map matched by random-mutation hill climbing.
+
+Per scan: predict the pose (the last estimate, plus the odometry increment
+when ``use_odometry`` is on), search around it with RMHC
+(:mod:`slam2d.matching.rmhc`) for the pose where the scan's endpoints sit
+deepest in the map's holes, then blend the scan into the map
+(:mod:`slam2d.grids.hole_map`) at that pose. No loop closure, no particles.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.grids.hole_map import FREE, HoleMap
+from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.matching.random_numbers import new_state
+from slam2d.matching.rmhc import rmhc_match
+from slam2d.methods.base import SlamMethod
+from slam2d.methods.registry import register
+from slam2d.params import param
+from slam2d.sensors.beam_model import beam_sigmas
+
+__all__ = ["CoreSlamParams", "CoreSlam"]
+
+# Fewer endpoints than this cannot pin a pose down: the scan is placed at the prediction.
+_MIN_POINTS = 10
+# An odometry increment longer than this between two scans is a reset or corruption, not motion.
+_MAX_ODOMETRY_STEP = 5.0  # m
+
+
+@dataclass
+class CoreSlamParams:
+    """BreezySLAM's ``RMHC_SLAM`` defaults, in metres and radians."""
+
+    resolution: float = param(
+        0.04, unit="m", low=0.005, high=1.0,
+        help="cell size (BreezySLAM's examples: 800 pixels for 32 m)",
+    )
+    map_quality: int = param(
+        50, low=1, high=255,
+        help="weight (of 256) a scan gets when blended into a cell; beams with no return use a quarter",
+    )
+    hole_width: float = param(
+        0.6, unit="m", low=0.01, high=10.0,
+        help="width of the V-shaped valley drawn around each obstacle (BreezySLAM hole_width_mm = 600)",
+    )
+    hole_sigmas: float = param(
+        3.0, low=0.0, high=20.0,
+        help="with a sensor model: a beam's hole half-width is sqrt((hole_width/2)^2 + (hole_sigmas*sigma)^2)",
+    )
+    sigma_xy: float = param(0.1, unit="m", low=0.0, high=10.0, help="initial spread of the position mutations")
+    sigma_theta: float = param(
+        math.radians(20.0), unit="rad", low=0.0, high=math.pi, help="initial spread of the heading mutations"
+    )
+    max_search_iter: int = param(
+        1000, low=1, high=10_000_000,
+        help="failed mutations that end the search (a third of them, with progress, halve the spread)",
+    )
+    use_odometry: bool = param(
+        False, help="predict each pose with the odometry increment (else: the last pose, BreezySLAM's default)"
+    )
+    motion_model: str = param(
+        "none", choices=("none", "constant_velocity"),
+        help="prediction without odometry: the last pose (BreezySLAM) or the last pose plus the last matched motion",
+    )
+    refine: bool = param(
+        True, help="end each search with a deterministic compass search (one cell and 1/3 cell per 3 m of heading, "
+        "halving to 1/8); not in BreezySLAM",
+    )
+    min_range: float = param(
+        0.02, unit="m", low=0.0,
+        help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
+        "the scan's own range_min applies too",
+    )
+    no_return_range: float | None = param(
+        None, unit="m", low=0.0,
+        help="beams with no return clear free space up to this range (BreezySLAM's distance_no_detection); "
+        "unset: they are skipped",
+    )
+    grow_margin: int = param(64, unit="cells", low=1, help="the least the map grows by on a side when it must grow")
+    max_extent: float = param(
+        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
+    )
+
+
+@register
+class CoreSlam(SlamMethod):
+    name = "coreslam"
+    Params = CoreSlamParams
+    summary = "tinySLAM/BreezySLAM: hole map + random-mutation hill climbing, odometry optional"
+    uses_odometry = True
+    optional_odometry = True
+    stochastic = True
+    DIAGNOSTICS = {
+        "score": "mean map value under the matched endpoints, 0 = all on obstacles, 1 = all in free space [-]",
+        "iterations": "candidate poses scored by the search [-]",
+        "halvings": "times the search spread was halved [-]",
+        "points": "endpoints matched [-]",
+        "cells_updated": "cell writes of the map update [cells]",
+    }
+
+    def __init__(self, params: CoreSlamParams | None = None, **kwargs) -> None:
+        super().__init__(params, **kwargs)
+        p = self.params
+        self._map = HoleMap(p.resolution, grow_margin=p.grow_margin, max_extent=p.max_extent)
+        self._pose: NDArray[np.float64] | None = None
+        self._last_odom: NDArray[np.float64] | None = None
+        self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._scans_in_map = 0
+        self._random = new_state(self.rng)
+
+    def _predict(self, frame: Frame) -> NDArray[np.float64]:
+        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=np.float64)
+        if self._pose is None:
+            start = odom if (self.params.use_odometry and odom is not None) else np.zeros(3)
+            pred = np.array(start, dtype=np.float64)
+        elif self.params.use_odometry and odom is not None and self._last_odom is not None:
+            step = se2.relative(self._last_odom, odom)
+            if np.all(np.isfinite(step)) and math.hypot(step[0], step[1]) <= _MAX_ODOMETRY_STEP:
+                pred = se2.compose(self._pose, step)
+            else:
+                self.diagnostics.count("odometry_jumps")  # a reset or corrupt reading: predict no motion
+                pred = self._pose.copy()
+        else:
+            if self.params.use_odometry:
+                self.diagnostics.count("frames_without_odometry")
+            if self.params.motion_model == "constant_velocity":
+                pred = se2.compose(self._pose, self._step)
+            else:
+                pred = self._pose.copy()
+        if odom is not None:
+            self._last_odom = odom
+        return pred
+
+    def update(self, frame: Frame) -> Mapping[str, float] | None:
+        p = self.params
+        scan = frame.scan
+        previous = self._pose
+        pose = self._predict(frame)
+        ranges = scan.ranges
+        short = ranges < max(p.min_range, scan.range_min)  # NaN compares False
+        if short.any():
+            # error codes as no return: as endpoints at the laser they would score the robot's own cell
+            self.diagnostics.count("short_readings", int(short.sum()))
+            ranges = np.where(short, np.nan, ranges)
+        valid = ~np.isnan(ranges)
+        n_points = int(valid.sum())
+        values: dict[str, float] = {"points": float(n_points)}
+        if n_points < _MIN_POINTS:
+            self.diagnostics.count("scans_too_few_returns")
+            self._set_pose(previous, pose)
+            return values
+        a = scan.angles[valid]
+        r = ranges[valid]
+        points = se2.transform_points(scan.mount, np.stack([r * np.cos(a), r * np.sin(a)], axis=-1))
+        if self._scans_in_map > 0:
+            result = rmhc_match(
+                self._map, points, pose, sigma_xy=p.sigma_xy, sigma_theta=p.sigma_theta,
+                max_iter=p.max_search_iter, state=self._random, refine=p.refine,
+            )
+            if math.isfinite(result.distance):
+                pose = result.pose
+                values.update(score=result.distance / FREE, iterations=result.evaluations, halvings=result.halvings)
+            else:
+                self.diagnostics.count("match_failures")  # no endpoint on the map
+        self._set_pose(previous, pose)
+        values["cells_updated"] = self._integrate(scan, ranges, pose)
+        self._scans_in_map += 1
+        return values
+
+    def _set_pose(self, previous: NDArray[np.float64] | None, pose: NDArray[np.float64]) -> None:
+        self._step = np.zeros(3) if previous is None else se2.relative(previous, pose)
+        self._pose = pose
+
+    def _integrate(self, scan, ranges: NDArray[np.float64], pose: NDArray[np.float64]) -> float:
+        p = self.params
+        laser = se2.compose(pose, scan.mount)
+        hit = ~np.isnan(ranges)
+        if p.no_return_range is not None:
+            ranges = np.where(hit, ranges, p.no_return_range)
+            use = np.ones(ranges.shape[0], dtype=bool)
+        else:
+            use = hit
+        angles = scan.angles[use] + laser[2]
+        r = ranges[use]
+        ends = np.stack([laser[0] + r * np.cos(angles), laser[1] + r * np.sin(angles)], axis=-1)
+        half = 0.5 * p.hole_width
+        if self.sensor_model is not None:
+            sigma = beam_sigmas(scan, self.sensor_model, 0.0)[use]
+            width = np.sqrt(half * half + (p.hole_sigmas * np.nan_to_num(sigma)) ** 2)
+        else:
+            width = np.full(r.shape[0], half)
+        return float(self._map.update((laser[0], laser[1]), ends, width, hit[use], p.map_quality))
+
+    def current_pose(self) -> NDArray[np.float64] | None:
+        return self._pose
+
+    def map(self) -> OccupancyGrid:
+        return self._map.to_occupancy_grid(self._map.occupancy(), GridParams(resolution=self.params.resolution))

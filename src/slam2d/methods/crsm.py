@@ -1,0 +1,240 @@
+"""``crsm``: Critical Rays Scan Match SLAM (Tsardoulias & Petrou), odometry-free.
+
+Per scan: pick the critical rays (:mod:`slam2d.matching.critical_rays`),
+find the offset from the last pose that best fits them to the map by
+random-restart hill climbing (:mod:`slam2d.matching.rrhc`), then update the
+8-bit map along every beam (:mod:`slam2d.grids.crsm_map`) with a gain set by
+how jagged the scan is. As in the original, the first scans build the map at
+the start pose; unlike the original, the warm-up ends early as soon as the
+matcher sees the robot move (the original assumes it stands still).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.grids.crsm_map import CrsmMap
+from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.matching.critical_rays import critical_rays
+from slam2d.matching.random_numbers import new_state
+from slam2d.matching.rrhc import HEADING_STEP, rrhc_search
+from slam2d.methods.base import SlamMethod
+from slam2d.methods.registry import register
+from slam2d.params import param
+
+__all__ = ["CrsmParams", "Crsm", "ray_points"]
+
+# The original's mean density during the first scans (then clamped to the update's range).
+_WARMUP_DENSITY = 0.5
+_DENSITY_RANGE = (0.04, 0.2)
+_MIN_RAYS = 3  # fewer critical rays cannot place a scan
+
+
+@dataclass
+class CrsmParams:
+    """crsm_slam's parameters (``crsm_slam_parameters.yaml``), with units."""
+
+    resolution: float = param(
+        0.02, unit="m", low=0.005, high=1.0, help="cell size (slam_occupancy_grid_dimentionality)"
+    )
+    hill_climbing_disparity: int = param(
+        40, unit="cells", low=8, high=1000,
+        help="d: climbs step [-d/8, d/8) cells and [-d/2, d/2)/90 rad; restarts land in [-d/4, d/4) cells "
+        "and [-d/2, d/2)/45 rad around the last pose",
+    )
+    max_hill_climbing_iterations: int = param(
+        40000, low=1, high=10_000_000, help="candidate transformations scored per scan"
+    )
+    desired_number_of_picked_rays: int = param(
+        40, low=1, high=100_000, help="rays the density walk aims to pick per scan (kept within +-25 %)"
+    )
+    scan_density_lower_boundary: float = param(
+        0.3, unit="m", low=0.0, help="range jump between neighbouring beams that makes both critical"
+    )
+    map_update_density: float = param(40.0, low=0.0, high=1000.0, help="gain of the map update")
+    map_update_obstacle_density: float = param(
+        3.0, low=0.0, high=100.0, help="how much more an endpoint cell is lowered than a crossed cell is raised"
+    )
+    slam_container_size: int = param(500, unit="cells", low=10, help="side of the initial square map")
+    robot_width: float = param(0.6, unit="m", low=0.0, help="width of the initial free patch under the robot")
+    robot_length: float = param(0.75, unit="m", low=0.0, help="length of the initial free patch under the robot")
+    warmup_scans: int = param(
+        40, low=0, help="first scans whose pose is held at the start while the map builds (the original's 40)"
+    )
+    warmup_density_scans: int = param(
+        10, low=0, help="first scans written with the strongest update gain (the original's 10)"
+    )
+    warmup_end_translation: float = param(
+        0.04, unit="m", low=0.0,
+        help="the warm-up ends early when a match moves the robot further than this from the start",
+    )
+    warmup_end_rotation: float = param(
+        0.035, unit="rad", low=0.0,
+        help="the warm-up ends early when a match turns the robot more than this",
+    )
+    warmup_end_confirm: int = param(
+        2, low=1, help="consecutive scans that must see the motion before the warm-up ends early "
+        "(a match on a one-scan map can jump spuriously)",
+    )
+    min_range: float = param(
+        0.02, unit="m", low=0.0,
+        help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
+        "the scan's own range_min applies too",
+    )
+    refine_rounds: int = param(
+        0, low=0, high=1000,
+        help="rounds of a final deterministic climb over the 26 neighbours (1 cell, 1/180 rad) after the "
+        "random search; 0 = the original (headings stay on the restart lattice)",
+    )
+    motion_model: str = param(
+        "none", choices=("none", "constant_velocity"),
+        help="search centre: the last pose (the original) or the last pose plus the last matched motion",
+    )
+    max_extent: float = param(
+        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
+    )
+
+
+def ray_points(scan, d: NDArray[np.float64], selected: NDArray[np.int64], resolution: float) -> NDArray[np.float64]:
+    """Robot-frame endpoints of the selected rays, truncated to whole cells in the laser frame as the original does.
+
+    The map update marks a beam's wall ``int(range / cell)`` cells out, up
+    to a cell short of the true endpoint; truncating the matched endpoints
+    towards the laser the same way keeps them on the marked cells.
+    """
+    a = scan.angles[selected]
+    r = d[selected] / resolution
+    cells = np.stack([np.trunc(r * np.cos(a)), np.trunc(r * np.sin(a))], axis=-1) * resolution
+    return se2.transform_points(scan.mount, cells)
+
+
+@register
+class Crsm(SlamMethod):
+    name = "crsm"
+    Params = CrsmParams
+    summary = "CRSM SLAM: critical rays + random-restart hill climbing on an 8-bit map, no odometry"
+    uses_odometry = False
+    stochastic = True
+    DIAGNOSTICS = {
+        "score": "fitness of the chosen transformation, 0 = rays on free or unknown cells, 1 = on walls [-]",
+        "iterations": "candidate transformations scored [-]",
+        "restarts": "random restarts of the climb [-]",
+        "improvements": "candidates that improved the best [-]",
+        "refine_steps": "rounds of the final neighbour climb that moved the pose [-]",
+        "rays": "critical rays matched [-]",
+        "mean_density": "the scan's mean range jump between neighbouring beams, before clamping [m]",
+        "cells_updated": "cells walked by the map update [cells]",
+    }
+
+    def __init__(self, params: CrsmParams | None = None, **kwargs) -> None:
+        super().__init__(params, **kwargs)
+        p = self.params
+        self._map = CrsmMap(p.resolution, grow_margin=100, max_extent=p.max_extent)
+        half = 0.5 * p.slam_container_size * p.resolution
+        self._map.ensure_contains(-half, -half, half, half, margin=0)
+        self._map.draw_patch(np.zeros(3), p.robot_length, p.robot_width)
+        self._pose = np.zeros(3)
+        self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
+        self._warm = True
+        self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
+        self._scans = 0
+        self._random = new_state(self.rng)
+
+    def update(self, frame: Frame) -> Mapping[str, float] | None:
+        p = self.params
+        scan = frame.scan
+        laser_max = scan.range_max if math.isfinite(scan.range_max) else float(np.nanmax(scan.ranges, initial=0.0))
+        d = np.nan_to_num(scan.ranges, nan=0.0)
+        # error codes as no return: as "returns" at the laser they are critical rays (every one a jump) that
+        # all land on one cell, and pull the matched pose onto any wall the robot is near
+        short = (d > 0) & (d < max(p.min_range, scan.range_min))
+        if short.any():
+            self.diagnostics.count("short_readings", int(short.sum()))
+            d[short] = 0.0
+        values: dict[str, float] = {}
+        if not (d > 0).any():
+            self.diagnostics.count("scans_without_returns")
+            self._scans += 1
+            return {"rays": 0.0}
+        selected, self._parameter, mean_density, _ = critical_rays(
+            d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays
+        )
+        values.update(rays=float(selected.shape[0]), mean_density=float(mean_density))
+        if self._scans == 0:
+            moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
+        elif selected.shape[0] >= _MIN_RAYS:
+            pts = ray_points(scan, d, selected, p.resolution)
+            centre = self._pose
+            if p.motion_model == "constant_velocity":
+                centre = se2.compose(self._pose, self._step)
+                # the map must hold the search window around a centre that may lie ahead of the old map
+                self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
+            ox, oy = self._map.origin
+            dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
+                self._map.values, ox, oy, p.resolution,
+                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                float(centre[0]), float(centre[1]), float(centre[2]),
+                p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
+            )
+            values.update(score=fit, iterations=n, restarts=restarts, improvements=better, refine_steps=refined)
+            moved = np.array([
+                centre[0] + dx * p.resolution,
+                centre[1] + dy * p.resolution,
+                math.remainder(centre[2] + dk * HEADING_STEP, 2 * math.pi),
+            ])
+        else:
+            self.diagnostics.count("scans_too_few_rays")
+            moved = self._pose
+        if self._warm and self._scans < p.warmup_scans:
+            if math.hypot(moved[0], moved[1]) > p.warmup_end_translation or abs(moved[2]) > p.warmup_end_rotation:
+                self._moves_seen += 1
+            else:
+                self._moves_seen = 0
+            if self._moves_seen >= p.warmup_end_confirm:
+                self._warm = False
+                self.diagnostics.summary["warmup_ended_at_scan"] = self._scans
+            else:
+                moved = np.zeros(3)  # held at the start while the first map builds
+            step = np.zeros(3)  # held, or the jump out of the hold: no velocity to keep
+        else:
+            step = se2.relative(self._pose, moved)
+        self._step = step
+        self._pose = moved
+        if self._scans < p.warmup_density_scans:
+            mean_density = _WARMUP_DENSITY
+        gain = min(max(mean_density, _DENSITY_RANGE[0]), _DENSITY_RANGE[1])
+        values["cells_updated"] = self._integrate(scan, d, gain)
+        self._scans += 1
+        return values
+
+    def _integrate(self, scan, d: NDArray[np.float64], gain: float) -> float:
+        p = self.params
+        laser = se2.compose(self._pose, scan.mount)
+        angles = scan.angles
+        use = d > 0
+        # the original walks a beam once per laser-frame endpoint cell
+        cx = np.trunc(d * np.cos(angles) / p.resolution).astype(np.int64)
+        cy = np.trunc(d * np.sin(angles) / p.resolution).astype(np.int64)
+        key = np.where(use, cx * 1_000_003 + cy, np.iinfo(np.int64).min)
+        _, first = np.unique(key, return_index=True)
+        keep = np.zeros(d.shape[0], dtype=bool)
+        keep[first] = True
+        use &= keep
+        return float(self._map.update(
+            laser, d, angles, use, mean_density=gain, density=p.map_update_density,
+            obstacle_density=p.map_update_obstacle_density,
+        ))
+
+    def current_pose(self) -> NDArray[np.float64] | None:
+        return self._pose
+
+    def map(self) -> OccupancyGrid:
+        return self._map.to_occupancy_grid(self._map.occupancy(), GridParams(resolution=self.params.resolution))
