@@ -1,0 +1,1 @@
+"""Scan matchers: a scan against a map, finding the pose that explains it best."""
