@@ -182,7 +182,7 @@ def test_hill_climb_recovers_a_displaced_pose():
     beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
     start = np.array([[0.08, -0.05, 0.04], [-0.06, 0.07, -0.03], [0.0, 0.0, 0.0]])
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
-    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, start, np.zeros(3),
+    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
                     0.05, 0.05, 5, 0.0, out, score, like, ok)
     assert ok.all()

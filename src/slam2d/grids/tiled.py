@@ -85,8 +85,9 @@ def _register(
     skipped; longer than ``usable_range`` they are cut there and give no hit.
     With ``generate_map`` the cells a beam crosses get a visit (free space),
     else only end cells are touched (what the filter's particles do).
-    Returns ``(next m to do, n_free)``: it stops before a scan whose tiles
-    would not fit in the free list, so the caller can grow the pool.
+    Returns ``(next m to do, n_free, tiles that scan needs)``: it stops before
+    a scan whose tiles would not fit in the free list, so the caller can grow
+    the pool.
     """
     M = laser_poses.shape[0]
     B = cos_a.shape[0]
@@ -126,7 +127,7 @@ def _register(
         for k in range(n_touched):
             mark[touched[k, 0], touched[k, 1]] = 0
         if need > n_free:
-            return m, n_free
+            return m, n_free, need
         for k in range(n_touched):
             n_free = _make_writable(pool, occ, refs, free, n_free, table, p, touched[k, 0], touched[k, 1])
         # pass 2: the updates
@@ -157,7 +158,7 @@ def _register(
                 cell[SUM_X] += ex - (ox + (col + 0.5) * res)
                 cell[SUM_Y] += ey - (oy + (row + 0.5) * res)
                 occ[t, row & _MASK, col & _MASK] = cell[HITS] > FULLNESS * cell[VISITS]
-    return M, n_free
+    return M, n_free, 0
 
 
 @njit(cache=True)
@@ -325,14 +326,14 @@ class TiledMaps:
         r = np.nan_to_num(np.asarray(ranges, dtype=np.float64), nan=-1.0)
         start = 0
         while True:
-            start, self.n_free = _register(
+            start, self.n_free, need = _register(
                 self.pool, self.occ, self.refs, self.free, self.n_free, self.table, self._mark, self._touched,
                 part, laser_poses, r, cos_a, sin_a, self.origin[0], self.origin[1], self.resolution,
                 float(max_range), float(usable_range), bool(generate_map), start, rows_buf, cols_buf,
             )
             if start >= part.shape[0]:
                 break
-            self._grow_pool(self._mark.size if generate_map else 4 * r.shape[1])
+            self._grow_pool(need)
         self.peak_tiles = max(self.peak_tiles, self.tiles_in_use)
 
     def resample(self, indices: NDArray[np.int64]) -> None:

@@ -24,10 +24,13 @@ moves +-x, +-y (world frame, step ``lstep``) and +-theta (``astep``); take the
 best that improves the score; when none does, halve both steps. Stop when
 nothing improves and the steps have been halved ``iterations`` times.
 
-One deliberate difference: GMapping computes the "free" neighbour's offset
-by passing a displacement through its point-to-cell conversion (which adds
-the map's centre offset); here it is what the code means, one cell diagonal
-back along the beam.
+The "free neighbour" test. GMapping computes the neighbour's offset by
+passing a displacement through its point-to-cell conversion, which adds the
+map's centre offset: with the default map the "neighbour" lands thousands of
+cells away, almost always in unknown space, so the test never rejects
+anything. ``free_check`` False (the default of the method) reproduces that
+behaviour; True tests what the code means, the cell one sqrt(2) step back
+along the beam.
 """
 
 from __future__ import annotations
@@ -75,7 +78,7 @@ def _occupied(occ, t, row, col):
 
 
 @njit(cache=True, inline="always")
-def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, wx, wy, ox, oy, res):
+def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res):
     """Squared distance from ``(wx, wy)`` to the nearest usable map point around cell ``(row, col)``, or -1.
 
     ``t0`` is the tile of ``(row, col)`` when the whole window and its free
@@ -93,9 +96,10 @@ def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, wx, 
             b = cc & _MASK
             if not occ[t, a, b]:
                 continue
-            tf = t0 if t0 >= 0 else cell_tile(table, p, rr + dfr, cc + dfc)
-            if _occupied(occ, tf, rr + dfr, cc + dfc):
-                continue
+            if free_check:
+                tf = t0 if t0 >= 0 else cell_tile(table, p, rr + dfr, cc + dfc)
+                if _occupied(occ, tf, rr + dfr, cc + dfc):
+                    continue
             n = pool[t, a, b, HITS]
             mx = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
             my = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
@@ -106,7 +110,7 @@ def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, wx, 
 
 
 @njit(cache=True, fastmath=True)
-def _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, ux, uy, div_s, div_l, want_like):
+def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l, want_like):
     """``(score, log-likelihood, matched beams)`` of robot pose ``(x, y, th)`` on map ``p``."""
     c, s = math.cos(th), math.sin(th)
     lx = x + c * mount[0] - s * mount[1]
@@ -137,7 +141,7 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey,
                 if want_like:
                     like += NULL_LIKELIHOOD / div_l[j]
                 continue
-        best = _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, wx, wy, ox, oy, res)
+        best = _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res)
         if best >= 0.0:
             score += math.exp(-best / div_s[j])
             matched += 1
@@ -149,11 +153,11 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey,
 
 
 @njit(cache=True)
-def _climb(pool, occ, table, p, ox, oy, res, kernel, start, mount, ex, ey, ux, uy, div_s, div_l,
+def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
            lstep, astep, iterations):
     """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``."""
     x, y, th = start[0], start[1], start[2]
-    current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+    current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                         False)[0]
     best_score = -1.0
     ldelta, adelta = lstep, astep
@@ -179,7 +183,7 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, start, mount, ex, ey, ux, u
                 cth += adelta
             else:
                 cth -= adelta
-            sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, cx, cy, cth, mount, ex, ey, ux, uy,
+            sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
                            div_s, div_l, False)[0]
             if sc > current:
                 current = sc
@@ -191,7 +195,7 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, start, mount, ex, ey, ux, u
 
 
 @njit(cache=True, parallel=True)
-def match_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey, ux, uy, div_s, div_l,
+def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
                     lstep, astep, iterations, minimum_score, out_poses, out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
 
@@ -200,7 +204,7 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey,
     log-likelihood at the pose kept.
     """
     for p in prange(poses.shape[0]):
-        x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, poses[p], mount, ex, ey, ux, uy,
+        x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
                               div_s, div_l, lstep, astep, iterations)
         ok = sc > minimum_score
         if not ok:
@@ -209,16 +213,16 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey,
         out_poses[p, 2] = (th + math.pi) % (2.0 * math.pi) - math.pi
         out_score[p] = sc
         out_ok[p] = ok
-        out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, ux, uy,
+        out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
                                 div_s, div_l, True)[1]
 
 
 @njit(cache=True, parallel=True)
-def score_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey, ux, uy, div_s, div_l,
+def score_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
                     out_score, out_like, out_matched):
     """Score and log-likelihood of every particle at its pose, no search."""
     for p in prange(poses.shape[0]):
-        sc, lk, m = _evaluate(pool, occ, table, p, ox, oy, res, kernel, poses[p, 0], poses[p, 1], poses[p, 2],
+        sc, lk, m = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p, 0], poses[p, 1], poses[p, 2],
                               mount, ex, ey, ux, uy, div_s, div_l, True)
         out_score[p] = sc
         out_like[p] = lk
@@ -226,7 +230,7 @@ def score_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey,
 
 
 @njit(cache=True, parallel=True)
-def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, optima, predicted, prior_std, offsets, mount,
+def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, predicted, prior_std, offsets, mount,
                       ex, ey, ux, uy, div_s, div_l, normals, out_poses, out_logeta):
     """Grisetti et al. 2007's improved proposal around each particle's scan-matching optimum.
 
@@ -246,7 +250,7 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, optima, predicted, 
             x = optima[p, 0] + offsets[k, 0]
             y = optima[p, 1] + offsets[k, 1]
             th = optima[p, 2] + offsets[k, 2]
-            lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, ux, uy,
+            lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
                            div_s, div_l, True)[1]
             dx, dy = x - predicted[p, 0], y - predicted[p, 1]
             fx = (c * dx + s * dy) / prior_std[0]

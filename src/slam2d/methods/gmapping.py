@@ -104,6 +104,9 @@ class GMappingParams:
         "rebuilt", choices=("rebuilt", "best-particle"),
         help="rebuilt: the map re-drawn along the best particle's whole path with free space (as the ROS "
         "node publishes); best-particle: that particle's own map")
+    free_cell_check: bool = param(
+        False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
+        "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -227,7 +230,8 @@ class GMapping(SlamMethod):
         out_poses = np.empty((n, 3))
         score, like, ok = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
         mount = np.asarray(scan.mount, dtype=np.float64)
-        common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize)
+        common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
+                  p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
                         beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.minimumScore,
                         out_poses, score, like, ok)
