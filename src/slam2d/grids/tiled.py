@@ -91,22 +91,28 @@ def _register(
     """
     M = laser_poses.shape[0]
     B = cos_a.shape[0]
+    end_x = np.empty(B)
+    end_y = np.empty(B)
     for m in range(start, M):
         p = part[m]
         lx, ly, lth = laser_poses[m, 0], laser_poses[m, 1], laser_poses[m, 2]
         c, s = math.cos(lth), math.sin(lth)
+        # beam end points (cut at the usable range); NaN for beams not used
+        for j in range(B):
+            r = ranges[m, j]
+            if not (r > 0.0) or r > max_range:
+                end_x[j] = np.nan
+                continue
+            d = min(r, usable_range)
+            end_x[j] = lx + d * (c * cos_a[j] - s * sin_a[j])
+            end_y[j] = ly + d * (s * cos_a[j] + c * sin_a[j])
         # pass 1: tiles this scan writes, and how many need a fresh tile
         n_touched = 0
         need = 0
         for j in range(B):
-            r = ranges[m, j]
-            if not (r > 0.0) or r > max_range:
+            ex, ey, r = end_x[j], end_y[j], ranges[m, j]
+            if math.isnan(ex):
                 continue
-            d = min(r, usable_range)
-            bx = c * cos_a[j] - s * sin_a[j]
-            by = s * cos_a[j] + c * sin_a[j]
-            ex = lx + d * bx
-            ey = ly + d * by
             if generate_map:
                 count = trace_ray(lx, ly, ex, ey, ox, oy, res, rows_buf, cols_buf)
             else:
@@ -132,14 +138,9 @@ def _register(
             n_free = _make_writable(pool, occ, refs, free, n_free, table, p, touched[k, 0], touched[k, 1])
         # pass 2: the updates
         for j in range(B):
-            r = ranges[m, j]
-            if not (r > 0.0) or r > max_range:
+            ex, ey, r = end_x[j], end_y[j], ranges[m, j]
+            if math.isnan(ex):
                 continue
-            d = min(r, usable_range)
-            bx = c * cos_a[j] - s * sin_a[j]
-            by = s * cos_a[j] + c * sin_a[j]
-            ex = lx + d * bx
-            ey = ly + d * by
             if generate_map:
                 count = trace_ray(lx, ly, ex, ey, ox, oy, res, rows_buf, cols_buf)
                 for k in range(count - 1):
