@@ -150,12 +150,11 @@ class GMapping(SlamMethod):
         self._frame_times: list[float] = []
         self._frame_odom: list[NDArray[np.float64]] = []
         self._frame_node: list[int] = []
-        self._map_cache: tuple[int, OccupancyGrid] | None = None
+        self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
 
     # ----------------------------------------------------------------- the filter
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
-        scan = frame.scan
         odom = frame.odometry
         if odom is None:
             self.diagnostics.count("frames_without_odometry")
