@@ -408,6 +408,53 @@ def crsm_latency(_: Path) -> tuple[float, str]:
         f"median CPU s per scan; p95 {np.percentile(per_scan, 95) * 1e3:.2f} ms, total {cpu:.2f} s CPU "
         f"for {len(per_scan)} scans, {rays:.0f} critical rays per scan"
     )
+def _gmapping(rel: str, particles: int = 30) -> Callable[[Path], tuple[float, str]]:
+    """`gmapping` with default parameters on a shared log, in this process (so peak memory is its own).
+
+    Time is the whole run (reading, filter, map, writing the run folder). The note gives the
+    filter's per-update latency (median and p95 of the updates' wall time), its CPU time and
+    the map tiles it held.
+    """
+
+    def run(workdir: Path) -> tuple[float, str]:
+        import numpy as np
+
+        from slam2d.methods.runner import run_method
+
+        out = workdir / f"gmapping-{Path(rel).parent.name}-{particles}"
+        t0 = time.perf_counter()
+        run_method("gmapping", DATA / rel, out, settings={"particles": particles}, seed=0)
+        dt = time.perf_counter() - t0
+        diag = json.loads((out / "diagnostics.json").read_text())
+        series = diag["series"]
+        updated = np.array([u == 1 for u in series["updated"]])
+        wall = np.array(series["wall_s"])[updated] * 1e3
+        cpu = float(np.nansum(np.array(series["cpu_s"], dtype=float)))
+        return dt, (f"{int(updated.sum())} updates of {updated.size} scans; per update median "
+                    f"{np.median(wall):.1f} ms, p95 {np.percentile(wall, 95):.1f} ms; filter CPU {cpu:.1f} s; "
+                    f"map tiles peak {diag['summary'].get('map_tiles_peak')}")
+
+    return run
+
+
+def gmapping_compile(workdir: Path) -> tuple[float, str]:
+    """Cold numba compile of gmapping's kernels: 30 intel scans with an empty on-disk cache."""
+    import itertools
+    import os
+
+    os.environ["NUMBA_CACHE_DIR"] = str(workdir / "numba-cold-cache-gmapping")
+    from slam2d.io import open_recording
+    from slam2d.methods.gmapping import GMapping
+
+    frames = list(itertools.islice(open_recording(DATA / "intel" / "intel.clf.gz").frames(), 30))
+    t0 = time.perf_counter()
+    slam = GMapping(seed=0).run(frames)
+    slam.map()
+    first = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    GMapping(seed=0).run(frames).map()
+    again = time.perf_counter() - t1
+    return first - again, f"first run {first:.1f} s minus a compiled rerun {again:.2f} s"
 
 
 CASES: list[Case] = [
@@ -455,6 +502,17 @@ CASES: list[Case] = [
          needs=(SHARED,)),
     Case("crsm-latency", "crsm with its defaults on mines-exp1: median CPU time per scan", crsm_latency,
          target="< 3 ms", max_seconds=0.003, needs=(SHARED,)),
+    Case("gmapping-intel", "`gmapping` defaults (30 particles) on intel, whole run; per-update latency in notes",
+         _gmapping("intel/intel.clf.gz"), target="< 30 s (C++ original 46 s)", max_seconds=30.0,
+         needs=(SHARED,), repeat=1),
+    Case("gmapping-fr079", "`gmapping` defaults (30 particles) on fr079, whole run; per-update latency in notes",
+         _gmapping("fr079/fr079.clf.gz"), target="< 40 s (C++ original 60 s)", max_seconds=40.0,
+         needs=(SHARED,), repeat=1),
+    Case("gmapping-memory-intel-100", "`gmapping` with 100 particles on intel: peak memory (copy-on-write tiles)",
+         _gmapping("intel/intel.clf.gz", particles=100), target="< 1 GB", max_peak_mb=1000.0,
+         needs=(SHARED,), repeat=1),
+    Case("gmapping-compile", "cold numba compile of gmapping's kernels (filter and map rebuild)",
+         gmapping_compile, warmup=False, repeat=1, needs=(SHARED,)),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -57,7 +57,7 @@ from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.params import param, validate
 
-__all__ = ["OdometryNoise", "simulate_odometry", "odometry_increments"]
+__all__ = ["OdometryNoise", "simulate_odometry", "odometry_increments", "gmapping_motion_std", "draw_from_motion"]
 
 # GMapping's coupling of lateral and forward translation noise (motionmodel.cpp: sxy = 0.3 * srr).
 LATERAL_COUPLING = 0.3
@@ -196,3 +196,48 @@ def simulate_odometry(
         float(noise.wheel_radius_scale), float(noise.track_width_scale),
         float(noise.slip_probability), 1.0 / (1.0 - float(noise.slip_fraction)),
     )
+
+
+def gmapping_motion_std(delta: ArrayLike, srr: float, srt: float, str_: float, stt: float) -> NDArray[np.float64]:
+    """GMapping's standard deviations ``(sx, sy, stheta)`` of the noise on an odometry increment.
+
+    ``delta`` is ``(dx, dy, dtheta)`` in the frame of the earlier pose (``motionmodel.cpp``,
+    ``drawFromMotion``; ``str`` turns rotation into translation noise, ``srt`` translation
+    into rotation noise, as the code uses them).
+    """
+    dx, dy, dth = (abs(float(v)) for v in np.asarray(delta, dtype=np.float64).reshape(3))
+    sxy = LATERAL_COUPLING * srr
+    return np.array([
+        srr * dx + str_ * dth + sxy * dy,
+        srr * dy + str_ * dth + sxy * dx,
+        stt * dth + srt * math.hypot(dx, dy),
+    ])
+
+
+@njit(cache=True)
+def _draw_from_motion(poses, delta, normals, sx, sy, st):
+    for p in range(poses.shape[0]):
+        ox = delta[0] + sx * normals[p, 0]
+        oy = delta[1] + sy * normals[p, 1]
+        ot = delta[2] + st * normals[p, 2]
+        th = poses[p, 2]
+        c, s = math.cos(th), math.sin(th)
+        poses[p, 0] += c * ox - s * oy
+        poses[p, 1] += s * ox + c * oy
+        poses[p, 2] = (th + ot + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def draw_from_motion(
+    poses: NDArray[np.float64], delta: ArrayLike, normals: NDArray[np.float64],
+    srr: float, srt: float, str_: float, stt: float,
+) -> None:
+    """Move every particle pose ``(N, 3)`` in place by the odometry increment ``delta`` plus noise.
+
+    GMapping's ``drawFromMotion`` for all particles at once: each gets
+    ``delta + (sx, sy, stheta) * normals[p]`` (standard deviations from
+    :func:`gmapping_motion_std`) composed onto its pose. ``normals`` is
+    ``(N, 3)`` standard normals from the caller's seeded generator.
+    """
+    d = np.asarray(delta, dtype=np.float64).reshape(3)
+    sx, sy, st = gmapping_motion_std(d, srr, srt, str_, stt)
+    _draw_from_motion(poses, d, np.ascontiguousarray(normals, dtype=np.float64), sx, sy, st)

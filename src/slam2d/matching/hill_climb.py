@@ -1,0 +1,283 @@
+"""GMapping's scan matcher: greedy hill climbing on a hit-point score, for all particles at once.
+
+Every function takes all particles' maps (a :class:`~slam2d.grids.tiled.TiledMaps`
+pool and table) and poses, and runs over the particles in parallel
+(``numba.prange``; each particle writes only its own outputs, so the result
+does not depend on the thread count).
+
+**Score of a pose** (GMapping ``ScanMatcher::score``). For each beam, search
+the ``(2 kernel_size + 1)^2`` cells around its end point for an *occupied*
+cell (``hits / visits > 0.1``) whose neighbour one ``sqrt(2)`` cell step back
+along the beam is *not* occupied (so the beam could have reached it); ``d`` is
+the distance from the end point to the nearest such cell's mean hit point.
+The beam adds ``exp(-d^2 / sigma_j)`` to the score. The original's ``sigma``
+is that divisor (m^2, not a standard deviation): it equals ``2 s^2`` for a
+Gaussian of standard deviation ``s``, so the default 0.05 is ``s = 0.158 m``.
+
+**Log-likelihood** (``likelihoodAndScore``): a matched beam adds
+``-d^2 / lsigma_j``, an unmatched one ``-0.5 / lsigma_j`` (GMapping's
+``nullLikelihood``), so a beam further than ``sqrt(0.5 lsigma)`` from the map
+(0.19 m at the default 0.075) counts as a miss.
+
+**Hill climb** (``ScanMatcher::optimize``): from the start pose, try the six
+moves +-x, +-y (world frame, step ``lstep``) and +-theta (``astep``); take the
+best that improves the score; when none does, halve both steps. Stop when
+nothing improves and the steps have been halved ``iterations`` times.
+
+The "free neighbour" test. GMapping computes the neighbour's offset by
+passing a displacement through its point-to-cell conversion, which adds the
+map's centre offset: with the default map the "neighbour" lands thousands of
+cells away, almost always in unknown space, so the test never rejects
+anything. ``free_check`` False (the default of the method) reproduces that
+behaviour; True tests what the code means, the cell one sqrt(2) step back
+along the beam.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
+
+__all__ = ["BeamSet", "match_particles", "score_particles", "gaussian_proposal"]
+
+_MASK = (1 << TILE_SHIFT) - 1
+FREE_CELL_RATIO = math.sqrt(2.0)  # GMapping m_freeCellRatio
+NULL_LIKELIHOOD = -0.5  # GMapping nullLikelihood: an unmatched beam's log-likelihood x lsigma
+
+
+class BeamSet:
+    """The beams of one scan a matcher uses, in the laser frame, with their divisors.
+
+    ``ex, ey``: end points (m); ``ux, uy``: unit directions; ``div_score`` and
+    ``div_like``: per-beam ``sigma`` and ``lsigma`` (m^2) of the score and the
+    log-likelihood. ``use`` selects the beams; every other argument has one
+    entry per beam of the scan.
+    """
+
+    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like")
+
+    def __init__(self, ranges, angles, use, div_score, div_like) -> None:
+        r = np.asarray(ranges, dtype=np.float64)[use]
+        a = np.asarray(angles, dtype=np.float64)[use]
+        self.ux, self.uy = np.cos(a), np.sin(a)
+        self.ex, self.ey = r * self.ux, r * self.uy
+        self.div_score = np.ascontiguousarray(np.asarray(div_score, dtype=np.float64)[use])
+        self.div_like = np.ascontiguousarray(np.asarray(div_like, dtype=np.float64)[use])
+
+    def __len__(self) -> int:
+        return int(self.ex.shape[0])
+
+
+@njit(cache=True, inline="always")
+def _occupied(occ, t, row, col):
+    return t >= 0 and occ[t, row & _MASK, col & _MASK]
+
+
+@njit(cache=True, inline="always")
+def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res):
+    """Squared distance from ``(wx, wy)`` to the nearest usable map point around cell ``(row, col)``, or -1.
+
+    ``t0`` is the tile of ``(row, col)`` when the whole window and its free
+    neighbours lie in it (the common case: one table lookup), else -1.
+    """
+    best = -1.0
+    for dr in range(-kernel, kernel + 1):
+        for dc in range(-kernel, kernel + 1):
+            rr = row + dr
+            cc = col + dc
+            t = t0 if t0 >= 0 else cell_tile(table, p, rr, cc)
+            if t < 0:
+                continue
+            a = rr & _MASK
+            b = cc & _MASK
+            if not occ[t, a, b]:
+                continue
+            if free_check:
+                tf = t0 if t0 >= 0 else cell_tile(table, p, rr + dfr, cc + dfc)
+                if _occupied(occ, tf, rr + dfr, cc + dfc):
+                    continue
+            n = pool[t, a, b, HITS]
+            mx = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
+            my = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
+            d2 = (wx - mx) * (wx - mx) + (wy - my) * (wy - my)
+            if best < 0.0 or d2 < best:
+                best = d2
+    return best
+
+
+@njit(cache=True, fastmath=True)
+def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l, want_like):
+    """``(score, log-likelihood, matched beams)`` of robot pose ``(x, y, th)`` on map ``p``."""
+    c, s = math.cos(th), math.sin(th)
+    lx = x + c * mount[0] - s * mount[1]
+    ly = y + s * mount[0] + c * mount[1]
+    lth = th + mount[2]
+    lc, ls = math.cos(lth), math.sin(lth)
+    free_step = FREE_CELL_RATIO * res
+    inv = 1.0 / res
+    reach = kernel + 2  # window plus the free neighbour (sqrt(2) cells back: at most 2 cells further)
+    score = 0.0
+    like = 0.0
+    matched = 0
+    for j in range(ex.shape[0]):
+        wx = lx + lc * ex[j] - ls * ey[j]
+        wy = ly + ls * ex[j] + lc * ey[j]
+        col = int(math.floor((wx - ox) * inv))
+        row = int(math.floor((wy - oy) * inv))
+        fx = wx - free_step * (lc * ux[j] - ls * uy[j])
+        fy = wy - free_step * (ls * ux[j] + lc * uy[j])
+        dfc = int(math.floor((fx - ox) * inv)) - col
+        dfr = int(math.floor((fy - oy) * inv)) - row
+        a = row & _MASK
+        b = col & _MASK
+        t0 = -1
+        if reach <= a <= _MASK - reach and reach <= b <= _MASK - reach:
+            t0 = cell_tile(table, p, row, col)
+            if t0 < 0:  # the whole window is unknown
+                if want_like:
+                    like += NULL_LIKELIHOOD / div_l[j]
+                continue
+        best = _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res)
+        if best >= 0.0:
+            score += math.exp(-best / div_s[j])
+            matched += 1
+            if want_like:
+                like -= best / div_l[j]
+        elif want_like:
+            like += NULL_LIKELIHOOD / div_l[j]
+    return score, like, matched
+
+
+@njit(cache=True)
+def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
+           lstep, astep, iterations):
+    """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``."""
+    x, y, th = start[0], start[1], start[2]
+    current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+                        False)[0]
+    best_score = -1.0
+    ldelta, adelta = lstep, astep
+    refinement = 0
+    while True:
+        if best_score >= current:
+            refinement += 1
+            ldelta *= 0.5
+            adelta *= 0.5
+        best_score = current
+        bx, by, bth = x, y, th
+        for move in range(6):
+            cx, cy, cth = x, y, th
+            if move == 0:
+                cx += ldelta
+            elif move == 1:
+                cx -= ldelta
+            elif move == 2:
+                cy -= ldelta
+            elif move == 3:
+                cy += ldelta
+            elif move == 4:
+                cth += adelta
+            else:
+                cth -= adelta
+            sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
+                           div_s, div_l, False)[0]
+            if sc > current:
+                current = sc
+                bx, by, bth = cx, cy, cth
+        x, y, th = bx, by, bth
+        if not (current > best_score or refinement < iterations):
+            break
+    return x, y, th, best_score
+
+
+@njit(cache=True, parallel=True)
+def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
+                    lstep, astep, iterations, minimum_score, out_poses, out_score, out_like, out_ok):
+    """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
+
+    A particle whose best score is not above ``minimum_score`` keeps its pose
+    (``out_ok`` False: the match failed, odometry is used). ``out_like`` is the
+    log-likelihood at the pose kept.
+    """
+    for p in prange(poses.shape[0]):
+        x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
+                              div_s, div_l, lstep, astep, iterations)
+        ok = sc > minimum_score
+        if not ok:
+            x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]
+        out_poses[p, 0], out_poses[p, 1] = x, y
+        out_poses[p, 2] = (th + math.pi) % (2.0 * math.pi) - math.pi
+        out_score[p] = sc
+        out_ok[p] = ok
+        out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
+                                div_s, div_l, True)[1]
+
+
+@njit(cache=True, parallel=True)
+def score_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
+                    out_score, out_like, out_matched):
+    """Score and log-likelihood of every particle at its pose, no search."""
+    for p in prange(poses.shape[0]):
+        sc, lk, m = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p, 0], poses[p, 1], poses[p, 2],
+                              mount, ex, ey, ux, uy, div_s, div_l, True)
+        out_score[p] = sc
+        out_like[p] = lk
+        out_matched[p] = m
+
+
+@njit(cache=True, parallel=True)
+def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, predicted, prior_std, offsets, mount,
+                      ex, ey, ux, uy, div_s, div_l, normals, out_poses, out_logeta):
+    """Grisetti et al. 2007's improved proposal around each particle's scan-matching optimum.
+
+    For each particle, ``tau(x) = p(z | m, x) p(x | x_prev, u)`` is evaluated
+    at ``optimum + offsets[k]`` (the likelihood above; the odometry prior is a
+    Gaussian around ``predicted`` with standard deviations ``prior_std`` in the
+    predicted pose's frame). A Gaussian is fitted to these (mean and
+    covariance weighted by tau), the new pose is drawn from it with the
+    standard normals ``normals[p]``, and ``out_logeta`` is ``log sum tau``,
+    the particle's weight factor.
+    """
+    K = offsets.shape[0]
+    for p in prange(optima.shape[0]):
+        logt = np.empty(K)
+        c, s = math.cos(predicted[p, 2]), math.sin(predicted[p, 2])
+        for k in range(K):
+            x = optima[p, 0] + offsets[k, 0]
+            y = optima[p, 1] + offsets[k, 1]
+            th = optima[p, 2] + offsets[k, 2]
+            lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
+                           div_s, div_l, True)[1]
+            dx, dy = x - predicted[p, 0], y - predicted[p, 1]
+            fx = (c * dx + s * dy) / prior_std[0]
+            fy = (-s * dx + c * dy) / prior_std[1]
+            dth = (th - predicted[p, 2] + math.pi) % (2.0 * math.pi) - math.pi
+            ft = dth / prior_std[2]
+            logt[k] = lk - 0.5 * (fx * fx + fy * fy + ft * ft)
+        top = logt.max()
+        w = np.exp(logt - top)
+        eta = w.sum()
+        w /= eta
+        mu = np.zeros(3)
+        for k in range(K):
+            for i in range(3):
+                mu[i] += w[k] * offsets[k, i]
+        cov = np.zeros((3, 3))
+        for k in range(K):
+            for i in range(3):
+                for j in range(3):
+                    cov[i, j] += w[k] * (offsets[k, i] - mu[i]) * (offsets[k, j] - mu[j])
+        for i in range(3):
+            cov[i, i] += 1e-12  # keeps the Cholesky factor defined when one sample dominates
+        L = np.linalg.cholesky(cov)
+        for i in range(3):
+            v = mu[i]
+            for j in range(i + 1):
+                v += L[i, j] * normals[p, j]
+            out_poses[p, i] = optima[p, i] + v
+        out_poses[p, 2] = (out_poses[p, 2] + math.pi) % (2.0 * math.pi) - math.pi
+        out_logeta[p] = top + math.log(eta)

@@ -1,0 +1,369 @@
+"""``gmapping``: a Rao-Blackwellised particle filter with a scan-matched proposal (GMapping).
+
+Every scan each particle is moved by the odometry increment plus GMapping's
+motion noise. When the robot has travelled ``linearUpdate`` or turned
+``angularUpdate`` since the last update (or ``temporalUpdate`` seconds passed),
+the filter updates: every particle hill-climbs its pose on its own map
+(:mod:`slam2d.matching.hill_climb`), optionally draws it from the Gaussian
+fitted around the optimum (Grisetti et al. 2007), adds the scan's
+log-likelihood to its weight, the set is resampled when Neff falls below
+``resampleThreshold * N``, and the scan is added to every map. Maps share
+tiles copy-on-write (:mod:`slam2d.grids.tiled`). The output is the best
+particle's (largest accumulated log-likelihood) path and the map rebuilt
+along it, as the ROS node publishes it. See docs/methods/gmapping.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.filters import (
+    backtrack,
+    effective_sample_size,
+    normalized_weights,
+    published_entropy,
+    systematic_resample,
+    weight_entropy,
+)
+from slam2d.grids.occupancy import OccupancyGrid
+from slam2d.grids.tiled import HITS, VISITS, TiledMaps
+from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_particles
+from slam2d.methods.base import SlamMethod
+from slam2d.methods.registry import register
+from slam2d.params import param
+from slam2d.sensors.beam_model import beam_sigmas
+from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
+
+__all__ = ["GMappingParams", "GMapping"]
+
+log = logging.getLogger(__name__)
+
+# maxRange when the laser reports no finite range_max (the ROS wiki's maxUrange default)
+_FALLBACK_MAX_RANGE = 80.0
+
+
+@dataclass
+class GMappingParams:
+    """GMapping's parameters, with the names and defaults of slam_gmapping."""
+
+    particles: int = param(30, low=1, high=10000, help="number of particles")
+    maxUrange: float | None = param(
+        None, unit="m", low=0.0, help="usable range: beams are cut here for mapping and ignored beyond it "
+        "for matching; unset: maxRange")
+    maxRange: float | None = param(
+        None, unit="m", low=0.0, help="beams longer than this are dropped; unset: the first scan's range_max - 0.01")
+    sigma: float = param(
+        0.05, unit="m^2", low=1e-9, help="scan-matcher score divisor: a beam scores exp(-d^2/sigma) "
+        "(= 2 s^2 for a standard deviation s; 0.05 is s = 0.158 m)")
+    kernelSize: int = param(1, unit="cells", low=0, high=10, help="search radius around a beam end for its map point")
+    lstep: float = param(0.05, unit="m", low=1e-6, help="first translation step of the hill climb")
+    astep: float = param(0.05, unit="rad", low=1e-6, help="first rotation step of the hill climb")
+    iterations: int = param(5, low=0, high=30, help="step halvings before the hill climb stops")
+    lsigma: float = param(
+        0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
+        "log-likelihood, an unmatched one -0.5/lsigma")
+    ogain: float = param(3.0, low=1e-6, help="weight smoothing: weights are exp(loglik / (ogain N))")
+    lskip: int = param(0, low=0, help="use every (lskip+1)-th beam for matching and likelihood")
+    minimumScore: float = param(
+        0.0, low=0.0, help="a match scoring at most this fails and the particle keeps its odometry pose")
+    srr: float = param(0.1, unit="m/m", low=0.0, help="odometry translation noise from translation")
+    srt: float = param(0.2, unit="rad/m", low=0.0, help="odometry rotation noise from translation (as GMapping's code)")
+    str: float = param(0.1, unit="m/rad", low=0.0, help="odometry translation noise from rotation (as GMapping's code)")
+    stt: float = param(0.2, unit="rad/rad", low=0.0, help="odometry rotation noise from rotation")
+    linearUpdate: float = param(1.0, unit="m", low=0.0, help="update the filter after this much travel")
+    angularUpdate: float = param(0.5, unit="rad", low=0.0, help="update the filter after this much rotation")
+    temporalUpdate: float = param(
+        -1.0, unit="s", help="also update after this long without one; negative: never")
+    resampleThreshold: float = param(
+        0.5, low=0.0, high=1.0, help="resample when Neff < resampleThreshold * particles")
+    xmin: float = param(-100.0, unit="m", help="initial map extent, relative to the first pose (the map grows)")
+    ymin: float = param(-100.0, unit="m", help="initial map extent, relative to the first pose")
+    xmax: float = param(100.0, unit="m", help="initial map extent, relative to the first pose")
+    ymax: float = param(100.0, unit="m", help="initial map extent, relative to the first pose")
+    delta: float = param(0.05, unit="m", low=0.001, high=10.0, help="map resolution (cell size)")
+    llsamplerange: float = param(0.01, unit="m", low=0.0, help="improved proposal: translation sampling range")
+    llsamplestep: float = param(0.01, unit="m", low=1e-6, help="improved proposal: translation sampling step")
+    lasamplerange: float = param(0.005, unit="rad", low=0.0, help="improved proposal: rotation sampling range")
+    lasamplestep: float = param(0.005, unit="rad", low=1e-6, help="improved proposal: rotation sampling step")
+    occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
+    proposal: str = param(
+        "hill-climb", choices=("hill-climb", "gaussian"),
+        help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
+        "fitted around it and weight by its normaliser (Grisetti et al. 2007; uses ll/la sample range/step)")
+    generateMap: bool = param(
+        False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
+    map_output: str = param(
+        "rebuilt", choices=("rebuilt", "best-particle"),
+        help="rebuilt: the map re-drawn along the best particle's whole path with free space (as the ROS "
+        "node publishes); best-particle: that particle's own map")
+    free_cell_check: bool = param(
+        False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
+        "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)")
+    jump_warning: float = param(
+        2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
+
+
+@register
+class GMapping(SlamMethod):
+    name = "gmapping"
+    Params = GMappingParams
+    summary = "Rao-Blackwellised particle filter with scan-matched proposal (GMapping)"
+    stochastic = True
+    DIAGNOSTICS = {
+        "updated": "1 when the filter updated on this scan, else 0",
+        "neff": "effective number of particles before resampling [particles]",
+        "entropy": "entropy slam_gmapping publishes (raw weights; NaN when it publishes none) [nats]",
+        "weight_entropy": "entropy of the normalised importance weights, max ln N [nats]",
+        "resampled": "1 when the particles were resampled",
+        "match_failures": "particles whose scan match failed (odometry used) [particles]",
+        "best_score": "scan-matching score of the best particle [beams]",
+        "tiles": "map tiles in use over all particles [tiles]",
+    }
+
+    def __init__(self, params: GMappingParams | None = None, **kwargs) -> None:
+        super().__init__(params, **kwargs)
+        self._n = int(self.params.particles)
+        self._maps: TiledMaps | None = None
+        self._state = np.zeros((self._n, 3))
+        self._weight = np.zeros(self._n)  # log-likelihood since the last resampling (GMapping weight)
+        self._weight_sum = np.zeros(self._n)  # accumulated over the whole run, inherited (weightSum)
+        self._odom: NDArray[np.float64] | None = None
+        self._update_odom: NDArray[np.float64] | None = None  # odometry at the last update
+        self._update_poses = np.zeros((self._n, 3))  # particle poses at the last update
+        self._linear = self._angular = 0.0
+        self._last_update_time = -math.inf
+        # the trajectory tree: every particle's pose at each update (a node) and its parent there
+        self._node_poses = np.zeros((256, self._n, 3))
+        self._node_parents = np.zeros((256, self._n), dtype=np.int32)
+        self._node_odom = np.zeros((256, 3))
+        self._nodes = 0
+        self._scans: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = []
+        # every frame since the first: time, odometry, and the node it follows
+        self._frame_times: list[float] = []
+        self._frame_odom: list[NDArray[np.float64]] = []
+        self._frame_node: list[int] = []
+        self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
+
+    # ----------------------------------------------------------------- the filter
+
+    def update(self, frame: Frame) -> Mapping[str, float] | None:
+        odom = frame.odometry
+        if odom is None:
+            self.diagnostics.count("frames_without_odometry")
+            if self._maps is None:
+                return None
+            odom = self._odom  # no odometry: the particles stay where they are
+        odom = np.asarray(odom, dtype=np.float64)
+        if self._maps is None:
+            return self._initialise(frame, odom)
+        delta = se2.relative(self._odom, odom)
+        step = math.hypot(delta[0], delta[1])
+        if step > self.params.jump_warning:
+            self.diagnostics.count("odometry_jumps")
+            log.warning("gmapping: odometry jumps %.2f m at t=%.3f; continuing", step, frame.timestamp)
+        if step == 0.0 and delta[2] == 0.0:
+            self.diagnostics.count("stationary_frames")
+        normals = self.rng.standard_normal((self._n, 3))
+        p = self.params
+        draw_from_motion(self._state, delta, normals, p.srr, p.srt, p.str, p.stt)
+        self._odom = odom
+        self._linear += step
+        self._angular += abs(float(delta[2]))
+        due = (self._linear >= p.linearUpdate or self._angular >= p.angularUpdate
+               or (p.temporalUpdate >= 0.0 and frame.timestamp - self._last_update_time > p.temporalUpdate))
+        values: dict[str, float] = {"updated": 0.0}
+        if due:
+            values = self._filter_update(frame)
+        self._store_frame(frame.timestamp)
+        return values
+
+    def _initialise(self, frame: Frame, odom: NDArray[np.float64]) -> Mapping[str, float]:
+        p = self.params
+        scan = frame.scan
+        self._max_range = p.maxRange if p.maxRange is not None else (
+            scan.range_max - 0.01 if math.isfinite(scan.range_max) else _FALLBACK_MAX_RANGE)
+        self._usable = p.maxUrange if p.maxUrange is not None else self._max_range
+        self._state[:] = odom
+        self._update_poses[:] = odom
+        self._odom = self._update_odom = odom
+        self._maps = TiledMaps(self._n, p.delta, (odom[0] + p.xmin, odom[1] + p.ymin, odom[0] + p.xmax,
+                                                   odom[1] + p.ymax))
+        # the first scan goes into one map that every particle then shares
+        self._register(np.zeros(1, dtype=np.int64), scan)
+        self._maps.resample(np.zeros(self._n, dtype=np.int64))
+        self._last_update_time = frame.timestamp
+        self._store_node(None, scan)
+        self._store_frame(frame.timestamp)
+        return {"updated": 1.0, "neff": float(self._n), "resampled": 0.0, "match_failures": 0.0,
+                "tiles": float(self._maps.tiles_in_use)}
+
+    def _register(self, which: NDArray[np.int64], scan) -> None:
+        laser = se2.compose(self._state[which], scan.mount)
+        ranges = np.broadcast_to(scan.ranges, (which.shape[0], scan.num_beams))
+        self._maps.register(which, laser, ranges, scan.angles, max_range=self._max_range,
+                            usable_range=self._usable, generate_map=self.params.generateMap)
+
+    def _filter_update(self, frame: Frame) -> dict[str, float]:
+        p = self.params
+        scan = frame.scan
+        maps = self._maps
+        r = scan.ranges
+        with np.errstate(invalid="ignore"):
+            use = (r > 0.0) & (r <= self._max_range) & (r <= self._usable)
+        use &= (np.arange(r.shape[0]) % (p.lskip + 1)) == p.lskip
+        if not use.any():
+            self.diagnostics.count("scans_without_valid_beam")
+            return {"updated": 0.0}
+        s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
+        s2 = np.nan_to_num(2.0 * s * s)
+        beams = BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
+        n = self._n
+        out_poses = np.empty((n, 3))
+        score, like, ok = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+        mount = np.asarray(scan.mount, dtype=np.float64)
+        common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
+                  p.free_cell_check)
+        match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.minimumScore,
+                        out_poses, score, like, ok)
+        failures = int(n - ok.sum())
+        if failures:
+            self.diagnostics.count("match_failures", failures)
+        if p.proposal == "gaussian" and ok.any():
+            out_poses, like = self._gaussian(common, out_poses, like, ok, mount, beams)
+        self._state = out_poses
+        self._weight += like
+        self._weight_sum += like
+        w = normalized_weights(self._weight, 1.0 / (p.ogain * n))
+        neff = effective_sample_size(w)
+        h_w = weight_entropy(w)
+        best_score = float(score[int(np.argmax(self._weight_sum))])
+        resampled = neff < p.resampleThreshold * n
+        parents = None
+        if resampled:
+            parents = systematic_resample(w, float(self.rng.random()))
+            self._state = self._state[parents]
+            self._weight_sum = self._weight_sum[parents]
+            self._weight = np.zeros(n)
+            maps.resample(parents)
+            self.diagnostics.count("resamples")
+        self._register(np.arange(n, dtype=np.int64), scan)
+        self._linear = self._angular = 0.0
+        self._last_update_time = frame.timestamp
+        self._update_odom = self._odom
+        self._update_poses = self._state.copy()
+        self._store_node(parents, scan)
+        return {
+            "updated": 1.0, "neff": neff, "entropy": published_entropy(self._weight), "weight_entropy": h_w,
+            "resampled": float(resampled), "match_failures": float(failures),
+            "best_score": best_score,
+            "tiles": float(maps.tiles_in_use),
+        }
+
+    def _gaussian(self, common, optima, like, ok, mount, beams):
+        """Improved proposal for the particles whose match succeeded."""
+        p = self.params
+        delta = se2.relative(self._update_odom, self._odom)
+        predicted = se2.compose(self._update_poses, delta)
+        std = np.maximum(gmapping_motion_std(delta, p.srr, p.srt, p.str, p.stt), 1e-3)
+        lin = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
+        ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
+        offsets = np.stack(np.meshgrid(lin, lin, ang, indexing="ij"), axis=-1).reshape(-1, 3)
+        normals = self.rng.standard_normal((self._n, 3))
+        sampled = np.empty_like(optima)
+        logeta = np.empty(self._n)
+        gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
+                          beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
+        return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
+
+    def _store_node(self, parents, scan) -> None:
+        """Keep every particle's pose at this update, who descends from whom, and the scan."""
+        k = self._nodes
+        if k >= self._node_poses.shape[0]:
+            self._node_poses = np.concatenate([self._node_poses, np.zeros_like(self._node_poses)])
+            self._node_parents = np.concatenate([self._node_parents, np.zeros_like(self._node_parents)])
+            self._node_odom = np.concatenate([self._node_odom, np.zeros_like(self._node_odom)])
+        self._node_poses[k] = self._state
+        self._node_parents[k] = np.arange(self._n) if parents is None else parents
+        self._node_odom[k] = self._odom
+        self._scans.append((scan.ranges, scan.angles, scan.mount))
+        self._nodes += 1
+
+    def _store_frame(self, timestamp: float) -> None:
+        self._frame_times.append(timestamp)
+        self._frame_odom.append(self._odom)
+        self._frame_node.append(self._nodes - 1)
+
+    # ----------------------------------------------------------------- outputs
+
+    def best_particle(self) -> int:
+        """Index of the particle with the largest accumulated log-likelihood (GMapping's best)."""
+        return int(np.argmax(self._weight_sum))
+
+    def current_pose(self) -> NDArray[np.float64] | None:
+        """The best particle's pose at the last update, moved on by the odometry since (the ROS node's tf)."""
+        if self._maps is None:
+            return None
+        node = self._node_poses[self._nodes - 1, self.best_particle()]
+        return se2.compose(node, se2.relative(self._node_odom[self._nodes - 1], self._odom))
+
+    def best_nodes(self) -> NDArray[np.float64]:
+        """The best particle's pose at every update, through its ancestors (its trajectory tree path)."""
+        if self._nodes == 0:
+            return np.zeros((0, 3))
+        return backtrack(self._node_poses[: self._nodes], self._node_parents[: self._nodes], self.best_particle())
+
+    def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The best particle's path: its tree nodes, and odometry composed onto the last node in between."""
+        if not self._frame_times:
+            return np.zeros(0), np.zeros((0, 3))
+        nodes = self.best_nodes()
+        k = np.asarray(self._frame_node)
+        odom = np.stack(self._frame_odom)
+        return np.array(self._frame_times), se2.compose(nodes[k], se2.relative(self._node_odom[k], odom))
+
+    def map(self) -> OccupancyGrid:
+        key = (self._nodes, self.best_particle())
+        if self._map_cache is not None and self._map_cache[0] == key:
+            return self._map_cache[1]
+        grid = self._build_map()
+        self._map_cache = (key, grid)
+        return grid
+
+    def _build_map(self) -> OccupancyGrid:
+        p = self.params
+        if self._maps is None:
+            return OccupancyGrid(None)
+        if p.map_output == "best-particle":
+            hits, visits, origin = self._maps.dense(self.best_particle())
+        else:
+            path = self.best_nodes()
+            bounds = (path[0, 0] + p.xmin, path[0, 1] + p.ymin, path[0, 0] + p.xmax, path[0, 1] + p.ymax)
+            rebuilt = TiledMaps(1, p.delta, bounds)
+            groups: dict[tuple, list[int]] = {}
+            for i, (ranges, angles, mount) in enumerate(self._scans):
+                groups.setdefault((ranges.shape[0], angles[0], angles[-1], *mount), []).append(i)
+            for members in groups.values():  # one compiled call per laser geometry
+                laser = se2.compose(path[members], self._scans[members[0]][2])
+                ranges = np.stack([self._scans[i][0] for i in members])
+                rebuilt.register(np.zeros(len(members), dtype=np.int64), laser, ranges, self._scans[members[0]][1],
+                                 max_range=self._max_range, usable_range=self._usable, generate_map=True)
+            hits, visits, origin = rebuilt.dense(0)
+        occ = np.full(hits.shape, -1, dtype=np.int16)
+        seen = visits > 0
+        occ[seen] = np.where(hits[seen] > p.occ_thresh * visits[seen], 100, 0)
+        return OccupancyGrid.from_occupancy(occ, p.delta, origin)
+
+    def finish(self) -> None:
+        if self._maps is not None:
+            self.diagnostics.summary["map_tiles_peak"] = self._maps.peak_tiles
+            self.diagnostics.summary["map_tile_references"] = self._maps.tile_references
+            self.diagnostics.summary["map_pool_mb"] = self._maps.nbytes / 1e6

@@ -1,0 +1,353 @@
+"""gmapping: the particle filter, its copy-on-write maps, matcher, motion model and weight arithmetic."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from slam2d.cli import main
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.core.scan import make_scan
+from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+from slam2d.filters import (
+    effective_sample_size,
+    normalized_weights,
+    published_entropy,
+    systematic_resample,
+    weight_entropy,
+)
+from slam2d.grids.tiled import HITS, TILE, VISITS, TiledMaps
+from slam2d.io.tum import read_tum
+from slam2d.matching.hill_climb import BeamSet, match_particles
+from slam2d.methods import get_method
+from slam2d.methods.gmapping import GMapping, GMappingParams
+from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
+from slam2d.sensors.range_noise import ConstantSigma
+from tests.conftest import dataset_file
+
+
+@pytest.fixture(scope="module")
+def arena(tmp_path_factory):
+    """20 s of the study's arena (youBot, URG-04LX), with exact truth."""
+    out = tmp_path_factory.mktemp("arena")
+    assert main(["simulate", "paper-arena", "--out", str(out), "--duration", "20", "--seed", "5"]) == 0
+    return out
+
+
+def _frames(path):
+    from slam2d.io import open_recording
+
+    return list(open_recording(path).frames())
+
+
+def _ate(slam, truth_tum):
+    t, p = slam.trajectory()
+    rt, rp = read_tum(truth_tum)
+    return absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
+
+
+# --------------------------------------------------------------------------- weights and resampling
+
+
+def test_neff_and_entropies_of_equal_and_degenerate_weights():
+    n = 30
+    w = normalized_weights(np.full(n, -12.5))
+    assert np.allclose(w, 1.0 / n)
+    assert effective_sample_size(w) == pytest.approx(n)
+    assert weight_entropy(w) == pytest.approx(math.log(30)) and math.log(30) == pytest.approx(3.4012, abs=1e-4)
+    one = normalized_weights(np.r_[0.0, np.full(n - 1, -1e6)])
+    assert effective_sample_size(one) == pytest.approx(1.0) and weight_entropy(one) == pytest.approx(0.0)
+    # GMapping's smoothing: weights exp(l / (ogain N)) flatten a log-likelihood gap of ogain*N to a factor e
+    w2 = normalized_weights(np.array([0.0, -90.0]), gain=1.0 / (3.0 * 30))
+    assert w2[0] / w2[1] == pytest.approx(math.e)
+
+
+def test_published_entropy_is_slam_gmappings_formula():
+    """computePoseEntropy normalises the raw (negative) log-weights by their sum."""
+    raw = np.array([-10.0, -20.0, -30.0, -40.0])
+    q = raw / raw.sum()
+    assert published_entropy(raw) == pytest.approx(-np.sum(q * np.log(q)))
+    assert published_entropy(np.full(30, -7.0)) == pytest.approx(math.log(30))
+    assert math.isnan(published_entropy(np.zeros(30)))  # right after resampling: the node publishes nothing
+
+
+def test_systematic_resampling_gives_floor_or_ceil_of_n_w_children():
+    rng = np.random.default_rng(1)
+    n = 50
+    w = rng.random(n) ** 3
+    w /= w.sum()
+    for u in (0.0, 0.37, 0.999):
+        idx = systematic_resample(w, u)
+        assert idx.shape == (n,) and np.all(np.diff(idx) >= 0)
+        counts = np.bincount(idx, minlength=n)
+        assert np.all(counts >= np.floor(n * w) - 1e-9) and np.all(counts <= np.ceil(n * w) + 1e-9)
+        assert counts.sum() == n
+
+
+# --------------------------------------------------------------------------- motion model
+
+
+def test_motion_model_is_gmappings_draw_from_motion():
+    delta = np.array([0.4, -0.1, 0.3])
+    sx, sy, st = gmapping_motion_std(delta, 0.1, 0.2, 0.1, 0.2)
+    assert sx == pytest.approx(0.1 * 0.4 + 0.1 * 0.3 + 0.03 * 0.1)
+    assert sy == pytest.approx(0.1 * 0.1 + 0.1 * 0.3 + 0.03 * 0.4)
+    assert st == pytest.approx(0.2 * 0.3 + 0.2 * math.hypot(0.4, 0.1))
+    start = np.array([[1.0, 2.0, 0.5], [-3.0, 0.0, -2.0]])
+    poses = start.copy()
+    draw_from_motion(poses, delta, np.zeros((2, 3)), 0.1, 0.2, 0.1, 0.2)
+    assert np.allclose(poses, se2.compose(start, delta))
+    # the spread of many draws is the standard deviations, in the particle's frame
+    n = 20000
+    poses = np.zeros((n, 3))
+    draw_from_motion(poses, delta, np.random.default_rng(0).standard_normal((n, 3)), 0.1, 0.2, 0.1, 0.2)
+    assert np.std(poses[:, 0]) == pytest.approx(sx, rel=0.05)
+    assert np.std(poses[:, 1]) == pytest.approx(sy, rel=0.05)
+    assert np.std(poses[:, 2]) == pytest.approx(st, rel=0.05)
+
+
+# --------------------------------------------------------------------------- copy-on-write tiled maps
+
+
+def _ring_scan(n_beams=360, radius=3.0):
+    angles = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
+    return np.full(n_beams, radius), angles
+
+
+def test_tiled_maps_share_tiles_until_written():
+    ranges, angles = _ring_scan()
+    maps = TiledMaps(4, 0.05, (-10, -10, 10, 10), capacity=8)
+    reg = dict(max_range=10.0, usable_range=10.0, generate_map=False)
+    maps.register(np.array([0]), np.zeros((1, 3)), ranges[None], angles, **reg)
+    first = maps.tiles_in_use
+    assert first >= 4 and maps.pool.shape[0] >= first  # the pool grew from 8 as needed
+    maps.resample(np.zeros(4, dtype=np.int64))
+    assert maps.tiles_in_use == first and maps.tile_references == 4 * first
+    before = [maps.dense(i) for i in range(4)]
+    # particle 2 writes a few hits on the ring: only the tiles it touched are copied
+    small, small_angles = np.full(5, 2.0), np.linspace(0.1, 0.12, 5)
+    maps.register(np.array([2]), np.array([[1.0, 0.0, 0.0]]), small[None], small_angles, **reg)
+    assert first < maps.tiles_in_use <= first + 2
+    for i in (0, 1, 3):
+        h, v, o = maps.dense(i)
+        assert np.array_equal(h, before[i][0]) and np.array_equal(v, before[i][1]) and o == before[i][2]
+    h2, v2, _ = maps.dense(2)
+    assert h2.sum() == before[2][0].sum() + 5
+    # everyone descends from particle 2: the tiles only the others held are freed
+    maps.resample(np.full(4, 2, dtype=np.int64))
+    assert maps.tiles_in_use == first == np.count_nonzero(maps.table[2] >= 0)
+    assert np.all(maps.refs[maps.table[0][maps.table[0] >= 0]] == 4)
+
+
+def test_tiled_maps_record_free_space_and_grow_keeping_data():
+    maps = TiledMaps(1, 0.1, (-2, -2, 2, 2))
+    reg = dict(max_range=50.0, usable_range=50.0, generate_map=True)
+    maps.register(np.array([0]), np.zeros((1, 3)), np.array([[1.0]]), np.array([0.0]), **reg)
+    hits, visits, (ox, oy) = maps.dense(0)
+    row, col = int(math.floor((0.05 - oy) / 0.1)), int(math.floor((1.0 - ox) / 0.1))
+    assert hits[row, col] == 1 and visits[row, col] == 1  # the end cell
+    assert np.all(visits[row, col - 10 : col] == 1) and hits[row, col - 10 : col].sum() == 0  # free cells
+    # a long beam far outside the table: it grows, and the first hit keeps its world position
+    maps.register(np.array([0]), np.array([[0.0, 0.0, np.pi / 2]]), np.array([[30.0]]), np.array([0.0]), **reg)
+    hits2, _, (ox2, oy2) = maps.dense(0)
+    r2, c2 = int(math.floor((0.05 - oy2) / 0.1)), int(math.floor((1.0 - ox2) / 0.1))
+    assert hits2[r2, c2] == 1 and hits2.sum() == 2
+    # usable range cuts a beam: free space up to it, no hit
+    maps.register(np.array([0]), np.zeros((1, 3)), np.array([[20.0]]), np.array([np.pi]), max_range=50.0,
+                  usable_range=5.0, generate_map=True)
+    hits3, visits3, _ = maps.dense(0)
+    assert hits3.sum() == 2 and visits3.sum() > visits.sum() + 40
+
+
+# --------------------------------------------------------------------------- scan matcher
+
+
+def test_hill_climb_recovers_a_displaced_pose():
+    """A room mapped from the origin; the matcher started 8 cm / 0.04 rad off finds the origin again."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    # a 6 m x 4 m rectangular room seen from inside
+    c, s = np.cos(angles), np.sin(angles)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
+        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
+    ranges = np.minimum(tx, ty)
+    n = 3
+    maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
+    for _ in range(3):  # a few scans so cells have a stable mean hit point
+        maps.register(np.arange(n), np.zeros((n, 3)), np.broadcast_to(ranges, (n, 720)), angles,
+                      max_range=20.0, usable_range=20.0, generate_map=False)
+    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
+    start = np.array([[0.08, -0.05, 0.04], [-0.06, 0.07, -0.03], [0.0, 0.0, 0.0]])
+    out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
+    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
+                    beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
+                    0.05, 0.05, 5, 0.0, out, score, like, ok)
+    assert ok.all()
+    assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
+    assert np.all(score > 600)  # most of the 720 beams match
+    assert like[2] >= like[0] - 1e-9 or like[2] > -720 * 0.5 / 0.075
+
+
+# --------------------------------------------------------------------------- the method
+
+
+DENSE = dict(delta=0.025, linearUpdate=0.1, angularUpdate=0.1, free_cell_check=True)  # docs: dense simulated logs
+
+
+def test_gmapping_beats_odometry_on_a_short_simulation(arena):
+    frames = _frames(arena / "recording.log.gz")
+    truth = arena / "truth.tum"
+    ate_odo = _ate(get_method("odometry")().run(frames), truth)
+    default = get_method("gmapping")(GMappingParams(particles=15), seed=1).run(frames)
+    assert _ate(default, truth) < 0.5 * ate_odo
+    slam = GMapping(GMappingParams(particles=15, **DENSE), seed=1).run(frames)
+    ate = _ate(slam, truth)
+    assert ate < 0.04 and ate < 0.25 * ate_odo, (ate, ate_odo)
+    t, p = slam.trajectory()
+    assert len(t) == len(frames) and np.all(np.isfinite(p))
+    d = slam.diagnostics
+    updated = np.nan_to_num(d.array("updated")) == 1
+    assert 5 < updated.sum() < len(frames)
+    neff = d.array("neff")[updated]
+    assert np.all((neff >= 1.0 - 1e-9) & (neff <= 15 + 1e-9))
+    assert np.nanmax(d.array("weight_entropy")) <= math.log(15) + 1e-9
+    resampled = np.nan_to_num(d.array("resampled")) == 1
+    assert resampled.sum() == d.counters["resamples"] > 0
+    assert np.all(neff[resampled[updated]] < 0.5 * 15)  # resampled exactly when Neff < resampleThreshold N
+    grid = slam.map()
+    assert grid.occupied().sum() > 200 and grid.observed.sum() > 5 * grid.occupied().sum()
+
+
+def test_same_seed_same_trajectory_bit_for_bit(arena):
+    frames = _frames(arena / "recording.log.gz")[:80]
+    params = GMappingParams(particles=8)
+    a = GMapping(params, seed=7).run(frames).trajectory()[1]
+    b = GMapping(params, seed=7).run(frames).trajectory()[1]
+    c = GMapping(params, seed=8).run(frames).trajectory()[1]
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_gaussian_proposal_tracks_too(arena):
+    frames = _frames(arena / "recording.log.gz")
+    slam = GMapping(GMappingParams(particles=10, proposal="gaussian"), seed=2).run(frames)
+    ate_odo = _ate(get_method("odometry")().run(frames), arena / "truth.tum")
+    assert _ate(slam, arena / "truth.tum") < 0.5 * ate_odo
+
+
+def test_degenerate_input_is_counted_not_fatal():
+    """No odometry at first, scans without a return, a 5 m odometry jump, minutes standing still."""
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    room = np.where(np.abs(angles) < 1.0, 4.0, 2.5)
+
+    def scan(t, ranges):
+        return make_scan(t, ranges, angles[0], angles[1] - angles[0], 0.02, 30.0)
+
+    frames = [Frame(0, scan(0.0, room), None)]
+    t = 0.1
+    for k in range(5):
+        frames.append(Frame(len(frames), scan(t, room), np.array([0.0, 0.0, 0.0])))
+        t += 0.1
+    frames.append(Frame(len(frames), scan(t, np.full(181, np.nan)), np.array([1.2, 0.0, 0.0])))
+    t += 0.1
+    frames.append(Frame(len(frames), scan(t, room), np.array([6.5, 0.0, 0.0])))  # a jump of 5.3 m
+    for k in range(1200):  # two minutes at 10 Hz without moving
+        t += 0.1
+        frames.append(Frame(len(frames), scan(t, room), np.array([6.5, 0.0, 0.0])))
+    slam = GMapping(GMappingParams(particles=5), seed=0).run(frames)
+    counters = slam.diagnostics.counters
+    assert counters["frames_without_odometry"] == 1
+    assert counters["scans_without_valid_beam"] == 1
+    assert counters["odometry_jumps"] == 1
+    assert counters["stationary_frames"] >= 1200
+    times, poses = slam.trajectory()
+    assert len(times) == len(frames) - 1 and np.all(np.isfinite(poses))
+    assert slam.map().occupied().sum() > 0
+
+
+def test_match_failure_falls_back_to_odometry_and_is_counted():
+    """Scans that match nothing (a different room every update) keep the odometry pose."""
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 91)
+    frames = []
+    for k in range(6):
+        ranges = np.full(91, 1.0 + 7.0 * k)
+        frames.append(Frame(k, make_scan(float(k), ranges, angles[0], angles[1] - angles[0], 0.0, 80.0),
+                            np.array([1.5 * k, 0.0, 0.0])))
+    slam = GMapping(GMappingParams(particles=4, srr=0.0, srt=0.0, str=0.0, stt=0.0), seed=0).run(frames)
+    assert slam.diagnostics.counters["match_failures"] == 4 * 5
+    assert np.allclose(slam.trajectory()[1][:, 0], 1.5 * np.arange(6))
+
+
+def test_sensor_model_hook_widens_per_beam_sigma(arena):
+    frames = _frames(arena / "recording.log.gz")[:60]
+    params = GMappingParams(particles=6)
+
+    class Counting(ConstantSigma):
+        calls = 0
+
+        def sigma(self, distance, incidence, material):
+            type(self).calls += 1
+            return super().sigma(distance, incidence, material)
+
+    plain = GMapping(params, seed=3).run(frames)
+    zero = GMapping(params, seed=3, sensor_model=Counting(0.0)).run(frames)
+    assert Counting.calls > 0
+    assert np.array_equal(plain.trajectory()[1], zero.trajectory()[1])  # a zero model changes nothing
+    wide = GMapping(params, seed=3, sensor_model=ConstantSigma(0.3)).run(frames)
+    assert not np.array_equal(plain.trajectory()[1], wide.trajectory()[1])
+
+
+def test_map_outputs_rebuilt_and_best_particle(arena):
+    frames = _frames(arena / "recording.log.gz")[:100]
+    rebuilt = GMapping(GMappingParams(particles=5), seed=4).run(frames)
+    own = GMapping(GMappingParams(particles=5, map_output="best-particle"), seed=4).run(frames)
+    g1, g2 = rebuilt.map(), own.map()
+    # the rebuilt map traces free space; the particles' own maps hold hit cells only (slam_gmapping)
+    assert g1.observed.sum() > 5 * g1.occupied().sum()
+    assert g2.observed.sum() == g2.occupied().sum() > 100
+    # the same walls, cell for cell close
+    from slam2d.eval.map_metrics import obstacle_points
+
+    assert obstacle_points(g1).shape[0] > 100
+
+
+def test_parameters_keep_gmappings_names_and_defaults():
+    p = GMappingParams()
+    expected = dict(particles=30, sigma=0.05, kernelSize=1, lstep=0.05, astep=0.05, iterations=5, lsigma=0.075,
+                    ogain=3.0, lskip=0, minimumScore=0.0, srr=0.1, srt=0.2, str=0.1, stt=0.2, linearUpdate=1.0,
+                    angularUpdate=0.5, temporalUpdate=-1.0, resampleThreshold=0.5, xmin=-100.0, ymin=-100.0,
+                    xmax=100.0, ymax=100.0, delta=0.05, llsamplerange=0.01, llsamplestep=0.01,
+                    lasamplerange=0.005, lasamplestep=0.005, occ_thresh=0.25, maxUrange=None, maxRange=None)
+    for name, value in expected.items():
+        assert getattr(p, name) == value, name
+
+
+@pytest.mark.datasets
+def test_memory_is_shared_between_particles():
+    """On a building-sized log most of every particle's map is shared with the others."""
+    import itertools
+
+    from slam2d.io import open_recording
+
+    frames = list(itertools.islice(open_recording(dataset_file("intel/intel.clf.gz")).frames(), 150))
+    slam = GMapping(GMappingParams(particles=30), seed=0).run(frames)
+    maps = slam._maps
+    # without sharing every particle would hold every tile it references
+    assert maps.tiles_in_use < 0.4 * maps.tile_references
+    used = np.unique(maps.table[maps.table >= 0])
+    assert used.size == maps.tiles_in_use
+    assert np.array_equal(np.bincount(maps.table[maps.table >= 0], minlength=maps.refs.size), maps.refs)
+
+
+def test_cells_hold_gmappings_accumulators():
+    maps = TiledMaps(1, 0.05, (-1, -1, 1, 1))
+    maps.register(np.array([0]), np.zeros((1, 3)), np.array([[0.512, 0.512]]), np.array([0.0, 0.0]),
+                  max_range=10.0, usable_range=10.0, generate_map=False)
+    t = maps.table[0][maps.table[0] >= 0][0]
+    cells = maps.pool[t].reshape(-1, 4)
+    hit = cells[cells[:, HITS] > 0]
+    assert hit.shape[0] == 1 and hit[0, HITS] == 2 and hit[0, VISITS] == 2
+    assert TILE == 32
