@@ -53,7 +53,7 @@ from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
-from slam2d.matching.correlative import CorrelativeMatcher, MatchResult
+from slam2d.matching.correlative import CorrelativeMatcher, GridCache
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 
@@ -235,6 +235,8 @@ class GraphFrontend:
             **common,
         )
         self.backend = get_backend(p.backend)
+        self._seq_cache = GridCache(self.sequential, self._node_reference)
+        self._loop_cache = GridCache(self.loop, self._node_reference)
         self.graph = PoseGraph()
         # Per node: points (base frame), their range sigmas, odometry, time, base-frame barycentre.
         self._points: list[NDArray[np.float64]] = []
@@ -246,6 +248,7 @@ class GraphFrontend:
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
         self.loop_closures: list[LoopClosure] = []
+        self.loop_attempts: list[dict[str, Any]] = []
         self.optimizations: list[dict[str, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
@@ -275,14 +278,13 @@ class GraphFrontend:
             self._world[i] = w
         return w
 
-    def _reference(self, ids: list[int] | NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        ids = list(ids)
-        if not ids:
-            return np.zeros((0, 2)), np.zeros(0)
-        return (
-            np.concatenate([self._world_points(i) for i in ids]),
-            np.concatenate([self._sigmas[i] for i in ids]),
-        )
+    def _node_reference(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return self._world_points(i), self._sigmas[i]
+
+    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine):
+        """Match the query points at ``prior`` against the nodes' scans, through the grid cache."""
+        grid = cache.get(nodes, *matcher.search_box(points, prior))
+        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid)
 
     def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Where each node is for distance tests: barycentre of its points, or the robot position."""
@@ -377,8 +379,8 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            ref, ref_sig = self._reference(self._running)
-            result = self.sequential.match(ref, ref_sig, points, predicted, penalize=True, refine=True)
+            result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
+                                 penalize=True, refine=True)
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
@@ -443,8 +445,7 @@ class GraphFrontend:
             if a <= node < b or not linked[a:b].any() or b - a < p.loop_match_minimum_chain_size:
                 continue
             chain = list(range(a, b))
-            ref, ref_sig = self._reference(chain)
-            result = self.sequential.match(ref, ref_sig, points, pose, penalize=False, refine=True)
+            result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
             if result.response > p.link_match_minimum_response_fine:
                 means.append(result.pose)
                 covs.append(result.covariance)
@@ -468,9 +469,11 @@ class GraphFrontend:
             start = b
             chain = list(range(a, b))
             pose = self.graph.poses[node].copy()
-            ref, ref_sig = self._reference(chain)
-            coarse = self.loop.match(ref, ref_sig, points, pose, penalize=False, refine=False)
+            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False)
             self._count("loop_attempts")
+            attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
+                       "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1])}
+            self.loop_attempts.append(attempt)
             if not (
                 coarse.response > p.loop_match_minimum_response_coarse
                 and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
@@ -478,7 +481,8 @@ class GraphFrontend:
             ):
                 self._count("loop_rejected_coarse")
                 continue
-            fine = self.sequential.match(ref, ref_sig, points, coarse.pose, penalize=False, refine=True)
+            fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
+            attempt["response_fine"] = fine.response
             if fine.response < p.loop_match_minimum_response_fine:
                 self._count("loop_rejected_fine")
                 continue
@@ -504,9 +508,11 @@ class GraphFrontend:
         res = self.backend.optimize(self.graph)
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses
-            self._world = [None] * len(self._world)
         else:
             self._count("optimizer_failures")
+        self._world = [None] * len(self._world)
+        self._seq_cache.invalidate()
+        self._loop_cache.invalidate()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
@@ -533,6 +539,7 @@ class GraphFrontend:
             "nodes": self.graph.num_nodes,
             "edges": self.graph.num_edges,
             "loop_closures": [c.as_dict() for c in self.loop_closures],
+            "loop_attempts": list(self.loop_attempts),
             "optimizations": list(self.optimizations),
         }
 

@@ -97,6 +97,7 @@ class GraphSlam(SlamMethod):
                 "edges": s["edges"],
                 "backend": self.params.backend,
                 "loop_closures": s["loop_closures"],
+                "loop_attempts": s["loop_attempts"],
                 "optimizations": s["optimizations"],
             }
         )

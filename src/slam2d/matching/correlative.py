@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["CorrelativeMatcher", "MatchResult", "smear_points"]
+__all__ = ["CorrelativeMatcher", "GridCache", "MatchResult", "smear_points"]
 
 # Response values are stored as 0..SCALE in a uint8 grid.
 _SCALE = 255.0
@@ -84,34 +84,33 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
     one short row of exp() per point and one product per cell.
     """
     rows, cols = grid.shape
+    if px.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * sigma.max() / resolution))
+    ex = np.empty(2 * widest + 1)
     for k in range(px.shape[0]):
         s = sigma[k]
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
         half = int(math.ceil(2.0 * s / resolution))
-        c0 = cu - half
-        r0 = cv - half
         n = 2 * half + 1
-        ex = np.empty(n)
         inv = resolution / s
         for i in range(n):
             d = (i - half) * inv
-            ex[i] = math.exp(-0.5 * d * d)
-        ey = ex
-        for i in range(n):
-            r = r0 + i
-            if r < 0 or r >= rows:
-                continue
-            wy = ey[i] * _SCALE
-            for j in range(n):
-                c = c0 + j
-                if c < 0 or c >= cols:
-                    continue
-                val = wy * ex[j]
-                if val >= 0.5:
-                    q = np.uint8(min(val + 0.5, _SCALE))
-                    if q > grid[r, c]:
-                        grid[r, c] = q
+            ex[i] = math.exp(-0.5 * d * d) * _SCALE
+        r0 = cv - half
+        c0 = cu - half
+        i_lo = max(0, -r0)
+        i_hi = min(n, rows - r0)
+        j_lo = max(0, -c0)
+        j_hi = min(n, cols - c0)
+        for i in range(i_lo, i_hi):
+            wy = ex[i] / _SCALE
+            row = grid[r0 + i]
+            for j in range(j_lo, j_hi):
+                q = np.uint8(wy * ex[j] + 0.5)
+                if q > row[c0 + j]:
+                    row[c0 + j] = q
 
 
 @njit(cache=True)
@@ -321,23 +320,56 @@ class CorrelativeMatcher:
             base = np.sqrt(base * base + b * b)
         return np.clip(base, 0.5 * self.resolution, 10.0 * self.resolution)
 
+    def query_box(
+        self, query_points: NDArray[np.float64], prior: NDArray[np.float64], angle_offset: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """World box (lo, hi) every query point can reach in the search window around ``prior``."""
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
+        angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+        x = c * q[None, :, 0] - s * q[None, :, 1]
+        y = s * q[None, :, 0] + c * q[None, :, 1]
+        reach = float(np.sqrt((q * q).sum(axis=1)).max(initial=0.0))
+        # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
+        pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
+        lo = np.array([x.min(), y.min()]) + prior[:2] - pad
+        hi = np.array([x.max(), y.max()]) + prior[:2] + pad
+        return lo, hi
+
+    def search_box(self, query_points: NDArray[np.float64], prior: NDArray[np.float64]):
+        """The world box the query can reach in this matcher's full window (with response expansion)."""
+        widest = self.coarse_angle_offset + (math.radians(60.0) if self.response_expansion else 0.0)
+        return self.query_box(query_points, np.asarray(prior, dtype=np.float64), widest)
+
+    def _sig(self, ref, ref_sigmas):
+        if ref_sigmas is None:
+            return self.sigmas_for(None, ref.shape[0])
+        return np.asarray(ref_sigmas, dtype=np.float64)
+
     def correlation_grid(
         self,
         ref_points: NDArray[np.float64],
         ref_sigmas: NDArray[np.float64],
-        center: NDArray[np.float64],
-        reach: float,
+        lo: NDArray[np.float64],
+        hi: NDArray[np.float64],
+        *,
+        clip: bool = True,
     ) -> tuple[NDArray[np.uint8], float, float]:
-        """The smeared grid of the reference points that the query can reach: (grid, origin_x, origin_y)."""
+        """The smeared grid of the reference points inside the world box (lo, hi): (grid, origin_x, origin_y).
+
+        ``clip`` shrinks the box to the reference points' own extent (smaller
+        grid); a grid that will be extended later (:class:`GridCache`) keeps it.
+        """
         res = self.resolution
         margin = 2.0 * float(ref_sigmas.max(initial=self.smear_deviation)) + 2.0 * res
-        lo = center[:2] - reach
-        hi = center[:2] + reach
+        lo = np.asarray(lo, dtype=np.float64).copy()
+        hi = np.asarray(hi, dtype=np.float64).copy()
         if ref_points.shape[0]:
             keep = np.all((ref_points >= lo - margin) & (ref_points <= hi + margin), axis=1)
             ref_points = ref_points[keep]
             ref_sigmas = ref_sigmas[keep]
-        if ref_points.shape[0]:
+        if ref_points.shape[0] and clip:
             lo = np.maximum(lo, ref_points.min(axis=0) - margin)
             hi = np.minimum(hi, ref_points.max(axis=0) + margin)
         hi = np.maximum(hi, lo + res)
@@ -345,10 +377,13 @@ class CorrelativeMatcher:
         shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
         grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
         if ref_points.shape[0]:
+            # Row order keeps the smear's writes in cache (scans overlap in space, not in memory).
+            order = np.argsort(np.floor((ref_points[:, 1] - origin[1]) / res), kind="stable")
+            pts = ref_points[order]
             smear_points(
                 grid, float(origin[0]), float(origin[1]), res,
-                np.ascontiguousarray(ref_points[:, 0]), np.ascontiguousarray(ref_points[:, 1]),
-                np.ascontiguousarray(ref_sigmas),
+                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                np.ascontiguousarray(ref_sigmas[order]),
             )
         return grid, float(origin[0]), float(origin[1])
 
@@ -426,7 +461,7 @@ class CorrelativeMatcher:
 
     def match(
         self,
-        ref_points: NDArray[np.float64],
+        ref_points: NDArray[np.float64] | None,
         ref_sigmas: NDArray[np.float64] | None,
         query_points: NDArray[np.float64],
         prior: NDArray[np.float64],
@@ -444,13 +479,12 @@ class CorrelativeMatcher:
         """
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
-        ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
-        if q.shape[0] == 0 or ref.shape[0] == 0 or not np.all(np.isfinite(prior)):
+        ref = np.zeros((0, 2)) if ref_points is None else np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        empty = grid is None and ref.shape[0] == 0
+        if q.shape[0] == 0 or empty or not np.all(np.isfinite(prior)):
             return MatchResult(prior.copy(), np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE]), 0.0, 0.0, 0)
         if grid is None:
-            sig = self.sigmas_for(None, ref.shape[0]) if ref_sigmas is None else np.asarray(ref_sigmas, np.float64)
-            reach = float(np.sqrt((q * q).sum(axis=1)).max()) + 0.5 * self.search_size
-            grid = self.correlation_grid(ref, sig, prior, reach)
+            grid = self.correlation_grid(ref, self._sig(ref, ref_sigmas), *self.search_box(q, prior))
         g, ox, oy = grid
         origin = (ox, oy)
         res = self.resolution
@@ -489,3 +523,71 @@ class CorrelativeMatcher:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups))
+
+
+class GridCache:
+    """Correlation grids kept between matches, extended scan by scan instead of rebuilt.
+
+    The sequential matcher's reference set (the running scans) and a near
+    chain change by a scan or two from one kept scan to the next, while
+    smearing them costs as much as the search. An entry holds a grid over a
+    world box (the query's reach plus ``margin``) and the nodes drawn into it;
+    a request for a node set whose box fits and which differs from the entry
+    only by nodes to add, and by at most ``max_extra`` nodes drawn but no
+    longer asked for, smears just the new nodes. The grid is therefore a
+    superset of the asked-for scans by at most ``max_extra`` neighbouring
+    scans (Karto rebuilds it every time; the difference is a slightly longer
+    buffer). ``invalidate()`` (after an optimisation moved the nodes) drops
+    everything.
+    """
+
+    def __init__(self, matcher: CorrelativeMatcher, points_of, *, margin: float = 1.0,
+                 max_extra: int = 10, max_entries: int = 6) -> None:
+        self.matcher = matcher
+        self.points_of = points_of  # node -> (world points (N, 2), sigmas (N,))
+        self.margin = float(margin)
+        self.max_extra = int(max_extra)
+        self.max_entries = int(max_entries)
+        self._entries: list[dict] = []
+        self.builds = 0
+        self.extensions = 0
+
+    def invalidate(self) -> None:
+        self._entries.clear()
+
+    def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
+        wanted = set(int(n) for n in nodes)
+        for k, e in enumerate(self._entries):
+            if not (np.all(lo >= e["lo"]) and np.all(hi <= e["hi"])):
+                continue
+            have = e["nodes"]
+            if not (have & wanted) or len(have - wanted) > self.max_extra:
+                continue
+            missing = sorted(wanted - have)
+            if missing:
+                pts, sig = self._gather(missing)
+                grid, ox, oy = e["grid"]
+                order = np.argsort(np.floor((pts[:, 1] - oy) / self.matcher.resolution), kind="stable")
+                smear_points(grid, ox, oy, self.matcher.resolution,
+                             np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
+                             np.ascontiguousarray(sig[order]))
+                have.update(missing)
+                self.extensions += 1
+            self._entries.insert(0, self._entries.pop(k))
+            return e["grid"]
+        pts, sig = self._gather(sorted(wanted))
+        blo, bhi = lo - self.margin, hi + self.margin
+        grid = self.matcher.correlation_grid(pts, sig, blo, bhi, clip=False)
+        # The grid's true extent (whole cells) bounds what later requests may ask for.
+        ox, oy = grid[1], grid[2]
+        rows, cols = grid[0].shape
+        res = self.matcher.resolution
+        self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
+                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res])})
+        del self._entries[self.max_entries:]
+        self.builds += 1
+        return grid
+
+    def _gather(self, nodes: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        parts = [self.points_of(n) for n in nodes]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
