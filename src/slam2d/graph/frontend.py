@@ -116,6 +116,16 @@ class GraphSlamParams(GridParams):
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
     )
+    loop_match_maximum_correction: float = param(
+        0.5, unit="m", low=0.0,
+        help="a loop closure may move the new scan at most this far plus loop_match_maximum_drift times "
+        "the path travelled since the chain (not in Karto: rejects look-alike places far from the estimate)",
+    )
+    loop_match_maximum_drift: float = param(
+        0.02, unit="m/m", low=0.0,
+        help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
+        "(not in Karto); inf turns the gate off",
+    )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
     )
@@ -268,6 +278,10 @@ class GraphFrontend:
     def kept_scans(self) -> list[Any]:
         return self._scans
 
+    def odometry_at_nodes(self) -> NDArray[np.float64]:
+        """The odometry pose of every node's scan, (N, 3)."""
+        return np.asarray(self._odom, dtype=np.float64).reshape(-1, 3)
+
     def node_times(self) -> NDArray[np.float64]:
         return np.asarray(self._times, dtype=np.float64)
 
@@ -417,6 +431,11 @@ class GraphFrontend:
         self.anchor, self.offset = node, np.zeros(3)
         return values
 
+    def _path_length(self, i: int, j: int) -> float:
+        """Distance the robot travelled from node i to node j along the graph's current poses."""
+        xy = self.graph.poses[i : j + 1, :2]
+        return float(np.hypot(*np.diff(xy, axis=0).T).sum()) if j > i else 0.0
+
     def _trim_running(self) -> None:
         p = self.params
         while len(self._running) > p.scan_buffer_size:
@@ -471,9 +490,15 @@ class GraphFrontend:
             pose = self.graph.poses[node].copy()
             coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False)
             self._count("loop_attempts")
+            correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
+            path = self._path_length(b - 1, node)
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
-                       "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1])}
+                       "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
+                       "correction_m": correction, "path_m": path}
             self.loop_attempts.append(attempt)
+            if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
+                self._count("loop_rejected_drift")
+                continue
             if not (
                 coarse.response > p.loop_match_minimum_response_coarse
                 and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse

@@ -71,8 +71,26 @@ class GraphSlam(SlamMethod):
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if not self._anchor:
             return np.zeros(0), np.zeros((0, 3))
-        poses = self.frontend.graph.poses[np.asarray(self._anchor)]
-        return np.asarray(self._frame_times), se2.compose(poses, np.stack(self._offset))
+        fe = self.frontend
+        nodes = fe.graph.poses
+        anchor = np.asarray(self._anchor)
+        offset = np.stack(self._offset)
+        dead_reckoned = se2.compose(nodes[anchor], offset)
+        # Between two nodes, spread the correction the next node got over the frames in between
+        # (by the share of the odometry motion done), instead of dead reckoning to the jump.
+        inner = anchor < len(nodes) - 1
+        if np.any(inner):
+            k = anchor[inner]
+            odom = np.asarray(fe.odometry_at_nodes())
+            step = se2.relative(odom[k], odom[k + 1])
+            correction = se2.relative(se2.compose(nodes[k], step), nodes[k + 1])
+            done = np.hypot(offset[inner, 0], offset[inner, 1]) + np.abs(offset[inner, 2])
+            total = np.hypot(step[:, 0], step[:, 1]) + np.abs(step[:, 2])
+            share = np.clip(np.divide(done, total, out=np.zeros_like(done), where=total > 1e-12), 0.0, 1.0)
+            dead_reckoned[inner] = se2.compose(
+                dead_reckoned[inner], se2.interpolate(np.zeros_like(correction), correction, share)
+            )
+        return np.asarray(self._frame_times), dead_reckoned
 
     def map(self) -> OccupancyGrid:
         fe = self.frontend

@@ -200,8 +200,13 @@ def _max_pool(grid, width):
 
 
 @njit(cache=True)
-def _block_bounds(pooled, rows, cols, n_blocks, block_cells):
-    """Upper bound (sum) of the response of every block of translations, (angles, nb, nb)."""
+def _block_bounds(pooled, rows, cols, n_blocks, block_cells, width):
+    """Upper bound (sum) of the response of every block of translations, (angles, nb, nb).
+
+    ``pooled[r, c]`` is the max of ``grid[r:r + width, c:c + width]``; a block
+    whose cells start before the grid's edge reads the pooled value at the
+    edge, which still covers every cell of the block inside the grid.
+    """
     na = rows.shape[0]
     g_rows, g_cols = pooled.shape
     out = np.zeros((na, n_blocks, n_blocks))
@@ -209,12 +214,13 @@ def _block_bounds(pooled, rows, cols, n_blocks, block_cells):
         for k in range(rows.shape[1]):
             for bi in range(n_blocks):
                 r = rows[a, k] + bi * block_cells
-                if r < 0 or r >= g_rows:
+                if r + width <= 0 or r >= g_rows:
                     continue
+                r = max(r, 0)
                 for bj in range(n_blocks):
                     c = cols[a, k] + bj * block_cells
-                    if c >= 0 and c < g_cols:
-                        out[a, bi, bj] += pooled[r, c]
+                    if c + width > 0 and c < g_cols:
+                        out[a, bi, bj] += pooled[r, max(c, 0)]
     return out
 
 
@@ -410,8 +416,9 @@ class CorrelativeMatcher:
         else:
             block = _BLOCK
             n_blocks = (n_steps + block - 1) // block
-            pooled = _max_pool(grid, (block - 1) * step + 1)
-            bounds = _block_bounds(pooled, rows, cols, n_blocks, block * step)
+            width = (block - 1) * step + 1
+            pooled = _max_pool(grid, width)
+            bounds = _block_bounds(pooled, rows, cols, n_blocks, block * step, width)
             flat = bounds.reshape(-1)
             order = np.argsort(-flat, kind="stable")
             band = _COVARIANCE_BAND + 1e-9
@@ -455,7 +462,15 @@ class CorrelativeMatcher:
         cov[0, 0] = max((w * dx * dx).sum() / norm, floor)
         cov[1, 1] = max((w * dy * dy).sum() / norm, floor)
         cov[0, 1] = cov[1, 0] = (w * dx * dy).sum() / norm
-        return cov / best
+        cov /= best
+        if mask[0, :].any() or mask[-1, :].any() or mask[:, 0].any() or mask[:, -1].any():
+            # The good responses run into the window's edge (a corridor, a wall): the spread seen
+            # inside the window understates the uncertainty, so along the spread's main axis it
+            # is taken as at least the whole window (Karto keeps the truncated spread).
+            vals, vecs = np.linalg.eigh(cov)
+            vals[-1] = max(vals[-1], self.search_size**2)
+            cov = (vecs * vals) @ vecs.T
+        return cov
 
     # ----------------------------------------------------------------- the match
 
