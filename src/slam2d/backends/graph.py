@@ -216,40 +216,34 @@ def graph_cost(poses: NDArray, ei: NDArray, ej: NDArray, z: NDArray, info: NDArr
 def edge_jacobians(
     poses: NDArray, ei: NDArray, ej: NDArray, z: NDArray
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Errors ``(M, 3)`` and Jacobians ``A = de/dx_i``, ``B = de/dx_j`` ``(M, 3, 3)``.
+    """Errors ``(M, 3)`` and Jacobians ``A = de/d delta_i``, ``B = de/d delta_j`` ``(M, 3, 3)``.
 
-    With ``e_t = R_z^T (R_i^T (t_j - t_i) - z_t)`` and ``e_theta = theta_j - theta_i - z_theta``
-    the derivatives are closed-form; the angle wrap has derivative 1 away from its cut.
+    The perturbation of a node is local (right-multiplied): ``X <- X (+) delta``,
+    i.e. ``se2.compose(x, delta)``, as GTSAM and g2o retract on SE(2). With
+    ``D = X_i^-1 X_j`` and ``e = t2v(Z^-1 D)``:
+    ``de_t/d delta_i = [-R_z^T | R_z^T (t_Dy, -t_Dx)]``, ``de_t/d delta_j = [R_z^T R_D | 0]``,
+    ``de_theta/d delta = -1, +1``. This converges in far fewer iterations than
+    adding ``delta`` to world coordinates, whose linearisation of a rotated
+    sub-chain is poor.
     """
-    xi = poses[ei]
-    xj = poses[ej]
-    ci, si = np.cos(xi[:, 2]), np.sin(xi[:, 2])
+    d = se2.relative(poses[ei], poses[ej])
+    e = se2.relative(z, d)
     cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
-    dx = xj[:, 0] - xi[:, 0]
-    dy = xj[:, 1] - xi[:, 1]
-    # d = R_i^T (t_j - t_i) and its derivative by theta_i
-    d0 = ci * dx + si * dy
-    d1 = -si * dx + ci * dy
-    dd0 = -si * dx + ci * dy  # = d1
-    dd1 = -ci * dx - si * dy  # = -d0
-    u0 = d0 - z[:, 0]
-    u1 = d1 - z[:, 1]
     m = z.shape[0]
-    e = np.empty((m, 3))
-    e[:, 0] = cz * u0 + sz * u1
-    e[:, 1] = -sz * u0 + cz * u1
-    e[:, 2] = se2.wrap_angle(xj[:, 2] - xi[:, 2] - z[:, 2])
-    # M = R_z^T R_i^T = R(theta_i + theta_z)^T
-    c = np.cos(xi[:, 2] + z[:, 2])
-    s = np.sin(xi[:, 2] + z[:, 2])
-    B = np.zeros((m, 3, 3))
-    B[:, 0, 0] = c
-    B[:, 0, 1] = s
-    B[:, 1, 0] = -s
-    B[:, 1, 1] = c
-    B[:, 2, 2] = 1.0
-    A = -B
-    A[:, 0, 2] = cz * dd0 + sz * dd1
-    A[:, 1, 2] = -sz * dd0 + cz * dd1
+    A = np.zeros((m, 3, 3))
+    A[:, 0, 0] = -cz
+    A[:, 0, 1] = -sz
+    A[:, 1, 0] = sz
+    A[:, 1, 1] = -cz
+    A[:, 0, 2] = cz * d[:, 1] - sz * d[:, 0]
+    A[:, 1, 2] = -sz * d[:, 1] - cz * d[:, 0]
     A[:, 2, 2] = -1.0
+    # R_z^T R_D = R(theta_D - theta_z) = R(e_theta)
+    ce, se_ = np.cos(e[:, 2]), np.sin(e[:, 2])
+    B = np.zeros((m, 3, 3))
+    B[:, 0, 0] = ce
+    B[:, 0, 1] = -se_
+    B[:, 1, 0] = se_
+    B[:, 1, 1] = ce
+    B[:, 2, 2] = 1.0
     return e, A, B

@@ -22,22 +22,28 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam2d.backends.base import Backend, OptimizationResult
-from slam2d.backends.graph import PoseGraph, edge_errors, edge_jacobians
-from slam2d.backends.linear import BlockPattern, SparseSolver
+from slam2d.backends.graph import PoseGraph, edge_errors
+from slam2d.backends.linear import KERNELS, SOLVERS, BlockPattern, LinearSolver, assemble_normal_equations
 from slam2d.core import se2
 from slam2d.params import param
 
 __all__ = ["SpaParams", "SpaBackend", "robust_weights", "robust_objective"]
 
+# damping never drops below this: keeps parts of a graph not tied to the fixed node solvable
+_MIN_LAMBDA = 1e-12
+
 
 @dataclass
 class SpaParams:
     max_iterations: int = param(40, low=1, help="most Levenberg-Marquardt iterations (Karto: doSPA(40))")
-    initial_lambda: float = param(1e-4, low=0.0, help="initial LM damping, multiplies diag(H) (Karto's sba default 1e-4)")
-    lambda_factor: float = param(10.0, low=1.0001, help="LM damping grows by this factor after a rejected step and shrinks after an accepted one")
+    initial_lambda: float = param(1e-5, low=0.0, help="initial LM damping (GTSAM 1e-5; Karto's sba 1e-4 with diagonal damping)")
+    damping: str = param(
+        "identity", choices=("identity", "diagonal"),
+        help="LM damping added to H: lambda*I (as GTSAM; does not hold back weakly constrained sub-graphs) or lambda*diag(H) (Marquardt, as Karto's sba)",
+    )
     max_lambda: float = param(1e12, low=0.0, help="give up when the damping exceeds this (no descent step exists)")
     relative_tolerance: float = param(
-        1e-8, low=0.0, help="converged when an accepted step lowers the objective by less than this fraction (Karto: initTol 1e-8)"
+        1e-6, low=0.0, help="converged when an accepted step lowers the objective by less than this fraction (Ceres' function_tolerance)"
     )
     step_tolerance: float = param(1e-9, low=0.0, help="converged when the largest step component is below this [m or rad]")
     robust_kernel: str = param("none", choices=("none", "huber", "cauchy"), help="robust kernel on the Mahalanobis distance of each edge")
@@ -45,7 +51,8 @@ class SpaParams:
         1.0, low=1e-12, help="kernel width in units of the Mahalanobis distance (Huber: quadratic below it; Cauchy: scale c)"
     )
     linear_solver: str = param(
-        "auto", choices=("auto", "cholmod", "splu"), help="sparse solver: CHOLMOD (scikit-sparse, optional) or scipy SuperLU; auto picks CHOLMOD when installed"
+        "auto", choices=SOLVERS,
+        help="sparse solver: block (compiled block Cholesky; auto), splu (scipy SuperLU) or cholmod (needs scikit-sparse)",
     )
 
 
@@ -101,57 +108,60 @@ class SpaBackend(Backend):
                 objective_before=obj, objective_after=obj, message="nothing to optimise",
             )
         pattern = BlockPattern(ei, ej, n, int(graph.fixed))
-        solver = SparseSolver(p.linear_solver)
+        solver = LinearSolver(p.linear_solver, pattern)
+        data = np.zeros(pattern.nnz)
+        g = np.zeros(pattern.size)
+        kcode = KERNELS[kernel]
+        info = np.ascontiguousarray(info)
         lam = p.initial_lambda
+        nu = 2.0
         converged = False
         message = "iteration limit"
         it = 0
         solves = 0
         rejected = 0
+        history = [obj]
         while it < p.max_iterations:
             it += 1
-            e, A, B = edge_jacobians(x, ei, ej, z)
-            if kernel != "none":
-                chi2 = np.einsum("ki,kij,kj->k", e, info, e)
-                W = info * robust_weights(chi2, kernel, delta)[:, None, None]
+            assemble_normal_equations(x, ei, ej, z, info, pattern.slots, pattern.gslots, kcode, delta, data, g)
+            diag = data[pattern.diag_slot]
+            if p.damping == "diagonal":
+                # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
+                damp_base = np.maximum(diag, 1e-9 * max(float(diag.max()), 1.0))
             else:
-                W = info
-            WA = W @ A
-            WB = W @ B
-            At = np.swapaxes(A, 1, 2)
-            Bt = np.swapaxes(B, 1, 2)
-            blocks = np.stack([At @ WA, At @ WB, Bt @ WA, Bt @ WB], axis=1)
-            H = pattern.matrix(blocks)
-            We = np.einsum("kij,kj->ki", W, e)
-            g = pattern.vector(np.stack([np.einsum("kji,kj->ki", A, We), np.einsum("kji,kj->ki", B, We)], axis=1))
-            diag = H.diagonal()
-            # Marquardt scaling; the small absolute term keeps nodes without constraints solvable
-            damp_base = np.maximum(diag, 1e-9 * max(float(diag.max()), 1.0))
+                damp_base = np.ones_like(diag)
             accepted = False
             while lam <= p.max_lambda:
-                Hd = H.copy()
-                Hd.data[pattern.diag_slot] += lam * damp_base + 1e-12
                 solves += 1
                 try:
-                    dx = pattern.expand(solver.solve(Hd, -g))
+                    d = solver.solve(data, lam * damp_base, -g)
                 except np.linalg.LinAlgError:
-                    lam = max(lam, 1e-9) * p.lambda_factor
+                    lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
                     continue
-                x_new = x + dx
-                x_new[:, 2] = se2.wrap_angle(x_new[:, 2])
+                if not np.all(np.isfinite(d)):
+                    lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
+                    continue
+                dx = pattern.expand(d)
+                x_new = se2.compose(x, dx)
                 obj_new, cost_new = objective(x_new)
+                # decrease the quadratic model predicts, -(2 g.d + d^T H d), with (H + lambda D) d = -g
+                predicted = -float(g @ d) + lam * float(damp_base @ (d * d))
                 if np.isfinite(obj_new) and obj_new <= obj:
                     accepted = True
                     break
                 rejected += 1
-                lam = max(lam, 1e-9) * p.lambda_factor
+                lam, nu = max(lam, _MIN_LAMBDA) * nu, 2.0 * nu
             if not accepted:
                 converged = True  # no descent direction at any damping: a (local) minimum
                 message = "no further decrease at any damping"
                 break
             decrease = obj - obj_new
+            # Nielsen's damping update from the gain ratio (actual / predicted decrease)
+            rho = decrease / predicted if predicted > 0 else 0.0
+            lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), _MIN_LAMBDA)
+            nu = 2.0
             x, obj, cost = x_new, obj_new, cost_new
-            lam /= p.lambda_factor
+            history.append(obj)
             step = float(np.abs(dx).max())
             if decrease <= p.relative_tolerance * max(obj + decrease, 1e-300) or step < p.step_tolerance:
                 converged = True
@@ -161,5 +171,5 @@ class SpaBackend(Backend):
             poses=x, cost_before=cost0, cost_after=cost, iterations=it, converged=converged,
             wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
             objective_before=obj0, objective_after=obj, message=message,
-            extra={"linear_solves": solves, "rejected_steps": rejected, "final_lambda": lam, "linear_solver": solver.kind},
+            extra={"objective_history": history, "linear_solves": solves, "rejected_steps": rejected, "final_lambda": lam, "linear_solver": solver.kind},
         )
