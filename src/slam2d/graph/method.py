@@ -120,6 +120,16 @@ class GraphSlam(SlamMethod):
             }
         )
 
+    def extra_outputs(self, out_dir: Any) -> list[Any]:
+        """``graph.g2o``: the optimised pose graph (g2o's VERTEX_SE2 / EDGE_SE2)."""
+        from pathlib import Path
+
+        from slam2d.io.pose_graph import write_g2o
+
+        path = Path(out_dir) / "graph.g2o"
+        write_g2o(path, self.frontend.graph)
+        return [path]
+
     def pose_graph(self) -> PoseGraph:
         """The pose graph (nodes at their optimised poses): write it with ``slam2d.io.pose_graph``."""
         return self.frontend.graph

@@ -464,12 +464,16 @@ class CorrelativeMatcher:
         cov[0, 1] = cov[1, 0] = (w * dx * dy).sum() / norm
         cov /= best
         if mask[0, :].any() or mask[-1, :].any() or mask[:, 0].any() or mask[:, -1].any():
-            # The good responses run into the window's edge (a corridor, a wall): the spread seen
-            # inside the window understates the uncertainty, so along the spread's main axis it
-            # is taken as at least the whole window (Karto keeps the truncated spread).
+            # The good responses run along the spread's main axis through at least half the
+            # window and into its edge (a corridor): the spread seen inside the window
+            # understates the uncertainty, so along that axis it is taken as at least the whole
+            # window (Karto keeps the truncated spread). A peak that merely sits near the edge
+            # is left alone.
             vals, vecs = np.linalg.eigh(cov)
-            vals[-1] = max(vals[-1], self.search_size**2)
-            cov = (vecs * vals) @ vecs.T
+            along = (dx * vecs[0, -1] + dy * vecs[1, -1])[mask]
+            if along.max() - along.min() >= 0.5 * self.search_size:
+                vals[-1] = max(vals[-1], self.search_size**2)
+                cov = (vecs * vals) @ vecs.T
         return cov
 
     # ----------------------------------------------------------------- the match
