@@ -74,6 +74,16 @@ class GraphSlamParams(GridParams):
 
     backend: str = param("spa", choices=("spa", "lago", "gtsam"), help="pose-graph optimiser run after each loop closure")
     use_scan_matching: bool = param(True, help="match scans (off: nodes at the odometry pose) [UseScanMatching]")
+    minimum_match_response: float = param(
+        0.0, low=0.0, high=1.0,
+        help="a sequential match responding below this is not used: the odometry step is kept instead "
+        "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
+    )
+    point_spacing: float = param(
+        0.0, unit="m", low=0.0,
+        help="keep one scan point per square of this side before matching (not in Karto): near clutter "
+        "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
+    )
     use_scan_barycenter: bool = param(
         True, help="measure distances between scans from the centroid of their points, not the robot [UseScanBarycenter]"
     )
@@ -389,6 +399,8 @@ class GraphFrontend:
             return None
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
+        if p.point_spacing > 0:
+            points, sigmas = _thin(points, sigmas, p.point_spacing)
         values: dict[str, float] = {}
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
@@ -398,11 +410,14 @@ class GraphFrontend:
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
-            if result.response <= 0.0:
+            if result.response < p.minimum_match_response:
+                # The scan does not fit the running scans (clutter, people, a new room seen from
+                # its door): trust the odometry for this step, with an odometry-like uncertainty.
                 self._count("match_failures")
                 pose = predicted
+                cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
         elif last >= 0:
-            cov = np.diag([0.01, 0.01, 0.001])
+            cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
         node = self.graph.add_node(pose)
         self._points.append(points)
         self._sigmas.append(sigmas)
@@ -570,6 +585,17 @@ class GraphFrontend:
 
 
 MAX_COV = 500.0
+# Uncertainty of an edge that holds the odometry step (scan matching off or failed).
+ODOMETRY_SIGMA_XY = 0.1  # m
+ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad
+
+
+def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: float):
+    """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
+    cells = np.floor(points / spacing).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    keep = np.sort(first)
+    return points[keep], sigmas[keep]
 
 
 def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float64]]) -> NDArray[np.float64]:
