@@ -457,6 +457,59 @@ def gmapping_compile(workdir: Path) -> tuple[float, str]:
     return first - again, f"first run {first:.1f} s minus a compiled rerun {again:.2f} s"
 
 
+def _karto_on(log: str, reference: str | None) -> tuple[float, str]:
+    """karto over a whole log (reading excluded): wall and CPU seconds, ATE against the reference."""
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.io import open_recording
+    from slam2d.io.tum import read_tum
+    from slam2d.methods import get_method
+
+    frames = list(open_recording(DATA / log).frames())
+    slam = get_method("karto")()
+    t0, c0 = time.perf_counter(), time.process_time()
+    slam.run(frames)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    summary = slam.diagnostics.summary
+    note = f"cpu {cpu:.2f} s, {summary['nodes']} nodes, {len(summary['loop_closures'])} loop closures"
+    if reference is not None:
+        rt, rp = read_tum(DATA / reference)
+        t, p = slam.trajectory()
+        ate = absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
+        note += f", ATE {ate:.3f} m vs reference.tum"
+    return wall, note
+
+
+def karto_intel(_: Path) -> tuple[float, str]:
+    return _karto_on("intel/intel.clf.gz", "intel/reference.tum")
+
+
+def karto_fr079(_: Path) -> tuple[float, str]:
+    return _karto_on("fr079/fr079.clf.gz", "fr079/reference.tum")
+
+
+def karto_loop_precision(_: Path) -> tuple[float, str]:
+    """Loop-closure precision of karto in simulation: closures within 0.2 m and 1 deg of the truth."""
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.graph.evaluation import loop_closure_precision
+    from slam2d.methods import get_method
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    t0 = time.perf_counter()
+    total = correct = 0
+    notes = []
+    for world, duration in (("corridor-loop", 125.0), ("office", 170.0)):
+        for seed in (1, 2, 3):
+            sim = simulate(world, SimulationParams(duration=duration, seed=seed))
+            slam = get_method("karto")().run(sim.frames())
+            prec = loop_closure_precision(slam.diagnostics.summary["loop_closures"], sim.scan_times, sim.scan_truth)
+            t, p = slam.trajectory()
+            ate = absolute_trajectory_error(associate(t, p, sim.scan_times, sim.scan_truth))["translation_m"]["rmse"]
+            total += prec["closures"]
+            correct += prec["correct"]
+            notes.append(f"{world}/{seed}: {prec['correct']}/{prec['closures']}, ATE {ate:.3f} m")
+    share = correct / total if total else float("nan")
+    return time.perf_counter() - t0, f"precision {correct}/{total} = {share:.1%}; " + "; ".join(notes)
+
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
          simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
@@ -513,6 +566,13 @@ CASES: list[Case] = [
          needs=(SHARED,), repeat=1),
     Case("gmapping-compile", "cold numba compile of gmapping's kernels (filter and map rebuild)",
          gmapping_compile, warmup=False, repeat=1, needs=(SHARED,)),
+    Case("karto-intel", "`karto` over intel (910 scans, reading excluded); ATE vs reference.tum in the notes",
+         karto_intel, target="< 4 s wall, ATE < 0.10 m", max_seconds=4.0, needs=(SHARED,), repeat=1),
+    Case("karto-fr079", "`karto` over fr079 (4791 scans, reading excluded); ATE vs reference.tum in the notes",
+         karto_fr079, target="< 6 s wall, ATE < 0.20 m", max_seconds=6.0, needs=(SHARED,), warmup=False,
+         repeat=1),
+    Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
+         "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

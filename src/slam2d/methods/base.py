@@ -149,6 +149,10 @@ class SlamMethod(ABC):
     def finish(self) -> None:  # noqa: B027 - optional hook
         """Called once after the last frame (a final optimisation, picking the best particle...)."""
 
+    def extra_outputs(self, out_dir: Any) -> list[Any]:
+        """Write method-specific files into a run folder (a pose graph...); return their paths."""
+        return []
+
     # ----------------------------------------------------------------- what every method gets
 
     def feed(self, frame: Frame) -> None:

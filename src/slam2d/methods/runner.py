@@ -246,6 +246,7 @@ def _write_run(
         )
     written = [write_tum(out_dir / "trajectory.tum", times, poses)]
     written += write_map_outputs(slam.map(), out_dir)
+    written += slam.extra_outputs(out_dir)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
     diag = {"method": slam.name, "descriptions": dict(slam.DIAGNOSTICS), **slam.diagnostics.as_dict()}
     diag_path = out_dir / "diagnostics.json"

@@ -1,0 +1,613 @@
+"""Karto's graph SLAM front end: scans become pose-graph nodes linked by correlative matches.
+
+For every scan (:meth:`GraphFrontend.process`):
+
+1. *Predict*: the last node's pose plus the odometry moved since it.
+2. *Gate* (Karto's ``HasMovedEnough``): keep the scan only if it moved at
+   least ``minimum_travel_distance`` or turned ``minimum_travel_heading``
+   since the last kept scan, or ``minimum_time_interval`` passed. Other
+   scans get the predicted pose and no node.
+3. *Sequential match* against the *running scans* (the last
+   ``scan_buffer_size`` kept scans within ``scan_buffer_maximum_scan_distance``),
+   with the distance and angle penalty.
+4. *Add the node*; link it to the previous node and to the closest running
+   scan (``LinkChainToScan``); match it against each *near chain* (older
+   passes within ``link_scan_maximum_distance`` already connected to it in
+   the graph, not penalised) and link those that respond above
+   ``link_match_minimum_response_fine``. The node's pose is the
+   information-weighted mean of these matches.
+5. *Loop closure* (``TryCloseLoop``): candidate chains are runs of
+   consecutive older scans within ``loop_search_maximum_distance`` that are
+   *not* reachable in the graph through scans within that distance, at least
+   ``loop_match_minimum_chain_size`` long. Each is matched over the wide
+   loop window (coarse only, no penalty) and accepted if the response
+   exceeds ``loop_match_minimum_response_coarse`` and the x and y variances
+   are below ``loop_match_maximum_variance_coarse``; then refined with the
+   sequential matcher (no penalty) and accepted if the response reaches
+   ``loop_match_minimum_response_fine``. Every accepted closure links the
+   chain and runs the back end over the whole graph.
+
+Distances between scans use each scan's barycentre (Karto's
+``UseScanBarycenter``). Edge covariances from the matcher are in the world
+frame and are rotated into the first node's frame, as Karto's ``LinkInfo``
+does, before they become information matrices.
+
+All poses are robot base poses; the scan points are stored in the base frame
+(``scan.points_in_base()``), so a laser mounted off-centre needs nothing
+special.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order
+
+from slam2d.backends import PoseGraph, get_backend
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.matching.correlative import CorrelativeMatcher, GridCache
+from slam2d.params import param
+from slam2d.sensors.beam_model import beam_sigmas
+
+__all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
+
+_DEG = math.pi / 180.0
+
+
+@dataclass
+class GraphSlamParams(GridParams):
+    """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
+
+    Squared quantities are given squared (m^2, rad^2) and angles in radians:
+    open_karto's defaults are stored that way, while slam_karto's ROS
+    parameters are the square roots (0.3 m, 0.349 rad, 0.4 m) that its
+    setters square. ``--set angle=10deg`` converts degrees.
+    """
+
+    backend: str = param("spa", choices=("spa", "lago", "gtsam"), help="pose-graph optimiser run after each loop closure")
+    use_scan_matching: bool = param(True, help="match scans (off: nodes at the odometry pose) [UseScanMatching]")
+    minimum_match_response: float = param(
+        0.0, low=0.0, high=1.0,
+        help="a sequential match responding below this is not used: the odometry step is kept instead "
+        "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
+    )
+    point_spacing: float = param(
+        0.0, unit="m", low=0.0,
+        help="keep one scan point per square of this side before matching (not in Karto): near clutter "
+        "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
+    )
+    use_scan_barycenter: bool = param(
+        True, help="measure distances between scans from the centroid of their points, not the robot [UseScanBarycenter]"
+    )
+    minimum_time_interval: float = param(
+        3600.0, unit="s", low=0.0, help="keep a scan when this long has passed since the last kept one [MinimumTimeInterval]"
+    )
+    minimum_travel_distance: float = param(
+        0.2, unit="m", low=0.0, help="keep a scan when the robot moved this far since the last kept one [MinimumTravelDistance]"
+    )
+    minimum_travel_heading: float = param(
+        10.0 * _DEG, unit="rad", low=0.0,
+        help="keep a scan when the robot turned this much since the last kept one (Karto's 10 deg) [MinimumTravelHeading]",
+    )
+    scan_buffer_size: int = param(70, low=1, help="running scans the sequential matcher matches against [ScanBufferSize]")
+    scan_buffer_maximum_scan_distance: float = param(
+        20.0, unit="m", low=0.0,
+        help="drop running scans farther than this from the newest one [ScanBufferMaximumScanDistance]",
+    )
+    link_match_minimum_response_fine: float = param(
+        0.8, low=0.0, high=1.0, help="least response that links a near chain [LinkMatchMinimumResponseFine]"
+    )
+    link_scan_maximum_distance: float = param(
+        10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
+    )
+    do_loop_closing: bool = param(True, help="look for loop closures [DoLoopClosing]")
+    loop_search_maximum_distance: float = param(
+        4.0, unit="m", low=0.0, help="loop candidates lie within this distance of the new scan [LoopSearchMaximumDistance]"
+    )
+    loop_match_minimum_chain_size: int = param(
+        10, low=1, help="fewest consecutive scans a loop or near chain needs [LoopMatchMinimumChainSize]"
+    )
+    loop_match_maximum_variance_coarse: float = param(
+        0.4**2, unit="m^2", low=0.0,
+        help="largest x and y variance of the coarse loop match; a variance, already squared "
+        "(slam_karto's YAML gives 0.4 and squares it) [LoopMatchMaximumVarianceCoarse]",
+    )
+    loop_match_minimum_response_coarse: float = param(
+        0.8, low=0.0, high=1.0, help="least response of the coarse loop match [LoopMatchMinimumResponseCoarse]"
+    )
+    loop_match_minimum_response_fine: float = param(
+        0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
+    )
+    loop_match_maximum_correction: float = param(
+        0.5, unit="m", low=0.0,
+        help="a loop closure may move the new scan at most this far plus loop_match_maximum_drift times "
+        "the path travelled since the chain (not in Karto: rejects look-alike places far from the estimate)",
+    )
+    loop_match_maximum_drift: float = param(
+        0.02, unit="m/m", low=0.0,
+        help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
+        "(not in Karto); inf turns the gate off",
+    )
+    correlation_search_space_dimension: float = param(
+        0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
+    )
+    correlation_search_space_resolution: float = param(
+        0.01, unit="m", low=0.001, help="cell of the sequential correlation grid [CorrelationSearchSpaceResolution]"
+    )
+    correlation_search_space_smear_deviation: float = param(
+        0.03, unit="m", low=0.0,
+        help="Gaussian sigma a reference point is smeared with; a sensor model's per-beam sigma adds "
+        "in quadrature [CorrelationSearchSpaceSmearDeviation]",
+    )
+    loop_search_space_dimension: float = param(
+        8.0, unit="m", low=0.001, help="side of the loop matcher's x, y window [LoopSearchSpaceDimension]"
+    )
+    loop_search_space_resolution: float = param(
+        0.05, unit="m", low=0.001, help="cell of the loop correlation grid [LoopSearchSpaceResolution]"
+    )
+    loop_search_space_smear_deviation: float = param(
+        0.03, unit="m", low=0.0, help="smear sigma of the loop grid [LoopSearchSpaceSmearDeviation]"
+    )
+    distance_variance_penalty: float = param(
+        0.3**2, unit="m^2", low=1e-9,
+        help="sequential match penalty 1 - 0.2 d^2 / this; a variance, already squared (slam_karto "
+        "squares its 0.3) [DistanceVariancePenalty]",
+    )
+    angle_variance_penalty: float = param(
+        (20.0 * _DEG) ** 2, unit="rad^2", low=1e-12,
+        help="sequential match penalty 1 - 0.2 dtheta^2 / this; already squared, radians despite "
+        "slam_karto's 'degrees' comment [AngleVariancePenalty]",
+    )
+    fine_search_angle_offset: float = param(
+        0.2 * _DEG, unit="rad", low=1e-6,
+        help="the fine search's angle STEP (Karto's name; Karto uses it as the step, the fine "
+        "window is half a coarse step each way) [FineSearchAngleOffset]",
+    )
+    coarse_search_angle_offset: float = param(
+        20.0 * _DEG, unit="rad", low=0.0, help="half-width of the coarse angle window [CoarseSearchAngleOffset]"
+    )
+    coarse_angle_resolution: float = param(
+        2.0 * _DEG, unit="rad", low=1e-6, help="coarse angle step [CoarseAngleResolution]"
+    )
+    minimum_angle_penalty: float = param(0.9, low=0.0, high=1.0, help="floor of the angle penalty [MinimumAnglePenalty]")
+    minimum_distance_penalty: float = param(
+        0.5, low=0.0, high=1.0, help="floor of the distance penalty [MinimumDistancePenalty]"
+    )
+    use_response_expansion: bool = param(
+        False, help="widen the angle window by 20 deg (up to 3 times) when a match finds nothing [UseResponseExpansion]"
+    )
+    range_threshold: float = param(
+        12.0, unit="m", low=0.0, help="returns beyond this are not matched (they still map) [RangeThreshold]"
+    )
+
+
+@dataclass
+class LoopClosure:
+    """One accepted loop closure: node ``to`` (the new scan) seen from node ``frm``."""
+
+    frm: int
+    to: int
+    time_from: float
+    time_to: float
+    measurement: list[float]  # relative pose of `to` in `frm`'s frame, as the edge holds it
+    response_coarse: float
+    response_fine: float
+    cost_before: float
+    cost_after: float
+    chain_size: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Half-open index ranges ``[a, b)`` of the runs of True in ``mask``."""
+    if mask.size == 0:
+        return []
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1)
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+
+
+class GraphFrontend:
+    """The Karto-class front end over a :class:`~slam2d.backends.PoseGraph`.
+
+    ``sensor_model`` (optional) gives per-beam range sigmas through
+    :func:`~slam2d.sensors.beam_model.beam_sigmas`; they widen the smear of
+    each reference point in quadrature.
+    """
+
+    def __init__(self, params: GraphSlamParams, *, sensor_model: Any = None, diagnostics: Any = None) -> None:
+        p = params
+        self.params = p
+        self.sensor_model = sensor_model
+        self.diagnostics = diagnostics
+        common = dict(
+            coarse_angle_offset=p.coarse_search_angle_offset,
+            coarse_angle_resolution=p.coarse_angle_resolution,
+            fine_angle_step=p.fine_search_angle_offset,
+            distance_variance_penalty=p.distance_variance_penalty,
+            angle_variance_penalty=p.angle_variance_penalty,
+            minimum_distance_penalty=p.minimum_distance_penalty,
+            minimum_angle_penalty=p.minimum_angle_penalty,
+            response_expansion=p.use_response_expansion,
+        )
+        self.sequential = CorrelativeMatcher(
+            search_size=p.correlation_search_space_dimension,
+            resolution=p.correlation_search_space_resolution,
+            smear_deviation=p.correlation_search_space_smear_deviation,
+            **common,
+        )
+        self.loop = CorrelativeMatcher(
+            search_size=p.loop_search_space_dimension,
+            resolution=p.loop_search_space_resolution,
+            smear_deviation=p.loop_search_space_smear_deviation,
+            **common,
+        )
+        self.backend = get_backend(p.backend)
+        self._seq_cache = GridCache(self.sequential, self._node_reference)
+        self._loop_cache = GridCache(self.loop, self._node_reference)
+        self.graph = PoseGraph()
+        # Per node: points (base frame), their range sigmas, odometry, time, base-frame barycentre.
+        self._points: list[NDArray[np.float64]] = []
+        self._sigmas: list[NDArray[np.float64]] = []
+        self._world: list[NDArray[np.float64] | None] = []
+        self._odom: list[NDArray[np.float64]] = []
+        self._times: list[float] = []
+        self._bary_base = np.zeros((0, 2))
+        self._scans: list[Any] = []  # the kept scans, for the map
+        self._running: list[int] = []
+        self.loop_closures: list[LoopClosure] = []
+        self.loop_attempts: list[dict[str, Any]] = []
+        self.optimizations: list[dict[str, float]] = []
+        self._last_odom: NDArray[np.float64] | None = None
+        self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
+        self.offset = np.zeros(3)
+
+    # ----------------------------------------------------------------- small helpers
+
+    def _count(self, name: str, n: int = 1) -> None:
+        if self.diagnostics is not None:
+            self.diagnostics.count(name, n)
+
+    @property
+    def num_nodes(self) -> int:
+        return self.graph.num_nodes
+
+    @property
+    def kept_scans(self) -> list[Any]:
+        return self._scans
+
+    def odometry_at_nodes(self) -> NDArray[np.float64]:
+        """The odometry pose of every node's scan, (N, 3)."""
+        return np.asarray(self._odom, dtype=np.float64).reshape(-1, 3)
+
+    def node_times(self) -> NDArray[np.float64]:
+        return np.asarray(self._times, dtype=np.float64)
+
+    def _world_points(self, i: int) -> NDArray[np.float64]:
+        w = self._world[i]
+        if w is None:
+            w = se2.transform_points(self.graph.poses[i], self._points[i])
+            self._world[i] = w
+        return w
+
+    def _node_reference(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return self._world_points(i), self._sigmas[i]
+
+    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine):
+        """Match the query points at ``prior`` against the nodes' scans, through the grid cache."""
+        grid = cache.get(nodes, *matcher.search_box(points, prior))
+        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid)
+
+    def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Where each node is for distance tests: barycentre of its points, or the robot position."""
+        poses = self.graph.poses if poses is None else poses
+        if not self.params.use_scan_barycenter:
+            return poses[:, :2].copy()
+        return se2.transform_points(poses, self._bary_base[:, None, :])[:, 0, :]
+
+    def _near_linked(self, node: int, ref_xy: NDArray[np.float64], max_distance: float) -> NDArray[np.bool_]:
+        """Karto's FindNearLinkedScans: nodes reachable from ``node`` through nodes within the distance."""
+        n = self.graph.num_nodes
+        d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
+        near = d2 < max_distance**2 + 1e-9
+        ei, ej = self.graph.edge_i, self.graph.edge_j
+        keep = near[ei] & near[ej]
+        adj = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (ei[keep], ej[keep])), shape=(n, n)).tocsr()
+        order = breadth_first_order(adj, node, directed=False, return_predecessors=False)
+        out = np.zeros(n, dtype=bool)
+        out[order] = True
+        return out
+
+    def _moved_enough(self, odom: NDArray[np.float64], t: float) -> bool:
+        if not self._odom:
+            return True
+        p = self.params
+        last = self._odom[-1]
+        if t - self._times[-1] >= p.minimum_time_interval:
+            return True
+        if math.hypot(odom[0] - last[0], odom[1] - last[1]) >= p.minimum_travel_distance:
+            return True
+        return abs(float(se2.wrap_angle(odom[2] - last[2]))) >= p.minimum_travel_heading
+
+    def _add_edge(self, i: int, j: int, pose_j: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
+        """Edge i -> j measuring ``pose_j`` seen from node i's current pose; world covariance rotated into i."""
+        xi = self.graph.poses[i]
+        z = se2.relative(xi, pose_j)
+        c, s = math.cos(xi[2]), math.sin(xi[2])
+        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = rot @ covariance @ rot.T
+        cov = 0.5 * (cov + cov.T) + np.eye(3) * 1e-12
+        self.graph.add_edge(i, j, z, np.linalg.inv(cov))
+
+    def _link_chain_to_scan(self, chain: list[int], node: int, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> int:
+        """Karto's LinkChainToScan: an edge from the chain's scan closest to ``pose``; returns that scan."""
+        ref = self.reference_positions()
+        target = ref[node] if node < len(ref) else pose[:2]
+        d2 = ((ref[chain] - target) ** 2).sum(axis=1)
+        closest = int(chain[int(np.argmin(d2))])
+        if not self._has_edge(closest, node):
+            self._add_edge(closest, node, pose, cov)
+        return closest
+
+    def _has_edge(self, i: int, j: int) -> bool:
+        ei, ej = self.graph.edge_i, self.graph.edge_j
+        return bool(np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))))
+
+    # ----------------------------------------------------------------- the main step
+
+    def process(self, frame: Frame) -> dict[str, float] | None:
+        """Handle one frame; returns the values to log, or None when the scan added no node.
+
+        The caller reads :attr:`anchor` (the node the frame's pose hangs from)
+        and :attr:`offset` (its pose relative to that node).
+        """
+        p = self.params
+        odom = frame.odometry
+        if odom is None:
+            self._count("frames_without_odometry")
+            odom = self._last_odom if self._last_odom is not None else np.zeros(3)
+        odom = np.asarray(odom, dtype=np.float64)
+        self._last_odom = odom
+        if self.graph.num_nodes:
+            last = self.graph.num_nodes - 1
+            offset = se2.relative(self._odom[last], odom)
+            predicted = se2.compose(self.graph.poses[last], offset)
+        else:
+            last, offset, predicted = -1, np.zeros(3), odom.copy()
+        if not self._moved_enough(odom, frame.timestamp):
+            self.anchor, self.offset = last, offset
+            return None
+        scan = frame.scan
+        sig = beam_sigmas(scan, self.sensor_model, 0.0)
+        with np.errstate(invalid="ignore"):
+            use = scan.valid & (scan.ranges <= p.range_threshold)
+        if not use.any():
+            self._count("empty_scans")
+            self.anchor, self.offset = last, offset
+            return None
+        points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
+        sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
+        if p.point_spacing > 0:
+            points, sigmas = _thin(points, sigmas, p.point_spacing)
+        values: dict[str, float] = {}
+        pose = predicted
+        cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
+        if last >= 0 and p.use_scan_matching:
+            result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
+                                 penalize=True, refine=True)
+            pose, cov = result.pose, result.covariance
+            values["response"] = result.response
+            values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
+            if result.response < p.minimum_match_response:
+                # The scan does not fit the running scans (clutter, people, a new room seen from
+                # its door): trust the odometry for this step, with an odometry-like uncertainty.
+                self._count("match_failures")
+                pose = predicted
+                cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+        elif last >= 0:
+            cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+        node = self.graph.add_node(pose)
+        self._points.append(points)
+        self._sigmas.append(sigmas)
+        self._world.append(None)
+        self._odom.append(odom)
+        self._times.append(frame.timestamp)
+        self._bary_base = np.vstack([self._bary_base, points.mean(axis=0)[None, :]])
+        self._scans.append(scan)
+        if last >= 0:
+            means = [pose]
+            covs = [cov]
+            self._add_edge(last, node, pose, cov)
+            self._link_chain_to_scan(self._running, node, pose, cov)
+            linked = self._link_near_chains(node, points, pose, means, covs)
+            values["near_links"] = float(linked)
+            if len(means) > 1:
+                pose = _weighted_mean(means, covs)
+                self.graph.poses[node] = pose
+                self._world[node] = None
+        self._running.append(node)
+        self._trim_running()
+        closed = 0
+        if p.do_loop_closing and node > 0:
+            closed = self._try_close_loop(node, points)
+        values["loop_closures"] = float(closed)
+        self.anchor, self.offset = node, np.zeros(3)
+        return values
+
+    def _path_length(self, i: int, j: int) -> float:
+        """Distance the robot travelled from node i to node j along the graph's current poses."""
+        xy = self.graph.poses[i : j + 1, :2]
+        return float(np.hypot(*np.diff(xy, axis=0).T).sum()) if j > i else 0.0
+
+    def _trim_running(self) -> None:
+        p = self.params
+        while len(self._running) > p.scan_buffer_size:
+            self._running.pop(0)
+        if len(self._running) > 1:
+            ref = self.reference_positions()
+            newest = ref[self._running[-1]]
+            while len(self._running) > 1:
+                d = float(np.hypot(*(ref[self._running[0]] - newest)))
+                if d <= p.scan_buffer_maximum_scan_distance:
+                    break
+                self._running.pop(0)
+
+    def _link_near_chains(self, node: int, points, pose, means: list, covs: list) -> int:
+        """Karto's LinkNearChains: match older passes already connected in the graph; link the good ones."""
+        p = self.params
+        ref_xy = self.reference_positions()
+        linked = self._near_linked(node, ref_xy, p.link_scan_maximum_distance)
+        linked[node] = False
+        if not linked.any():
+            return 0
+        d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
+        near = d2 < p.link_scan_maximum_distance**2 + 1e-9
+        count = 0
+        for a, b in _runs(near):
+            if a <= node < b or not linked[a:b].any() or b - a < p.loop_match_minimum_chain_size:
+                continue
+            chain = list(range(a, b))
+            result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
+            if result.response > p.link_match_minimum_response_fine:
+                means.append(result.pose)
+                covs.append(result.covariance)
+                self._link_chain_to_scan(chain, node, result.pose, result.covariance)
+                count += 1
+        return count
+
+    def _try_close_loop(self, node: int, points: NDArray[np.float64]) -> int:
+        p = self.params
+        closed = 0
+        start = 0
+        while True:
+            ref_xy = self.reference_positions()
+            linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
+            d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
+            candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
+            chains = [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
+            if not chains:
+                return closed
+            a, b = chains[0]
+            start = b
+            chain = list(range(a, b))
+            pose = self.graph.poses[node].copy()
+            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False)
+            self._count("loop_attempts")
+            correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
+            path = self._path_length(b - 1, node)
+            attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
+                       "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
+                       "correction_m": correction, "path_m": path}
+            self.loop_attempts.append(attempt)
+            if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
+                self._count("loop_rejected_drift")
+                continue
+            if not (
+                coarse.response > p.loop_match_minimum_response_coarse
+                and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
+                and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse
+            ):
+                self._count("loop_rejected_coarse")
+                continue
+            fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
+            attempt["response_fine"] = fine.response
+            if fine.response < p.loop_match_minimum_response_fine:
+                self._count("loop_rejected_fine")
+                continue
+            self.graph.poses[node] = fine.pose
+            self._world[node] = None
+            frm = self._link_chain_to_scan(chain, node, fine.pose, fine.covariance)
+            z = se2.relative(self.graph.poses[frm], fine.pose)
+            before, after = self.optimize()
+            self.loop_closures.append(
+                LoopClosure(
+                    frm=frm, to=node, time_from=self._times[frm], time_to=self._times[node],
+                    measurement=[float(v) for v in z], response_coarse=coarse.response,
+                    response_fine=fine.response, cost_before=before, cost_after=after, chain_size=b - a,
+                )
+            )
+            self._count("loop_closures")
+            closed += 1
+
+    def optimize(self) -> tuple[float, float]:
+        """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
+        if self.graph.num_edges == 0:
+            return 0.0, 0.0
+        res = self.backend.optimize(self.graph)
+        if np.all(np.isfinite(res.poses)):
+            self.graph.poses = res.poses
+        else:
+            self._count("optimizer_failures")
+        self._world = [None] * len(self._world)
+        self._seq_cache.invalidate()
+        self._loop_cache.invalidate()
+        self.optimizations.append(
+            {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
+             "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
+        )
+        return float(res.cost_before), float(res.cost_after)
+
+    # ----------------------------------------------------------------- outputs
+
+    def build_map(self, grid_params: GridParams) -> OccupancyGrid:
+        """The occupancy grid of every kept scan at its optimised pose."""
+        grid = OccupancyGrid(grid_params)
+        poses = self.graph.poses
+        if len(poses):
+            margin = grid_params.max_range if grid_params.max_range is not None else 10.0
+            lo = poses[:, :2].min(axis=0) - margin
+            hi = poses[:, :2].max(axis=0) + margin
+            grid.ensure_contains(lo[0], lo[1], hi[0], hi[1])
+        for scan, pose in zip(self._scans, poses, strict=True):
+            grid.integrate(scan, pose)
+        return grid
+
+    def summary(self) -> Mapping[str, Any]:
+        return {
+            "nodes": self.graph.num_nodes,
+            "edges": self.graph.num_edges,
+            "loop_closures": [c.as_dict() for c in self.loop_closures],
+            "loop_attempts": list(self.loop_attempts),
+            "optimizations": list(self.optimizations),
+        }
+
+
+MAX_COV = 500.0
+# Uncertainty of an edge that holds the odometry step (scan matching off or failed).
+ODOMETRY_SIGMA_XY = 0.1  # m
+ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad
+
+
+def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: float):
+    """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
+    cells = np.floor(points / spacing).astype(np.int64)
+    _, first = np.unique(cells, axis=0, return_index=True)
+    keep = np.sort(first)
+    return points[keep], sigmas[keep]
+
+
+def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Information-weighted mean of poses (angles unwrapped about the first)."""
+    ref = means[0]
+    info_sum = np.zeros((3, 3))
+    acc = np.zeros(3)
+    for m, c in zip(means, covs, strict=True):
+        info = np.linalg.inv(c + np.eye(3) * 1e-12)
+        v = np.array([m[0], m[1], ref[2] + float(se2.wrap_angle(m[2] - ref[2]))])
+        info_sum += info
+        acc += info @ v
+    out = np.linalg.solve(info_sum, acc)
+    out[2] = float(se2.wrap_angle(out[2]))
+    return out

@@ -1,0 +1,139 @@
+"""The SLAM-method wrapper shared by ``karto`` and ``lago``: frames in, optimised trajectory and map out."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.backends import PoseGraph
+from slam2d.core import se2
+from slam2d.core.frames import Frame
+from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.methods.base import SlamMethod
+from slam2d.params import describe
+
+__all__ = ["GraphSlam"]
+
+
+class GraphSlam(SlamMethod):
+    """Karto's front end over a pose-graph back end (``params.backend``).
+
+    The pose of a frame that added no node is its anchor node's pose plus the
+    odometry moved since that node, so :meth:`trajectory` follows every
+    optimisation. The map holds the kept scans at their optimised poses; it is
+    updated scan by scan and rebuilt after an optimisation moved the nodes.
+    """
+
+    Params = GraphSlamParams
+    DIAGNOSTICS = {
+        "response": "sequential scan-match response of a kept scan [0-1]",
+        "correction_m": "distance the sequential match moved the odometry prediction [m]",
+        "near_links": "near chains linked to the kept scan [count]",
+        "loop_closures": "loop closures accepted at the kept scan [count]",
+        "nodes": "nodes in the pose graph [count]",
+    }
+
+    def __init__(self, params: Any = None, **kwargs: Any) -> None:
+        super().__init__(params, **kwargs)
+        self.frontend = GraphFrontend(self.params, sensor_model=self.sensor_model, diagnostics=self.diagnostics)
+        self._anchor: list[int] = []  # per placed frame: the node its pose hangs from
+        self._offset: list[NDArray[np.float64]] = []  # and its pose relative to that node
+        self._frame_times: list[float] = []
+        self._grid: OccupancyGrid | None = None
+        self._grid_nodes = 0  # nodes drawn into the grid
+        self._grid_version = -1  # optimisation count the grid was drawn at
+
+    def _grid_params(self) -> GridParams:
+        names = {p.name for p in describe(GridParams)}
+        return GridParams(**{n: getattr(self.params, n) for n in names})
+
+    def update(self, frame: Frame) -> Mapping[str, float] | None:
+        values = self.frontend.process(frame)
+        fe = self.frontend
+        if fe.anchor >= 0:
+            self._anchor.append(fe.anchor)
+            self._offset.append(np.asarray(fe.offset, dtype=np.float64))
+            self._frame_times.append(frame.timestamp)
+        if values is not None:
+            values = dict(values)
+            values["nodes"] = float(fe.num_nodes)
+        return values
+
+    def current_pose(self) -> NDArray[np.float64] | None:
+        if not self._anchor:
+            return None
+        return se2.compose(self.frontend.graph.poses[self._anchor[-1]], self._offset[-1])
+
+    def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if not self._anchor:
+            return np.zeros(0), np.zeros((0, 3))
+        fe = self.frontend
+        nodes = fe.graph.poses
+        anchor = np.asarray(self._anchor)
+        offset = np.stack(self._offset)
+        dead_reckoned = se2.compose(nodes[anchor], offset)
+        # Between two nodes, spread the correction the next node got over the frames in between
+        # (by the share of the odometry motion done), instead of dead reckoning to the jump.
+        inner = anchor < len(nodes) - 1
+        if np.any(inner):
+            k = anchor[inner]
+            odom = np.asarray(fe.odometry_at_nodes())
+            step = se2.relative(odom[k], odom[k + 1])
+            correction = se2.relative(se2.compose(nodes[k], step), nodes[k + 1])
+            done = np.hypot(offset[inner, 0], offset[inner, 1]) + np.abs(offset[inner, 2])
+            total = np.hypot(step[:, 0], step[:, 1]) + np.abs(step[:, 2])
+            share = np.clip(np.divide(done, total, out=np.zeros_like(done), where=total > 1e-12), 0.0, 1.0)
+            dead_reckoned[inner] = se2.compose(
+                dead_reckoned[inner], se2.interpolate(np.zeros_like(correction), correction, share)
+            )
+        return np.asarray(self._frame_times), dead_reckoned
+
+    def map(self) -> OccupancyGrid:
+        fe = self.frontend
+        version = len(fe.optimizations)
+        if self._grid is None or self._grid_version != version:
+            self._grid = fe.build_map(self._grid_params())
+            self._grid_version = version
+        else:
+            for i in range(self._grid_nodes, fe.num_nodes):
+                self._grid.integrate(fe.kept_scans[i], fe.graph.poses[i])
+        self._grid_nodes = fe.num_nodes
+        return self._grid
+
+    def finish(self) -> None:
+        fe = self.frontend
+        if fe.loop_closures and fe.graph.num_edges:
+            fe.optimize()  # a last pass over the edges added since the last closure
+        s = fe.summary()
+        self.diagnostics.summary.update(
+            {
+                "nodes": s["nodes"],
+                "edges": s["edges"],
+                "backend": self.params.backend,
+                "loop_closures": s["loop_closures"],
+                "loop_attempts": s["loop_attempts"],
+                "optimizations": s["optimizations"],
+            }
+        )
+
+    def extra_outputs(self, out_dir: Any) -> list[Any]:
+        """``graph.g2o``: the optimised pose graph (g2o's VERTEX_SE2 / EDGE_SE2)."""
+        from pathlib import Path
+
+        from slam2d.io.pose_graph import write_g2o
+
+        path = Path(out_dir) / "graph.g2o"
+        write_g2o(path, self.frontend.graph)
+        return [path]
+
+    def pose_graph(self) -> PoseGraph:
+        """The pose graph (nodes at their optimised poses): write it with ``slam2d.io.pose_graph``."""
+        return self.frontend.graph
+
+    def node_times(self) -> NDArray[np.float64]:
+        """Timestamp of every graph node's scan."""
+        return self.frontend.node_times()

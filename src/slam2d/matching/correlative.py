@@ -1,0 +1,612 @@
+"""Correlative scan matching (Olson 2009; Karto's matcher): exhaustive search over x, y, angle.
+
+The reference points (the scans being matched against, in the world frame)
+are drawn into a *correlation grid*: every point is smeared by a Gaussian
+``exp(-0.5 (d / sigma)^2)`` of its own sigma, cells keeping the largest value
+(0..255 in a ``uint8`` grid, Karto keeps 0..100). A candidate pose of the
+query scan scores the mean grid value under its points, the *response* in
+[0, 1]: 1 means every point lies on a reference point.
+
+The search is Karto's: per angle, the query points are rotated once and turned
+into integer cells (the lookup table), then every x, y offset is an integer
+shift. A *coarse* search covers the whole window at two cells per step and
+the coarse angle step; a *fine* search covers one coarse step around the
+coarse best at one cell per step and the fine angle step. With a penalty the
+response is multiplied by ``max(1 - 0.2 d^2 / distance_variance_penalty,
+minimum_distance_penalty) * max(1 - 0.2 dtheta^2 / angle_variance_penalty,
+minimum_angle_penalty)`` (Karto's gains of 0.2), measured from the prior
+pose. Equal best responses are averaged, so a corridor's flat response lands
+in its middle rather than at a window edge.
+
+Covariance, from the response surface as Karto computes it: x, y from the
+coarse surface (for each x, y the best response over angles), the
+response-weighted spread of every x, y within 0.1 of the best, floored at
+0.1 coarse-step^2 and divided by the best response; theta from the spread of
+the fine angles at the best x, y (floored at one fine step^2).
+
+Wide windows (loop closure: 8 m at 5 cm is 81 x 81 x 21 poses) are searched
+by *branch and bound* over blocks of translations: a max-pooled copy of the
+grid gives, per block and angle, an upper bound of the response of every
+translation in the block; blocks are scored exactly in decreasing bound order
+until the bound falls more than 0.1 below the best found. Every pose whose
+response can be within 0.1 of the best is thus scored exactly, so the result
+and its covariance equal the exhaustive search's (a test checks it), at a
+fraction of the lookups.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+__all__ = ["CorrelativeMatcher", "GridCache", "MatchResult", "smear_points"]
+
+# Response values are stored as 0..SCALE in a uint8 grid.
+_SCALE = 255.0
+# Karto's penalty gains (DISTANCE_PENALTY_GAIN, ANGLE_PENALTY_GAIN).
+_PENALTY_GAIN = 0.2
+# Poses within this much of the best response shape the covariance (Karto's 0.1).
+_COVARIANCE_BAND = 0.1
+# Branch and bound: translation blocks of this many search steps on a side.
+_BLOCK = 8
+# Windows with fewer translations than this are searched exhaustively.
+_BNB_MIN_STEPS = 31
+# Karto's MAX_VARIANCE: the covariance of a match that found nothing.
+MAX_VARIANCE = 500.0
+
+
+@dataclass
+class MatchResult:
+    """The best pose of a query scan, with its response and covariance."""
+
+    pose: NDArray[np.float64]  # [x, y, theta] of the query robot pose, world frame
+    covariance: NDArray[np.float64]  # 3x3, world-frame x, y, theta
+    response: float  # in [0, 1], penalised when the match was
+    raw_response: float  # the same pose without the penalty
+    evaluated: int  # point lookups done (for diagnostics)
+
+
+# --------------------------------------------------------------------------- compiled kernels
+
+
+@njit(cache=True)
+def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
+    """Max-combine a Gaussian of each point's sigma into ``grid`` (uint8, 0..255).
+
+    As in Karto, the point is snapped to its cell (which gets the full value)
+    and the kernel, reaching 2 sigma, is evaluated at whole-cell distances, so
+    a query point in the same cell as a reference point scores 1 and the
+    response thresholds mean what they mean in Karto. The kernel is separable:
+    one short row of exp() per point and one product per cell.
+    """
+    rows, cols = grid.shape
+    if px.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * sigma.max() / resolution))
+    ex = np.empty(2 * widest + 1)
+    for k in range(px.shape[0]):
+        s = sigma[k]
+        cu = int(math.floor((px[k] - origin_x) / resolution))
+        cv = int(math.floor((py[k] - origin_y) / resolution))
+        half = int(math.ceil(2.0 * s / resolution))
+        n = 2 * half + 1
+        inv = resolution / s
+        for i in range(n):
+            d = (i - half) * inv
+            ex[i] = math.exp(-0.5 * d * d) * _SCALE
+        r0 = cv - half
+        c0 = cu - half
+        i_lo = max(0, -r0)
+        i_hi = min(n, rows - r0)
+        j_lo = max(0, -c0)
+        j_hi = min(n, cols - c0)
+        for i in range(i_lo, i_hi):
+            wy = ex[i] / _SCALE
+            row = grid[r0 + i]
+            for j in range(j_lo, j_hi):
+                q = np.uint8(wy * ex[j] + 0.5)
+                if q > row[c0 + j]:
+                    row[c0 + j] = q
+
+
+@njit(cache=True)
+def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution, first):
+    """Cells (row, col) of the query points at every angle, for the translation index 0 corner.
+
+    ``first`` is the (negative) number of cells from the prior position to the
+    window's first translation.
+    """
+    na = angles.shape[0]
+    n = qx.shape[0]
+    rows = np.empty((na, n), np.int64)
+    cols = np.empty((na, n), np.int64)
+    for a in range(na):
+        th = theta0 + angles[a]
+        c = math.cos(th)
+        s = math.sin(th)
+        for k in range(n):
+            wx = x0 + c * qx[k] - s * qy[k]
+            wy = y0 + s * qx[k] + c * qy[k]
+            cols[a, k] = int(math.floor((wx - origin_x) / resolution)) + first
+            rows[a, k] = int(math.floor((wy - origin_y) / resolution)) + first
+    return rows, cols
+
+
+@njit(cache=True)
+def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
+    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps."""
+    g_rows, g_cols = grid.shape
+    for i in range(ni):
+        for j in range(nj):
+            out[i, j] = 0.0
+    for k in range(rows.shape[1]):
+        r_base = rows[a, k] + i0 * step
+        c_base = cols[a, k] + j0 * step
+        r_last = r_base + (ni - 1) * step
+        c_last = c_base + (nj - 1) * step
+        if r_base >= 0 and c_base >= 0 and r_last < g_rows and c_last < g_cols:
+            for i in range(ni):
+                r = r_base + i * step
+                for j in range(nj):
+                    out[i, j] += grid[r, c_base + j * step]
+        else:
+            for i in range(ni):
+                r = r_base + i * step
+                if r < 0 or r >= g_rows:
+                    continue
+                for j in range(nj):
+                    c = c_base + j * step
+                    if c >= 0 and c < g_cols:
+                        out[i, j] += grid[r, c]
+
+
+@njit(cache=True)
+def _score_all(grid, rows, cols, n_steps, step):
+    """Exhaustive: responses (sums) of every angle and translation, (angles, n, n)."""
+    na = rows.shape[0]
+    out = np.zeros((na, n_steps, n_steps))
+    buf = np.zeros((n_steps, n_steps))
+    for a in range(na):
+        _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
+        out[a] = buf
+    return out
+
+
+@njit(cache=True)
+def _max_pool(grid, width):
+    """pooled[r, c] = max of grid[r:r + width, c:c + width] (clipped at the edges)."""
+    rows, cols = grid.shape
+    tmp = np.empty_like(grid)
+    for r in range(rows):
+        for c in range(cols):
+            m = grid[r, c]
+            for d in range(1, width):
+                if c + d < cols and grid[r, c + d] > m:
+                    m = grid[r, c + d]
+            tmp[r, c] = m
+    out = np.empty_like(grid)
+    for c in range(cols):
+        for r in range(rows):
+            m = tmp[r, c]
+            for d in range(1, width):
+                if r + d < rows and tmp[r + d, c] > m:
+                    m = tmp[r + d, c]
+            out[r, c] = m
+    return out
+
+
+@njit(cache=True)
+def _block_bounds(pooled, rows, cols, n_blocks, block_cells, width):
+    """Upper bound (sum) of the response of every block of translations, (angles, nb, nb).
+
+    ``pooled[r, c]`` is the max of ``grid[r:r + width, c:c + width]``; a block
+    whose cells start before the grid's edge reads the pooled value at the
+    edge, which still covers every cell of the block inside the grid.
+    """
+    na = rows.shape[0]
+    g_rows, g_cols = pooled.shape
+    out = np.zeros((na, n_blocks, n_blocks))
+    for a in range(na):
+        for k in range(rows.shape[1]):
+            for bi in range(n_blocks):
+                r = rows[a, k] + bi * block_cells
+                if r + width <= 0 or r >= g_rows:
+                    continue
+                r = max(r, 0)
+                for bj in range(n_blocks):
+                    c = cols[a, k] + bj * block_cells
+                    if c + width > 0 and c < g_cols:
+                        out[a, bi, bj] += pooled[r, max(c, 0)]
+    return out
+
+
+@njit(cache=True)
+def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points):
+    """Branch and bound: score whole blocks in ``order`` until the bound drops below best - band.
+
+    Unscored poses are left at -1. Returns the (angles, n, n) sums and the lookups done.
+    """
+    na = rows.shape[0]
+    out = np.full((na, n_steps, n_steps), -1.0)
+    buf = np.zeros((block, block))
+    best = -1.0
+    lookups = 0
+    nbb = n_blocks * n_blocks
+    for idx in range(order.shape[0]):
+        flat = order[idx]
+        if bounds_flat[flat] / n_points < best - band:
+            break
+        a = flat // nbb
+        rem = flat % nbb
+        bi = rem // n_blocks
+        bj = rem % n_blocks
+        i0 = bi * block
+        j0 = bj * block
+        ni = min(block, n_steps - i0)
+        nj = min(block, n_steps - j0)
+        _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, buf)
+        lookups += ni * nj * rows.shape[1]
+        for i in range(ni):
+            for j in range(nj):
+                v = buf[i, j]
+                out[a, i0 + i, j0 + j] = v
+                if v / n_points > best:
+                    best = v / n_points
+    return out, lookups
+
+
+# --------------------------------------------------------------------------- the matcher
+
+
+class CorrelativeMatcher:
+    """A correlative scan matcher with Karto's search: coarse window, then a fine step.
+
+    Parameters (Karto's names in brackets):
+        search_size: full side of the x, y window, m [CorrelationSearchSpaceDimension].
+        resolution: correlation grid cell, m [CorrelationSearchSpaceResolution].
+        smear_deviation: Gaussian sigma of a reference point, m [CorrelationSearchSpaceSmearDeviation];
+            per-point sigmas given to :meth:`match` replace it.
+        coarse_angle_offset: half-width of the angle window, rad [CoarseSearchAngleOffset].
+        coarse_angle_resolution: coarse angle step, rad [CoarseAngleResolution].
+        fine_angle_step: fine angle step, rad [FineSearchAngleOffset, which Karto uses as a step].
+        distance_variance_penalty: m^2, already squared [DistanceVariancePenalty].
+        angle_variance_penalty: rad^2, already squared [AngleVariancePenalty].
+        minimum_distance_penalty, minimum_angle_penalty: floors of the penalty factors.
+        response_expansion: widen the angle window by 20 deg up to 3 times when nothing matched.
+    """
+
+    def __init__(
+        self,
+        *,
+        search_size: float = 0.3,
+        resolution: float = 0.01,
+        smear_deviation: float = 0.03,
+        coarse_angle_offset: float = math.radians(20.0),
+        coarse_angle_resolution: float = math.radians(2.0),
+        fine_angle_step: float = math.radians(0.2),
+        distance_variance_penalty: float = 0.3**2,
+        angle_variance_penalty: float = math.radians(20.0) ** 2,
+        minimum_distance_penalty: float = 0.5,
+        minimum_angle_penalty: float = 0.9,
+        response_expansion: bool = False,
+    ) -> None:
+        if not resolution > 0 or not search_size > 0:
+            raise ValueError("resolution and search_size must be positive")
+        if not coarse_angle_resolution > 0 or not fine_angle_step > 0:
+            raise ValueError("angle steps must be positive")
+        self.search_size = float(search_size)
+        self.resolution = float(resolution)
+        self.smear_deviation = float(smear_deviation)
+        self.coarse_angle_offset = float(coarse_angle_offset)
+        self.coarse_angle_resolution = float(coarse_angle_resolution)
+        self.fine_angle_step = float(fine_angle_step)
+        self.distance_variance_penalty = float(distance_variance_penalty)
+        self.angle_variance_penalty = float(angle_variance_penalty)
+        self.minimum_distance_penalty = float(minimum_distance_penalty)
+        self.minimum_angle_penalty = float(minimum_angle_penalty)
+        self.response_expansion = bool(response_expansion)
+        # Coarse translations: two cells per step, covering half the window each way.
+        self._coarse_half = max(1, int(round(0.5 * self.search_size / (2.0 * self.resolution))))
+        self.branch_and_bound = True
+
+    # ----------------------------------------------------------------- pieces
+
+    def sigmas_for(self, beam_sigma: NDArray[np.float64] | None, n: int) -> NDArray[np.float64]:
+        """Smear sigma per reference point: the smear combined with the beam's own range sigma.
+
+        Clamped to Karto's allowed [0.5, 10] cells so the kernel stays resolvable.
+        """
+        base = np.full(n, self.smear_deviation)
+        if beam_sigma is not None:
+            b = np.nan_to_num(np.asarray(beam_sigma, dtype=np.float64), nan=0.0)
+            base = np.sqrt(base * base + b * b)
+        return np.clip(base, 0.5 * self.resolution, 10.0 * self.resolution)
+
+    def query_box(
+        self, query_points: NDArray[np.float64], prior: NDArray[np.float64], angle_offset: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """World box (lo, hi) every query point can reach in the search window around ``prior``."""
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
+        angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+        x = c * q[None, :, 0] - s * q[None, :, 1]
+        y = s * q[None, :, 0] + c * q[None, :, 1]
+        reach = float(np.sqrt((q * q).sum(axis=1)).max(initial=0.0))
+        # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
+        pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
+        lo = np.array([x.min(), y.min()]) + prior[:2] - pad
+        hi = np.array([x.max(), y.max()]) + prior[:2] + pad
+        return lo, hi
+
+    def search_box(self, query_points: NDArray[np.float64], prior: NDArray[np.float64]):
+        """The world box the query can reach in this matcher's full window (with response expansion)."""
+        widest = self.coarse_angle_offset + (math.radians(60.0) if self.response_expansion else 0.0)
+        return self.query_box(query_points, np.asarray(prior, dtype=np.float64), widest)
+
+    def _sig(self, ref, ref_sigmas):
+        if ref_sigmas is None:
+            return self.sigmas_for(None, ref.shape[0])
+        return np.asarray(ref_sigmas, dtype=np.float64)
+
+    def correlation_grid(
+        self,
+        ref_points: NDArray[np.float64],
+        ref_sigmas: NDArray[np.float64],
+        lo: NDArray[np.float64],
+        hi: NDArray[np.float64],
+        *,
+        clip: bool = True,
+    ) -> tuple[NDArray[np.uint8], float, float]:
+        """The smeared grid of the reference points inside the world box (lo, hi): (grid, origin_x, origin_y).
+
+        ``clip`` shrinks the box to the reference points' own extent (smaller
+        grid); a grid that will be extended later (:class:`GridCache`) keeps it.
+        """
+        res = self.resolution
+        margin = 2.0 * float(ref_sigmas.max(initial=self.smear_deviation)) + 2.0 * res
+        lo = np.asarray(lo, dtype=np.float64).copy()
+        hi = np.asarray(hi, dtype=np.float64).copy()
+        if ref_points.shape[0]:
+            keep = np.all((ref_points >= lo - margin) & (ref_points <= hi + margin), axis=1)
+            ref_points = ref_points[keep]
+            ref_sigmas = ref_sigmas[keep]
+        if ref_points.shape[0] and clip:
+            lo = np.maximum(lo, ref_points.min(axis=0) - margin)
+            hi = np.minimum(hi, ref_points.max(axis=0) + margin)
+        hi = np.maximum(hi, lo + res)
+        origin = np.floor(lo / res) * res
+        shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
+        grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
+        if ref_points.shape[0]:
+            # Row order keeps the smear's writes in cache (scans overlap in space, not in memory).
+            order = np.argsort(np.floor((ref_points[:, 1] - origin[1]) / res), kind="stable")
+            pts = ref_points[order]
+            smear_points(
+                grid, float(origin[0]), float(origin[1]), res,
+                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                np.ascontiguousarray(ref_sigmas[order]),
+            )
+        return grid, float(origin[0]), float(origin[1])
+
+    def _penalty(self, dx, dy, dth):
+        d2 = dx * dx + dy * dy
+        pd = np.maximum(1.0 - _PENALTY_GAIN * d2 / self.distance_variance_penalty, self.minimum_distance_penalty)
+        pa = np.maximum(1.0 - _PENALTY_GAIN * dth * dth / self.angle_variance_penalty, self.minimum_angle_penalty)
+        return pd * pa
+
+    def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb):
+        """One search phase around ``center``: (best pose, best response, raw, surface, lookups)."""
+        res = self.resolution
+        n_steps = 2 * half + 1
+        rows, cols = _query_cells(
+            q[:, 0], q[:, 1], angles, center[0], center[1], center[2],
+            origin[0], origin[1], res, -half * step,
+        )
+        n_points = q.shape[0]
+        # The bound is on the raw response, so it prunes exactly only without a penalty.
+        exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
+        if exhaustive:
+            sums = _score_all(grid, rows, cols, n_steps, step)
+            lookups = sums.size * n_points
+        else:
+            block = _BLOCK
+            n_blocks = (n_steps + block - 1) // block
+            width = (block - 1) * step + 1
+            pooled = _max_pool(grid, width)
+            bounds = _block_bounds(pooled, rows, cols, n_blocks, block * step, width)
+            flat = bounds.reshape(-1)
+            order = np.argsort(-flat, kind="stable")
+            band = _COVARIANCE_BAND + 1e-9
+            sums, lookups = _score_blocks(
+                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points)
+            )
+            lookups += flat.size * n_points
+        raw = sums / (n_points * _SCALE)
+        offs = (np.arange(n_steps) - half) * (step * res)
+        xs = center[0] + offs[None, None, :]
+        ys = center[1] + offs[None, :, None]
+        ths = center[2] + angles[:, None, None]
+        if penalize:
+            dth = np.asarray(ths - prior[2])
+            dth = (dth + np.pi) % (2 * np.pi) - np.pi
+            resp = np.where(raw >= 0, raw * self._penalty(xs - prior[0], ys - prior[1], dth), -1.0)
+        else:
+            resp = raw
+        best = float(resp.max())
+        # Karto averages every pose with the best response.
+        a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
+        pose = np.array([
+            center[0] + offs[x_i].mean(),
+            center[1] + offs[y_i].mean(),
+            center[2] + angles[a_i].mean(),
+        ])
+        raw_best = float(raw[a_i[0], y_i[0], x_i[0]])
+        return pose, best, raw_best, resp, offs, lookups
+
+    def _positional_covariance(self, resp, offs, center, pose, best, step_m):
+        surface = resp.max(axis=0)  # best response over angles, per (y, x)
+        mask = surface >= best - _COVARIANCE_BAND
+        w = np.where(mask, surface, 0.0)
+        norm = w.sum()
+        cov = np.zeros((2, 2))
+        floor = 0.1 * step_m * step_m
+        if norm <= 1e-12 or best <= 0:
+            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+        dx = (center[0] + offs)[None, :] - pose[0]
+        dy = (center[1] + offs)[:, None] - pose[1]
+        cov[0, 0] = max((w * dx * dx).sum() / norm, floor)
+        cov[1, 1] = max((w * dy * dy).sum() / norm, floor)
+        cov[0, 1] = cov[1, 0] = (w * dx * dy).sum() / norm
+        cov /= best
+        if mask[0, :].any() or mask[-1, :].any() or mask[:, 0].any() or mask[:, -1].any():
+            # The good responses run along the spread's main axis through at least half the
+            # window and into its edge (a corridor): the spread seen inside the window
+            # understates the uncertainty, so along that axis it is taken as at least the whole
+            # window (Karto keeps the truncated spread). A peak that merely sits near the edge
+            # is left alone.
+            vals, vecs = np.linalg.eigh(cov)
+            along = (dx * vecs[0, -1] + dy * vecs[1, -1])[mask]
+            if along.max() - along.min() >= 0.5 * self.search_size:
+                vals[-1] = max(vals[-1], self.search_size**2)
+                cov = (vecs * vals) @ vecs.T
+        return cov
+
+    # ----------------------------------------------------------------- the match
+
+    def match(
+        self,
+        ref_points: NDArray[np.float64] | None,
+        ref_sigmas: NDArray[np.float64] | None,
+        query_points: NDArray[np.float64],
+        prior: NDArray[np.float64],
+        *,
+        penalize: bool = True,
+        refine: bool = True,
+        grid: tuple[NDArray[np.uint8], float, float] | None = None,
+    ) -> MatchResult:
+        """Best pose of the query scan (points ``(N, 2)`` in its robot frame) against world points.
+
+        ``prior`` is the predicted robot pose: the window's centre and the
+        penalty's zero. ``ref_sigmas`` (one per reference point, m) replace the
+        smear deviation; None uses it for all. A prebuilt ``grid`` (from
+        :meth:`correlation_grid`) skips building one.
+        """
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        ref = np.zeros((0, 2)) if ref_points is None else np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        empty = grid is None and ref.shape[0] == 0
+        if q.shape[0] == 0 or empty or not np.all(np.isfinite(prior)):
+            return MatchResult(prior.copy(), np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE]), 0.0, 0.0, 0)
+        if grid is None:
+            grid = self.correlation_grid(ref, self._sig(ref, ref_sigmas), *self.search_box(q, prior))
+        g, ox, oy = grid
+        origin = (ox, oy)
+        res = self.resolution
+        offset = self.coarse_angle_offset
+        lookups = 0
+        for _ in range(4 if self.response_expansion else 1):
+            n_half = int(round(offset / self.coarse_angle_resolution))
+            angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+            pose, best, raw, resp, offs, n = self._search(
+                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True
+            )
+            lookups += n
+            if best > 0.0:
+                break
+            offset += math.radians(20.0)
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, 2.0 * res)
+        cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
+        if refine and best > 0.0:
+            n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
+            angles = np.arange(-n_half, n_half + 1) * self.fine_angle_step
+            pose, best, raw, resp_f, _, n = self._search(
+                g, origin, q, pose, prior, angles, 1, 1, penalize, False
+            )
+            lookups += n
+            # Angular spread at the best x, y of the fine search.
+            _, i_b, j_b = np.unravel_index(int(np.argmax(resp_f)), resp_f.shape)
+            a_curve = resp_f[:, i_b, j_b]
+            best_f = float(a_curve.max())
+            w = np.where(a_curve >= best_f - _COVARIANCE_BAND, a_curve, 0.0)
+            dth = angles - angles[int(np.argmax(a_curve))]
+            norm = w.sum()
+            var = (w * dth * dth).sum() / norm if norm > 1e-12 else 1000.0 * self.fine_angle_step**2
+            cov[2, 2] = max(var, self.fine_angle_step**2)
+        elif best <= 0.0:
+            cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
+        pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
+        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups))
+
+
+class GridCache:
+    """Correlation grids kept between matches, extended scan by scan instead of rebuilt.
+
+    The sequential matcher's reference set (the running scans) and a near
+    chain change by a scan or two from one kept scan to the next, while
+    smearing them costs as much as the search. An entry holds a grid over a
+    world box (the query's reach plus ``margin``) and the nodes drawn into it;
+    a request for a node set whose box fits and which differs from the entry
+    only by nodes to add, and by at most ``max_extra`` nodes drawn but no
+    longer asked for, smears just the new nodes. The grid is therefore a
+    superset of the asked-for scans by at most ``max_extra`` neighbouring
+    scans (Karto rebuilds it every time; the difference is a slightly longer
+    buffer). ``invalidate()`` (after an optimisation moved the nodes) drops
+    everything.
+    """
+
+    def __init__(self, matcher: CorrelativeMatcher, points_of, *, margin: float = 1.0,
+                 max_extra: int = 10, max_entries: int = 6) -> None:
+        self.matcher = matcher
+        self.points_of = points_of  # node -> (world points (N, 2), sigmas (N,))
+        self.margin = float(margin)
+        self.max_extra = int(max_extra)
+        self.max_entries = int(max_entries)
+        self._entries: list[dict] = []
+        self.builds = 0
+        self.extensions = 0
+
+    def invalidate(self) -> None:
+        self._entries.clear()
+
+    def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
+        wanted = set(int(n) for n in nodes)
+        for k, e in enumerate(self._entries):
+            if not (np.all(lo >= e["lo"]) and np.all(hi <= e["hi"])):
+                continue
+            have = e["nodes"]
+            if not (have & wanted) or len(have - wanted) > self.max_extra:
+                continue
+            missing = sorted(wanted - have)
+            if missing:
+                pts, sig = self._gather(missing)
+                grid, ox, oy = e["grid"]
+                order = np.argsort(np.floor((pts[:, 1] - oy) / self.matcher.resolution), kind="stable")
+                smear_points(grid, ox, oy, self.matcher.resolution,
+                             np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
+                             np.ascontiguousarray(sig[order]))
+                have.update(missing)
+                self.extensions += 1
+            self._entries.insert(0, self._entries.pop(k))
+            return e["grid"]
+        pts, sig = self._gather(sorted(wanted))
+        blo, bhi = lo - self.margin, hi + self.margin
+        grid = self.matcher.correlation_grid(pts, sig, blo, bhi, clip=False)
+        # The grid's true extent (whole cells) bounds what later requests may ask for.
+        ox, oy = grid[1], grid[2]
+        rows, cols = grid[0].shape
+        res = self.matcher.resolution
+        self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
+                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res])})
+        del self._entries[self.max_entries:]
+        self.builds += 1
+        return grid
+
+    def _gather(self, nodes: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        parts = [self.points_of(n) for n in nodes]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

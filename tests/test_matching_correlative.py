@@ -1,0 +1,133 @@
+"""The correlative scan matcher: known offsets, response, covariance, branch and bound, grid cache."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from slam2d.core import se2
+from slam2d.matching.correlative import MAX_VARIANCE, CorrelativeMatcher, GridCache
+
+
+def _segments(segs, step=0.02):
+    pts = []
+    for a, b in segs:
+        a = np.asarray(a, float)
+        b = np.asarray(b, float)
+        n = max(2, int(np.linalg.norm(b - a) / step))
+        pts.append(a + (b - a) * np.linspace(0.0, 1.0, n)[:, None])
+    return np.vstack(pts)
+
+
+# A room with an L-shaped obstacle: constrains x, y and heading.
+ROOM = _segments([
+    ((-4, -3), (4, -3)), ((4, -3), (4, 3)), ((4, 3), (-4, 3)), ((-4, 3), (-4, -3)),
+    ((1, 0), (2, 0)), ((2, 0), (2, 1.5)),
+])
+# A straight corridor: no information along x.
+CORRIDOR = _segments([((-30, -1), (30, -1)), ((-30, 1), (30, 1))])
+
+
+def _query(world, truth, rng, noise=0.005, every=3):
+    pts = se2.transform_points(se2.inverse(truth), world[::every])
+    return pts + rng.normal(0.0, noise, pts.shape)
+
+
+@pytest.mark.parametrize("offset", [(0.08, -0.05, 0.1), (-0.12, 0.1, -0.2), (0.0, 0.0, 0.0), (0.14, 0.14, 0.3)])
+def test_recovers_known_offsets(offset):
+    rng = np.random.default_rng(1)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    m = CorrelativeMatcher()
+    r = m.match(ROOM, None, q, truth + np.array(offset))
+    assert np.hypot(*(r.pose[:2] - truth[:2])) <= 0.015
+    assert abs(se2.wrap_angle(r.pose[2] - truth[2])) <= math.radians(0.3)
+    assert 0.7 < r.response <= 1.0 and r.raw_response >= r.response
+    cov = r.covariance
+    assert np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
+    # a good match in a structured room is certain to a few centimetres and a fraction of a degree
+    assert np.sqrt(cov[0, 0]) < 0.05 and np.sqrt(cov[1, 1]) < 0.05 and np.sqrt(cov[2, 2]) < math.radians(1.0)
+
+
+def test_response_is_one_on_itself_and_drops_off_the_walls():
+    m = CorrelativeMatcher()
+    pose = np.array([0.5, 0.5, 0.0])
+    q = se2.transform_points(se2.inverse(pose), ROOM)
+    assert m.match(ROOM, None, q, pose).response == pytest.approx(1.0)
+    # far away from anything: nothing to match
+    far = m.match(ROOM, None, q + 50.0, pose)
+    assert far.response == 0.0 and far.covariance[0, 0] == MAX_VARIANCE
+
+
+def test_penalty_prefers_the_prior_and_outside_window_is_not_found():
+    rng = np.random.default_rng(2)
+    truth = np.array([0.0, 0.0, 0.0])
+    q = _query(ROOM, truth, rng)
+    m = CorrelativeMatcher()
+    # an offset beyond the 0.3 m window cannot be recovered
+    r = m.match(ROOM, None, q, truth + np.array([0.5, 0.0, 0.0]))
+    assert np.hypot(*(r.pose[:2] - truth[:2])) > 0.3
+    pen = m.match(ROOM, None, q, truth + [0.1, 0.0, 0.0], penalize=True)
+    raw = m.match(ROOM, None, q, truth + [0.1, 0.0, 0.0], penalize=False)
+    assert pen.response < raw.response
+
+
+def test_corridor_covariance_is_long_along_the_corridor():
+    rng = np.random.default_rng(3)
+    truth = np.array([0.0, 0.0, 0.0])
+    q = _query(CORRIDOR, truth, rng)
+    q = q[np.abs(q[:, 0]) < 5.0]  # the laser sees 5 m of it
+    r = CorrelativeMatcher().match(CORRIDOR, None, q, truth + [0.05, 0.03, 0.0], penalize=False)
+    assert abs(r.pose[1] - truth[1]) < 0.015  # across: pinned
+    assert r.covariance[0, 0] > 20 * r.covariance[1, 1]  # along: unknown
+
+
+def test_branch_and_bound_equals_exhaustive_search():
+    rng = np.random.default_rng(4)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    for prior in (truth + [1.5, -2.0, 0.3], truth + [3.6, 2.1, -0.2]):  # the second reaches past the grid edge
+        wide = CorrelativeMatcher(search_size=8.0, resolution=0.05)
+        a = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+        wide.branch_and_bound = False
+        b = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+        assert np.array_equal(a.pose, b.pose) and a.response == b.response
+        assert np.allclose(a.covariance, b.covariance)
+        assert a.evaluated < b.evaluated / 3  # and it does pay
+
+
+def test_sensor_sigmas_widen_the_smear():
+    m = CorrelativeMatcher()
+    s = m.sigmas_for(np.array([0.0, 0.04, np.nan, 1.0]), 4)
+    assert s[0] == pytest.approx(0.03) and s[1] == pytest.approx(0.05) and s[2] == pytest.approx(0.03)
+    assert s[3] == pytest.approx(0.1)  # clamped to 10 cells
+
+
+def test_grid_cache_extends_to_the_same_grid_as_a_fresh_build():
+    m = CorrelativeMatcher()
+    parts = [ROOM[i::4] for i in range(4)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    lo, hi = np.array([-3.0, -2.0]), np.array([3.0, 2.0])
+    cache.get([0, 1], lo, hi)
+    g, ox, oy = cache.get([0, 1, 2, 3], lo, hi)  # extends the first grid
+    assert cache.builds == 1 and cache.extensions == 1
+    fresh, fx, fy = m.correlation_grid(np.vstack(parts), np.concatenate(sig), lo - 1.0, hi + 1.0, clip=False)
+    assert (ox, oy) == (fx, fy) and np.array_equal(g, fresh)
+    cache.invalidate()
+    cache.get([2, 3], lo, hi)
+    assert cache.builds == 2
+
+
+def test_empty_and_bad_input():
+    m = CorrelativeMatcher()
+    r = m.match(np.zeros((0, 2)), None, ROOM[:10], np.zeros(3))
+    assert r.response == 0.0 and np.all(np.diag(r.covariance) == MAX_VARIANCE)
+    r = m.match(ROOM, None, np.zeros((0, 2)), np.zeros(3))
+    assert r.response == 0.0
+    r = m.match(ROOM, None, ROOM[:10], np.array([np.nan, 0.0, 0.0]))
+    assert r.response == 0.0
+    with pytest.raises(ValueError):
+        CorrelativeMatcher(resolution=0.0)

@@ -1,0 +1,152 @@
+"""The graph SLAM methods `karto` and `lago`: loop closure in simulation, determinism, bad input, outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from slam2d.core import make_scan, se2
+from slam2d.core.frames import Frame
+from slam2d.errors import InputError
+from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+from slam2d.graph.evaluation import loop_closure_precision
+from slam2d.methods import get_method
+from slam2d.params import from_mapping
+from slam2d.sim.simulate import SimulationParams, simulate
+
+from tests.conftest import dataset_file
+
+
+@pytest.fixture(scope="module")
+def loop_sim():
+    """About one and a quarter laps of the corridor loop, GMapping's noisy odometry: it must close the loop."""
+    return simulate("corridor-loop", SimulationParams(duration=100.0, seed=5))
+
+
+def _run(name, frames, **settings):
+    cls = get_method(name)
+    slam = cls(from_mapping(cls.Params, settings), seed=0)
+    return slam.run(frames)
+
+
+@pytest.fixture(scope="module")
+def karto_run(loop_sim):
+    return _run("karto", loop_sim.frames())
+
+
+def _ate(slam, sim):
+    t, p = slam.trajectory()
+    return absolute_trajectory_error(associate(t, p, sim.scan_times, sim.scan_truth))["translation_m"]["rmse"]
+
+
+def test_closes_the_loop_correctly_and_beats_odometry(karto_run, loop_sim):
+    s = karto_run.diagnostics.summary
+    assert s["loop_closures"], "no loop closed"
+    prec = loop_closure_precision(s["loop_closures"], loop_sim.scan_times, loop_sim.scan_truth)
+    assert prec["closures"] == len(s["loop_closures"]) and prec["precision"] == 1.0, prec
+    for c in s["loop_closures"]:
+        assert c["response_fine"] >= 0.8 and c["cost_after"] <= c["cost_before"]
+    odo = absolute_trajectory_error(associate(loop_sim.scan_times, loop_sim.odometry[loop_sim.scan_indices],
+                                              loop_sim.scan_times, loop_sim.scan_truth))["translation_m"]["rmse"]
+    ate = _ate(karto_run, loop_sim)
+    assert ate < 0.2 and ate < odo / 5, (ate, odo)
+    # every frame got a pose; the graph holds the kept scans only
+    times, poses = karto_run.trajectory()
+    assert len(times) == len(loop_sim.scans) and np.all(np.isfinite(poses))
+    assert 0 < s["nodes"] < len(loop_sim.scans) and s["edges"] >= s["nodes"] - 1
+    resp = karto_run.diagnostics.array("response")
+    assert np.nanmedian(resp) > 0.8
+
+
+def test_map_is_drawn_at_the_optimised_poses(karto_run):
+    grid = karto_run.map()
+    assert grid.occupied().sum() > 200
+    before = grid.logodds.copy()
+    assert np.array_equal(karto_run.map().logodds, before)  # unchanged without new scans
+
+
+def test_deterministic(karto_run, loop_sim):
+    again = _run("karto", loop_sim.frames())
+    a, b = karto_run.trajectory(), again.trajectory()
+    assert np.array_equal(a[1], b[1])
+    assert again.diagnostics.summary["loop_closures"] == karto_run.diagnostics.summary["loop_closures"]
+
+
+def test_lago_method_and_backend_switch(loop_sim):
+    lago = _run("lago", loop_sim.frames())
+    assert lago.params.backend == "lago" and lago.diagnostics.summary["loop_closures"]
+    assert _ate(lago, loop_sim) < 0.3
+    assert get_method("karto")(from_mapping(get_method("karto").Params, {"backend": "lago"})).params.backend == "lago"
+
+
+def test_pose_graph_export(karto_run, tmp_path):
+    from slam2d.io.pose_graph import read_g2o, write_g2o, write_toro
+
+    g = karto_run.pose_graph()
+    write_g2o(tmp_path / "graph.g2o", g)
+    write_toro(tmp_path / "graph.graph", g)
+    back, ids = read_g2o(tmp_path / "graph.g2o")
+    assert back.num_nodes == g.num_nodes and back.num_edges == g.num_edges
+    assert np.allclose(back.poses, g.poses, atol=1e-6)
+    assert len(karto_run.node_times()) == g.num_nodes
+
+
+def test_bad_parameters_are_input_errors():
+    cls = get_method("karto")
+    for bad in ({"backend": "ceres"}, {"minimum_travel_distance": "-1"}, {"loop_match_minimum_response_fine": "1.5"},
+                {"nope": 1}):
+        with pytest.raises(InputError):
+            from_mapping(cls.Params, bad)
+
+
+def _scan(t, ranges):
+    return make_scan(t, ranges, -np.pi / 2, np.pi / 179, 0.0, 30.0)
+
+
+def test_degenerate_frames_do_not_crash():
+    """Empty scans, missing odometry, standing still and a huge odometry jump."""
+    rng = np.random.default_rng(0)
+    room = np.full(180, 3.0) + rng.normal(0, 0.01, 180)
+    frames = [
+        Frame(0, _scan(0.0, np.full(180, np.nan)), np.zeros(3)),  # nothing seen yet: no pose
+        Frame(1, _scan(0.1, room), np.zeros(3)),
+        Frame(2, _scan(0.2, room), np.zeros(3)),  # standing still: no node
+        Frame(3, _scan(0.3, room), None),  # no odometry
+        Frame(4, _scan(0.4, np.full(180, np.nan)), np.array([0.5, 0.0, 0.0])),  # empty scan after moving
+        Frame(5, _scan(0.5, room), np.array([1e4, 0.0, 0.0])),  # a jump
+    ]
+    slam = _run("karto", frames)
+    c = slam.diagnostics.counters
+    assert c["empty_scans"] == 2 and c["frames_without_odometry"] == 1
+    t, p = slam.trajectory()
+    assert len(t) == 5 and np.all(np.isfinite(p))
+    assert slam.diagnostics.summary["nodes"] == 2
+
+
+def test_run_folder_has_the_pose_graph(loop_sim, tmp_path):
+    from slam2d.methods.runner import run_method
+    from slam2d.sim.simulate import write_outputs
+
+    short = simulate("corridor-loop", SimulationParams(duration=20.0, seed=1))
+    write_outputs(short, tmp_path / "sim")
+    summary = run_method("karto", tmp_path / "sim" / "recording.log.gz", tmp_path / "run")
+    assert (tmp_path / "run" / "graph.g2o").is_file()
+    diag = json.loads((tmp_path / "run" / "diagnostics.json").read_text())
+    assert diag["summary"]["nodes"] > 10 and "loop_attempts" in diag["summary"]
+    assert summary.poses == len(short.scans)
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_intel_against_the_reference():
+    from slam2d.io import open_recording
+    from slam2d.io.tum import read_tum
+
+    log = dataset_file("intel/intel.clf.gz")
+    slam = _run("karto", open_recording(log).frames())
+    rt, rp = read_tum(dataset_file("intel/reference.tum"))
+    t, p = slam.trajectory()
+    ate = absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
+    assert ate < 0.10, ate
