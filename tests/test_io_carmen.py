@@ -612,3 +612,26 @@ def test_skip_mode_counts_skipped_lines(tmp_path):
     examples = " ".join(log.problems.examples["skipped bad FLASER line"])
     assert "line 2: FLASER range 3" in examples and "line 3: FLASER" in examples
     assert log.problems.total() == 3
+
+
+# ---------------------------------------------------------------------------- --range-min
+
+
+def test_range_min_option_turns_error_codes_into_no_return(tmp_path):
+    # A Hokuyo URG reports failed readings as a few millimetres; CARMEN logs state no minimum range.
+    ranges = [0.001, 1.0, 0.015, 2.0, 0.02]
+    path = _write_lines(tmp_path / "urg.log", [_robotlaser(ranges, 1.0), _flaser(ranges, 2.0)])
+    as_recorded = _scans(open_recording(path))
+    assert all(np.count_nonzero(np.isnan(s.ranges)) == 0 for s in as_recorded)
+    cleaned = _scans(open_recording(path, ReadOptions(range_min=0.02)))
+    for scan in cleaned:
+        assert scan.range_min == 0.02
+        np.testing.assert_array_equal(np.isnan(scan.ranges), [True, False, True, False, False])
+
+
+def test_range_min_beyond_the_maximum_names_the_line_and_field(tmp_path):
+    path = _write_lines(tmp_path / "urg.log", [_robotlaser([1.0, 2.0], 1.0)])
+    with pytest.raises(InputError) as err:
+        _scans(open_recording(path, ReadOptions(range_min=25.0)))
+    text = str(err.value)
+    assert "urg.log:1" in text and "range_max" in text and "range_min" in text

@@ -886,3 +886,16 @@ def test_a_second_pass_does_not_count_problems_twice():
     list(bag.frames())
     assert dict(bag.problems.counts) == first
     assert first  # the damaged index is reported
+
+
+def test_range_min_option_raises_the_bag_minimum(tmp_path):
+    ranges = [0.06, 0.5, 0.08, 3.0]  # the message states range_min 0.05
+    path = raw_ros2_bag(
+        tmp_path / "short", {"/scan": "sensor_msgs/msg/LaserScan"},
+        [("/scan", stamp_ns(1.0), ros2_scan(stamp_ns(1.0), ranges))],
+    )
+    (stated,) = [m for m in open_recording(path).messages() if isinstance(m, LaserScan)]
+    assert stated.range_min == pytest.approx(0.05) and not np.isnan(stated.ranges).any()
+    (raised,) = [m for m in open_recording(path, ReadOptions(range_min=0.1)).messages() if isinstance(m, LaserScan)]
+    assert raised.range_min == 0.1
+    np.testing.assert_array_equal(np.isnan(raised.ranges), [True, False, True, False])

@@ -66,6 +66,14 @@ class ReadOptions:
         low=0.0,
         help="a scan further than this from any odometry reading gets no odometry",
     )
+    range_min: float | None = param(
+        None,
+        unit="m",
+        low=0.0,
+        help="readings closer than this are no return, whatever the recording states (0.02 for a Hokuyo "
+        "URG, whose readings below 20 mm are error codes; CARMEN logs state no minimum); unset: the "
+        "recording's own minimum",
+    )
 
 
 @dataclass
@@ -97,6 +105,11 @@ class Recording(ABC):
     @abstractmethod
     def messages(self, progress: ProgressCallback | None = None) -> Iterator[Message]:
         """Scans and odometry readings in time order, cleaned, in constant memory."""
+
+    def range_min(self, stated: float) -> float:
+        """The minimum range a scan is cleaned with: the recording's ``stated`` one, raised to ``--range-min``."""
+        floor = self.options.range_min
+        return stated if floor is None else max(float(stated), float(floor))
 
     def frames(self, progress: ProgressCallback | None = None) -> Iterator[Frame]:
         """Scans paired with the odometry pose at their timestamps."""

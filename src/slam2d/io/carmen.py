@@ -519,7 +519,9 @@ class CarmenLog(Recording):
             geo = geometry[key] = self._side_geometry("front" if keyword == "FLASER" else "rear", n, params)
         angle_min, increment, range_min, range_max, mount = geo
         try:
-            scan = make_scan(values[n + 6], values[:n], angle_min, increment, range_min, range_max, mount=mount)
+            scan = make_scan(
+                values[n + 6], values[:n], angle_min, increment, self.range_min(range_min), range_max, mount=mount
+            )
         except ValueError as exc:
             raise _BadLine(keyword, str(exc)) from None
         return scan, values[n + 3 : n + 6]
@@ -586,7 +588,7 @@ class CarmenLog(Recording):
                 body[:n],
                 start_angle,
                 resolution,
-                params.get(_MIN_RANGE_PARAM, 0.0),
+                self.range_min(params.get(_MIN_RANGE_PARAM, 0.0)),
                 maximum_range,
                 mount=mount,
                 intensities=intensities,

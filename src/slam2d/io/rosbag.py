@@ -885,7 +885,7 @@ class RosBag(Recording):
                 msg.ranges,
                 msg.angle_min,
                 msg.angle_increment,
-                msg.range_min,
+                self.range_min(msg.range_min),
                 msg.range_max,
                 mount=mount,
                 intensities=intensities if intensities is not None and len(intensities) else None,
