@@ -107,6 +107,11 @@ class GMappingParams:
     free_cell_check: bool = param(
         False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
         "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)")
+    motion_noise: str = param(
+        "scan", choices=("update", "scan"),
+        help="update: one draw of the motion noise for the whole odometry increment since the last filter "
+        "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
+        "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -171,9 +176,11 @@ class GMapping(SlamMethod):
             log.warning("gmapping: odometry jumps %.2f m at t=%.3f; continuing", step, frame.timestamp)
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
-        normals = self.rng.standard_normal((self._n, 3))
         p = self.params
-        draw_from_motion(self._state, delta, normals, p.srr, p.srt, p.str, p.stt)
+        if p.motion_noise == "scan":
+            draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
+        else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
+            draw_from_motion(self._state, delta, np.zeros((self._n, 3)), 0.0, 0.0, 0.0, 0.0)
         self._odom = odom
         self._linear += step
         self._angular += abs(float(delta[2]))
@@ -222,6 +229,10 @@ class GMapping(SlamMethod):
         if not use.any():
             self.diagnostics.count("scans_without_valid_beam")
             return {"updated": 0.0}
+        if p.motion_noise == "update":
+            self._state = self._update_poses.copy()
+            draw_from_motion(self._state, se2.relative(self._update_odom, self._odom),
+                             self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
         s2 = np.nan_to_num(2.0 * s * s)
         beams = BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
