@@ -67,6 +67,9 @@ class GMappingParams:
     lstep: float = param(0.05, unit="m", low=1e-6, help="first translation step of the hill climb")
     astep: float = param(0.05, unit="rad", low=1e-6, help="first rotation step of the hill climb")
     iterations: int = param(5, low=0, high=30, help="step halvings before the hill climb stops")
+    angular_search: float = param(
+        0.0, unit="rad", low=0.0, high=3.2, help="not in GMapping: the hill climb starts from the best heading "
+        "within +-this of the particle's (steps of astep); 0: the original's climb")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -243,7 +246,7 @@ class GMapping(SlamMethod):
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.minimumScore,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search, p.minimumScore,
                         out_poses, score, like, ok)
         failures = int(n - ok.sum())
         if failures:
