@@ -165,6 +165,31 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
 # --------------------------------------------------------------------------- scan matcher
 
 
+def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
+    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    c, s = np.cos(angles), np.sin(angles)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
+        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
+    ranges = np.minimum(tx, ty)
+    maps = TiledMaps(1, 0.05, (-5, -5, 5, 5))
+    for _ in range(3):
+        maps.register(np.arange(1), np.zeros((1, 3)), ranges[None, :], angles, max_range=20.0, usable_range=20.0,
+                      generate_map=False)
+    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
+    start = np.array([[0.0, 0.0, 0.9]])
+    found = {}
+    for search in (0.0, 1.0):
+        out, score, like, ok = np.empty((1, 3)), np.empty(1), np.empty(1), np.empty(1, bool)
+        match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
+                        np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
+                        0.05, 0.05, 5, search, 0.0, out, score, like, ok)
+        found[search] = out[0].copy()
+    assert abs(found[1.0][2]) < 0.01 and np.hypot(found[1.0][0], found[1.0][1]) < 0.02
+    assert abs(found[0.0][2]) > 0.1  # the greedy climb alone does not get there
+
+
 def test_hill_climb_recovers_a_displaced_pose():
     """A room mapped from the origin; the matcher started 8 cm / 0.04 rad off finds the origin again."""
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
@@ -184,7 +209,7 @@ def test_hill_climb_recovers_a_displaced_pose():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 0.0, 0.0, out, score, like, ok)
     assert ok.all()
     assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
     assert np.all(score > 600)  # most of the 720 beams match

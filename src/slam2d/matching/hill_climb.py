@@ -154,11 +154,27 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
 
 @njit(cache=True)
 def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
-           lstep, astep, iterations):
-    """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``."""
+           lstep, astep, iterations, angular_search):
+    """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``.
+
+    With ``angular_search`` > 0 the climb starts from the best of the headings
+    ``th + k astep`` within +-angular_search (not in GMapping): a greedy climb
+    does not cross the local optima that a heading error of several ``astep``
+    puts between it and the right pose.
+    """
     x, y, th = start[0], start[1], start[2]
     current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                         False)[0]
+    steps = int(angular_search / astep)
+    th0 = th
+    for k in range(-steps, steps + 1):
+        if k == 0:
+            continue
+        sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th0 + k * astep, mount, ex, ey, ux,
+                       uy, div_s, div_l, False)[0]
+        if sc > current:
+            current = sc
+            th = th0 + k * astep
     best_score = -1.0
     ldelta, adelta = lstep, astep
     refinement = 0
@@ -196,16 +212,17 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
 
 @njit(cache=True, parallel=True)
 def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
-                    lstep, astep, iterations, minimum_score, out_poses, out_score, out_like, out_ok):
+                    lstep, astep, iterations, angular_search, minimum_score, out_poses, out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
 
     A particle whose best score is not above ``minimum_score`` keeps its pose
-    (``out_ok`` False: the match failed, odometry is used). ``out_like`` is the
+    (``out_ok`` False: the match failed, odometry is used). ``angular_search``:
+    see :func:`_climb` (0: GMapping's climb). ``out_like`` is the
     log-likelihood at the pose kept.
     """
     for p in prange(poses.shape[0]):
         x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
-                              div_s, div_l, lstep, astep, iterations)
+                              div_s, div_l, lstep, astep, iterations, angular_search)
         ok = sc > minimum_score
         if not ok:
             x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]

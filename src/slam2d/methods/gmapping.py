@@ -67,6 +67,9 @@ class GMappingParams:
     lstep: float = param(0.05, unit="m", low=1e-6, help="first translation step of the hill climb")
     astep: float = param(0.05, unit="rad", low=1e-6, help="first rotation step of the hill climb")
     iterations: int = param(5, low=0, high=30, help="step halvings before the hill climb stops")
+    angular_search: float = param(
+        0.0, unit="rad", low=0.0, high=3.2, help="not in GMapping: the hill climb starts from the best heading "
+        "within +-this of the particle's (steps of astep); 0: the original's climb")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -107,6 +110,11 @@ class GMappingParams:
     free_cell_check: bool = param(
         False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
         "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)")
+    motion_noise: str = param(
+        "scan", choices=("update", "scan"),
+        help="update: one draw of the motion noise for the whole odometry increment since the last filter "
+        "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
+        "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -171,9 +179,11 @@ class GMapping(SlamMethod):
             log.warning("gmapping: odometry jumps %.2f m at t=%.3f; continuing", step, frame.timestamp)
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
-        normals = self.rng.standard_normal((self._n, 3))
         p = self.params
-        draw_from_motion(self._state, delta, normals, p.srr, p.srt, p.str, p.stt)
+        if p.motion_noise == "scan":
+            draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
+        else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
+            draw_from_motion(self._state, delta, np.zeros((self._n, 3)), 0.0, 0.0, 0.0, 0.0)
         self._odom = odom
         self._linear += step
         self._angular += abs(float(delta[2]))
@@ -222,6 +232,10 @@ class GMapping(SlamMethod):
         if not use.any():
             self.diagnostics.count("scans_without_valid_beam")
             return {"updated": 0.0}
+        if p.motion_noise == "update":
+            self._state = self._update_poses.copy()
+            draw_from_motion(self._state, se2.relative(self._update_odom, self._odom),
+                             self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
         s2 = np.nan_to_num(2.0 * s * s)
         beams = BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
@@ -232,7 +246,7 @@ class GMapping(SlamMethod):
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.minimumScore,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search, p.minimumScore,
                         out_poses, score, like, ok)
         failures = int(n - ok.sum())
         if failures:
