@@ -629,6 +629,16 @@ def test_range_min_option_turns_error_codes_into_no_return(tmp_path):
         np.testing.assert_array_equal(np.isnan(scan.ranges), [True, False, True, False, False])
 
 
+def test_range_max_option_turns_a_fixed_no_return_range_into_no_return(tmp_path):
+    ranges = [50.0, 10.0, 49.95, 50.0]  # a laser that reports no return as 50 m
+    path = _write_lines(tmp_path / "sick.log", [_flaser(ranges, 1.0)])
+    (stated,) = _scans(open_recording(path))
+    assert not np.isnan(stated.ranges).any()
+    (cleaned,) = _scans(open_recording(path, ReadOptions(range_max=49.9)))
+    assert cleaned.range_max == 49.9
+    np.testing.assert_array_equal(np.isnan(cleaned.ranges), [True, False, True, True])
+
+
 def test_range_min_beyond_the_maximum_names_the_line_and_field(tmp_path):
     path = _write_lines(tmp_path / "urg.log", [_robotlaser([1.0, 2.0], 1.0)])
     with pytest.raises(InputError) as err:

@@ -74,6 +74,13 @@ class ReadOptions:
         "URG, whose readings below 20 mm are error codes; CARMEN logs state no minimum); unset: the "
         "recording's own minimum",
     )
+    range_max: float | None = param(
+        None,
+        unit="m",
+        low=0.0,
+        help="readings at or beyond this are no return, whatever the recording states (a laser that "
+        "reports no return as a fixed long range, e.g. 50 m in the aces log); unset: the recording's own maximum",
+    )
 
 
 @dataclass
@@ -110,6 +117,11 @@ class Recording(ABC):
         """The minimum range a scan is cleaned with: the recording's ``stated`` one, raised to ``--range-min``."""
         floor = self.options.range_min
         return stated if floor is None else max(float(stated), float(floor))
+
+    def range_max(self, stated: float) -> float:
+        """The maximum range a scan is cleaned with: the recording's ``stated`` one, lowered to ``--range-max``."""
+        ceiling = self.options.range_max
+        return stated if ceiling is None else min(float(stated), float(ceiling))
 
     def frames(self, progress: ProgressCallback | None = None) -> Iterator[Frame]:
         """Scans paired with the odometry pose at their timestamps."""

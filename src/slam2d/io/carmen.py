@@ -520,7 +520,7 @@ class CarmenLog(Recording):
         angle_min, increment, range_min, range_max, mount = geo
         try:
             scan = make_scan(
-                values[n + 6], values[:n], angle_min, increment, self.range_min(range_min), range_max, mount=mount
+                values[n + 6], values[:n], angle_min, increment, self.range_min(range_min), self.range_max(range_max), mount=mount
             )
         except ValueError as exc:
             raise _BadLine(keyword, str(exc)) from None
@@ -589,7 +589,7 @@ class CarmenLog(Recording):
                 start_angle,
                 resolution,
                 self.range_min(params.get(_MIN_RANGE_PARAM, 0.0)),
-                maximum_range,
+                self.range_max(maximum_range),
                 mount=mount,
                 intensities=intensities,
             )

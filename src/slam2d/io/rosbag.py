@@ -886,7 +886,7 @@ class RosBag(Recording):
                 msg.angle_min,
                 msg.angle_increment,
                 self.range_min(msg.range_min),
-                msg.range_max,
+                self.range_max(msg.range_max),
                 mount=mount,
                 intensities=intensities if intensities is not None and len(intensities) else None,
                 upside_down=upside_down,
