@@ -114,8 +114,16 @@ def test_grid_cache_extends_to_the_same_grid_as_a_fresh_build():
     cache.get([0, 1], lo, hi)
     g, ox, oy = cache.get([0, 1, 2, 3], lo, hi)  # extends the first grid
     assert cache.builds == 1 and cache.extensions == 1
-    fresh, fx, fy = m.correlation_grid(np.vstack(parts), np.concatenate(sig), lo - 1.0, hi + 1.0, clip=False)
-    assert (ox, oy) == (fx, fy) and np.array_equal(g, fresh)
+    rows, cols = g.shape
+    box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+    fresh, fx, fy = m.correlation_grid(np.vstack(parts), np.concatenate(sig), np.array([ox, oy]), box_hi, clip=False)
+    assert np.allclose((ox, oy), (fx, fy)) and np.array_equal(g, fresh)
+    # The cached grid covers the reference points, not the query's reach: a match through it
+    # equals a match that builds its own grid over the whole reach.
+    prior = np.array([0.05, -0.04, 0.03])
+    direct = m.match(np.vstack(parts), np.concatenate(sig), ROOM, prior)
+    cached = m.match(None, None, ROOM, prior, grid=cache.get([0, 1, 2, 3], *m.search_box(ROOM, prior)))
+    assert np.allclose(direct.pose, cached.pose) and direct.response == cached.response
     cache.invalidate()
     cache.get([2, 3], lo, hi)
     assert cache.builds == 2

@@ -136,6 +136,12 @@ class GraphSlamParams(GridParams):
         help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
         "(not in Karto); inf turns the gate off",
     )
+    loop_retry_distance: float = param(
+        0.5, unit="m", low=0.0,
+        help="a chain a loop match was tried against is tried again only once the robot is this far from where "
+        "it was tried or the graph was optimised since (not in Karto, which retries at every kept scan; "
+        "0 retries always)",
+    )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
     )
@@ -270,6 +276,8 @@ class GraphFrontend:
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
         self.optimizations: list[dict[str, float]] = []
+        # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
+        self._tried: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
@@ -305,10 +313,12 @@ class GraphFrontend:
     def _node_reference(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return self._world_points(i), self._sigmas[i]
 
-    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine):
+    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine,
+               min_response=-1.0):
         """Match the query points at ``prior`` against the nodes' scans, through the grid cache."""
         grid = cache.get(nodes, *matcher.search_box(points, prior))
-        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid)
+        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid,
+                             min_response=min_response)
 
     def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Where each node is for distance tests: barycentre of its points, or the robot position."""
@@ -503,7 +513,15 @@ class GraphFrontend:
             start = b
             chain = list(range(a, b))
             pose = self.graph.poses[node].copy()
-            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False)
+            if self._tried_nearby(a, b, pose, p.loop_retry_distance):
+                self._count("loop_skipped_retry")
+                continue
+            self._tried.append((a, b, float(pose[0]), float(pose[1])))
+            del self._tried[:-100]  # only recent attempts can be near the robot
+            # Poses that cannot reach the acceptance threshold are not searched (exact for every
+            # accepted closure; a rejected one may report a lower response than the best).
+            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False,
+                                 min_response=p.loop_match_minimum_response_coarse)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             path = self._path_length(b - 1, node)
@@ -541,6 +559,15 @@ class GraphFrontend:
             self._count("loop_closures")
             closed += 1
 
+    def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float) -> bool:
+        """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""
+        if distance <= 0:
+            return False
+        for ta, tb, x, y in reversed(self._tried):
+            if ta < b and a < tb and math.hypot(pose[0] - x, pose[1] - y) < distance:
+                return True
+        return False
+
     def optimize(self) -> tuple[float, float]:
         """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
         if self.graph.num_edges == 0:
@@ -553,6 +580,7 @@ class GraphFrontend:
         self._world = [None] * len(self._world)
         self._seq_cache.invalidate()
         self._loop_cache.invalidate()
+        self._tried.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
@@ -581,6 +609,8 @@ class GraphFrontend:
             "loop_closures": [c.as_dict() for c in self.loop_closures],
             "loop_attempts": list(self.loop_attempts),
             "optimizations": list(self.optimizations),
+            "grid_builds": {"sequential": self._seq_cache.builds, "loop": self._loop_cache.builds},
+            "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
         }
 
 
