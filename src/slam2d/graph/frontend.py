@@ -137,10 +137,10 @@ class GraphSlamParams(GridParams):
         "(not in Karto); inf turns the gate off",
     )
     loop_retry_distance: float = param(
-        0.5, unit="m", low=0.0,
-        help="a chain a loop match was tried against is tried again only once the robot is this far from where "
-        "it was tried or the graph was optimised since (not in Karto, which retries at every kept scan; "
-        "0 retries always)",
+        0.3, unit="m", low=0.0,
+        help="a chain a loop match was tried against (or a near chain that failed to link) is tried again only "
+        "once the robot is this far from where it was tried or the graph was optimised since (not in Karto, "
+        "which retries at every kept scan; 0 retries always)",
     )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
@@ -278,6 +278,8 @@ class GraphFrontend:
         self.optimizations: list[dict[str, float]] = []
         # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
         self._tried: list[tuple[int, int, float, float]] = []
+        # Near chains that failed to link since the last optimisation, the same way.
+        self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
@@ -488,9 +490,18 @@ class GraphFrontend:
         for a, b in _runs(near):
             if a <= node < b or not linked[a:b].any() or b - a < p.loop_match_minimum_chain_size:
                 continue
+            if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
+                self._count("near_skipped_retry")
+                continue
             chain = list(range(a, b))
             result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
-            if result.response > p.link_match_minimum_response_fine:
+            if result.response <= p.link_match_minimum_response_fine:
+                # Only a chain far from linking (out of view, behind a wall) is skipped next
+                # time: one that nearly linked may link from the next pose.
+                if result.response < 0.5 * p.link_match_minimum_response_fine:
+                    self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
+                    del self._near_failed[:-100]
+            else:
                 means.append(result.pose)
                 covs.append(result.covariance)
                 self._link_chain_to_scan(chain, node, result.pose, result.covariance)
@@ -520,11 +531,17 @@ class GraphFrontend:
             del self._tried[:-100]  # only recent attempts can be near the robot
             # Poses that cannot reach the acceptance threshold are not searched (exact for every
             # accepted closure; a rejected one may report a lower response than the best).
-            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False,
+            # The drift gate bounds the correction a closure may make, so the window need not
+            # reach farther (a look-alike beyond it would be rejected anyway).
+            path = self._path_length(b - 1, node)
+            allowed = p.loop_match_maximum_correction + p.loop_match_maximum_drift * path
+            matcher = self.loop
+            if 2.0 * allowed < self.loop.search_size:
+                matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
+            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False, refine=False,
                                  min_response=p.loop_match_minimum_response_coarse)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
-            path = self._path_length(b - 1, node)
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
                        "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
                        "correction_m": correction, "path_m": path}
@@ -559,11 +576,11 @@ class GraphFrontend:
             self._count("loop_closures")
             closed += 1
 
-    def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float) -> bool:
+    def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float, tried=None) -> bool:
         """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""
         if distance <= 0:
             return False
-        for ta, tb, x, y in reversed(self._tried):
+        for ta, tb, x, y in reversed(self._tried if tried is None else tried):
             if ta < b and a < tb and math.hypot(pose[0] - x, pose[1] - y) < distance:
                 return True
         return False
@@ -581,6 +598,7 @@ class GraphFrontend:
         self._seq_cache.invalidate()
         self._loop_cache.invalidate()
         self._tried.clear()
+        self._near_failed.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}

@@ -36,6 +36,7 @@ fraction of the lookups.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -315,6 +316,13 @@ class CorrelativeMatcher:
         # Coarse translations: two cells per step, covering half the window each way.
         self._coarse_half = max(1, int(round(0.5 * self.search_size / (2.0 * self.resolution))))
         self.branch_and_bound = True
+
+    def with_window(self, search_size: float) -> "CorrelativeMatcher":
+        """The same matcher over a smaller (or larger) x, y window; its grids are interchangeable."""
+        out = copy.copy(self)
+        out.search_size = float(search_size)
+        out._coarse_half = max(1, int(round(0.5 * out.search_size / (2.0 * out.resolution))))
+        return out
 
     # ----------------------------------------------------------------- pieces
 
