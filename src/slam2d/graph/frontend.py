@@ -123,6 +123,12 @@ class GraphSlamParams(GridParams):
     loop_match_minimum_response_coarse: float = param(
         0.8, low=0.0, high=1.0, help="least response of the coarse loop match [LoopMatchMinimumResponseCoarse]"
     )
+    loop_coarse_relative: bool = param(
+        False,
+        help="the coarse loop threshold is relative to the best coarse response the new scan can reach against "
+        "itself when the truth lies half a coarse step (cell and angle) from every sampled pose (not in Karto): "
+        "the coarse grid's sampling alone costs long-range scans a tenth to a third of their response",
+    )
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
     )
@@ -278,6 +284,7 @@ class GraphFrontend:
         self.optimizations: list[dict[str, float]] = []
         # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
         self._tried: list[tuple[int, int, float, float]] = []
+        self._self_response: dict[int, float] = {}
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -531,6 +538,9 @@ class GraphFrontend:
             del self._tried[:-100]  # only recent attempts can be near the robot
             # Poses that cannot reach the acceptance threshold are not searched (exact for every
             # accepted closure; a rejected one may report a lower response than the best).
+            coarse_threshold = p.loop_match_minimum_response_coarse
+            if p.loop_coarse_relative:
+                coarse_threshold *= self._coarse_self_response(node, points)
             # The drift gate bounds the correction a closure may make, so the window need not
             # reach farther (a look-alike beyond it would be rejected anyway).
             path = self._path_length(b - 1, node)
@@ -539,18 +549,18 @@ class GraphFrontend:
             if 2.0 * allowed < self.loop.search_size:
                 matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
             coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False, refine=False,
-                                 min_response=p.loop_match_minimum_response_coarse)
+                                 min_response=coarse_threshold)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
                        "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
-                       "correction_m": correction, "path_m": path}
+                       "correction_m": correction, "path_m": path, "threshold_coarse": coarse_threshold}
             self.loop_attempts.append(attempt)
             if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
                 self._count("loop_rejected_drift")
                 continue
             if not (
-                coarse.response > p.loop_match_minimum_response_coarse
+                coarse.response > coarse_threshold
                 and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
                 and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse
             ):
@@ -575,6 +585,26 @@ class GraphFrontend:
             )
             self._count("loop_closures")
             closed += 1
+
+    def _coarse_self_response(self, node: int, points: NDArray[np.float64]) -> float:
+        """Coarse loop response of the scan against itself, the truth half a coarse step off every sample.
+
+        This is what a perfect loop match is sure to reach on the loop grid: points
+        far from the robot leave their cell when the angle is off by a degree, so a
+        long-range scan scores well below 1 even at the right place.
+        """
+        got = self._self_response.get(node)
+        if got is None:
+            m = self.loop
+            sig = self._sigmas[node]
+            lo, hi = points.min(axis=0) - 1.0, points.max(axis=0) + 1.0
+            grid = m.correlation_grid(points, sig, lo, hi)
+            off = np.array([0.5 * m.resolution, 0.5 * m.resolution, 0.25 * m.coarse_angle_resolution])
+            small = m.with_window(8.0 * m.resolution)
+            r = small.match(None, None, points, off, penalize=False, refine=False, grid=grid)
+            got = float(min(max(r.response, 0.5), 1.0))
+            self._self_response[node] = got
+        return got
 
     def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float, tried=None) -> bool:
         """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""
