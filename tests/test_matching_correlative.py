@@ -98,6 +98,36 @@ def test_branch_and_bound_equals_exhaustive_search():
         assert a.evaluated < b.evaluated / 3  # and it does pay
 
 
+def test_branch_and_bound_threshold_is_exact_when_reached_and_below_it_otherwise():
+    rng = np.random.default_rng(5)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    prior = truth + [1.5, -2.0, 0.3]
+    wide = CorrelativeMatcher(search_size=8.0, resolution=0.05)
+    full = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+    reached = wide.match(ROOM, None, q, prior, penalize=False, refine=False, min_response=full.response - 0.05)
+    assert np.array_equal(reached.pose, full.pose) and reached.response == full.response
+    assert np.allclose(reached.covariance, full.covariance)
+    assert reached.evaluated <= full.evaluated
+    # A threshold above the best response: the search gives up with something below it, cheaply.
+    missed = wide.match(ROOM, None, q, prior, penalize=False, refine=False, min_response=full.response + 0.3)
+    assert missed.response < full.response + 0.3
+    assert missed.evaluated < 0.8 * full.evaluated
+
+
+def test_smaller_window_matcher_finds_the_same_pose_inside_it():
+    rng = np.random.default_rng(6)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    prior = truth + [0.4, -0.3, 0.1]
+    wide = CorrelativeMatcher(search_size=8.0, resolution=0.05)
+    narrow = wide.with_window(1.2)
+    assert narrow.search_size == 1.2 and wide.search_size == 8.0
+    a = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+    b = narrow.match(ROOM, None, q, prior, penalize=False, refine=False)
+    assert np.allclose(a.pose, b.pose) and a.response == b.response
+
+
 def test_sensor_sigmas_widen_the_smear():
     m = CorrelativeMatcher()
     s = m.sigmas_for(np.array([0.0, 0.04, np.nan, 1.0]), 4)

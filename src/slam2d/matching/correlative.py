@@ -434,7 +434,7 @@ class CorrelativeMatcher:
             order = np.argsort(-flat, kind="stable")
             band = _COVARIANCE_BAND + 1e-9
             sums, lookups = _score_blocks(
-                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points), float(floor)
+                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
             )
             lookups += flat.size * n_points
         raw = sums / (n_points * _SCALE)
