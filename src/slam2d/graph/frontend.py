@@ -519,11 +519,13 @@ class GraphFrontend:
         p = self.params
         closed = 0
         start = 0
+        candidate = None
         while True:
-            ref_xy = self.reference_positions()
-            linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
-            d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
-            candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
+            if candidate is None:  # the graph changes only when a closure is accepted
+                ref_xy = self.reference_positions()
+                linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
+                d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
+                candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
             chains = [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
             if not chains:
                 return closed
@@ -585,6 +587,7 @@ class GraphFrontend:
             )
             self._count("loop_closures")
             closed += 1
+            candidate = None
 
     def _coarse_self_response(self, node: int, points: NDArray[np.float64]) -> float:
         """Coarse loop response of the scan against itself, the truth half a coarse step off every sample.
