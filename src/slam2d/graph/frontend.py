@@ -46,8 +46,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order
+from numba import njit
 
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
@@ -341,13 +340,8 @@ class GraphFrontend:
         n = self.graph.num_nodes
         d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
         near = d2 < max_distance**2 + 1e-9
-        ei, ej = self.graph.edge_i, self.graph.edge_j
-        keep = near[ei] & near[ej]
-        adj = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (ei[keep], ej[keep])), shape=(n, n)).tocsr()
-        order = breadth_first_order(adj, node, directed=False, return_predecessors=False)
-        out = np.zeros(n, dtype=bool)
-        out[order] = True
-        return out
+        return _reachable(node, near, np.asarray(self.graph.edge_i, dtype=np.int64),
+                          np.asarray(self.graph.edge_j, dtype=np.int64), n)
 
     def _moved_enough(self, odom: NDArray[np.float64], t: float) -> bool:
         if not self._odom:
@@ -677,6 +671,41 @@ def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: flo
     _, first = np.unique(cells, axis=0, return_index=True)
     keep = np.sort(first)
     return points[keep], sigmas[keep]
+
+
+@njit(cache=True)
+def _reachable(start, near, ei, ej, n):
+    """Nodes reachable from ``start`` over edges whose both ends are ``near`` (breadth first)."""
+    deg = np.zeros(n + 1, np.int64)
+    for k in range(ei.shape[0]):
+        if near[ei[k]] and near[ej[k]]:
+            deg[ei[k] + 1] += 1
+            deg[ej[k] + 1] += 1
+    for i in range(n):
+        deg[i + 1] += deg[i]
+    adj = np.empty(deg[n], np.int64)
+    fill = deg[:n].copy()
+    for k in range(ei.shape[0]):
+        if near[ei[k]] and near[ej[k]]:
+            adj[fill[ei[k]]] = ej[k]
+            fill[ei[k]] += 1
+            adj[fill[ej[k]]] = ei[k]
+            fill[ej[k]] += 1
+    out = np.zeros(n, np.bool_)
+    queue = np.empty(n, np.int64)
+    out[start] = True
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        v = queue[head]
+        head += 1
+        for k in range(deg[v], deg[v + 1]):
+            w = adj[k]
+            if not out[w]:
+                out[w] = True
+                queue[tail] = w
+                tail += 1
+    return out
 
 
 def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float64]]) -> NDArray[np.float64]:
