@@ -98,6 +98,36 @@ def test_branch_and_bound_equals_exhaustive_search():
         assert a.evaluated < b.evaluated / 3  # and it does pay
 
 
+def test_branch_and_bound_threshold_is_exact_when_reached_and_below_it_otherwise():
+    rng = np.random.default_rng(5)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    prior = truth + [1.5, -2.0, 0.3]
+    wide = CorrelativeMatcher(search_size=8.0, resolution=0.05)
+    full = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+    reached = wide.match(ROOM, None, q, prior, penalize=False, refine=False, min_response=full.response - 0.05)
+    assert np.array_equal(reached.pose, full.pose) and reached.response == full.response
+    assert np.allclose(reached.covariance, full.covariance)
+    assert reached.evaluated <= full.evaluated
+    # A threshold above the best response: the search gives up with something below it, cheaply.
+    missed = wide.match(ROOM, None, q, prior, penalize=False, refine=False, min_response=full.response + 0.3)
+    assert missed.response < full.response + 0.3
+    assert missed.evaluated < 0.8 * full.evaluated
+
+
+def test_smaller_window_matcher_finds_the_same_pose_inside_it():
+    rng = np.random.default_rng(6)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    prior = truth + [0.4, -0.3, 0.1]
+    wide = CorrelativeMatcher(search_size=8.0, resolution=0.05)
+    narrow = wide.with_window(1.2)
+    assert narrow.search_size == 1.2 and wide.search_size == 8.0
+    a = wide.match(ROOM, None, q, prior, penalize=False, refine=False)
+    b = narrow.match(ROOM, None, q, prior, penalize=False, refine=False)
+    assert np.allclose(a.pose, b.pose) and a.response == b.response
+
+
 def test_sensor_sigmas_widen_the_smear():
     m = CorrelativeMatcher()
     s = m.sigmas_for(np.array([0.0, 0.04, np.nan, 1.0]), 4)
@@ -114,8 +144,16 @@ def test_grid_cache_extends_to_the_same_grid_as_a_fresh_build():
     cache.get([0, 1], lo, hi)
     g, ox, oy = cache.get([0, 1, 2, 3], lo, hi)  # extends the first grid
     assert cache.builds == 1 and cache.extensions == 1
-    fresh, fx, fy = m.correlation_grid(np.vstack(parts), np.concatenate(sig), lo - 1.0, hi + 1.0, clip=False)
-    assert (ox, oy) == (fx, fy) and np.array_equal(g, fresh)
+    rows, cols = g.shape
+    box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+    fresh, fx, fy = m.correlation_grid(np.vstack(parts), np.concatenate(sig), np.array([ox, oy]), box_hi, clip=False)
+    assert np.allclose((ox, oy), (fx, fy)) and np.array_equal(g, fresh)
+    # The cached grid covers the reference points, not the query's reach: a match through it
+    # equals a match that builds its own grid over the whole reach.
+    prior = np.array([0.05, -0.04, 0.03])
+    direct = m.match(np.vstack(parts), np.concatenate(sig), ROOM, prior)
+    cached = m.match(None, None, ROOM, prior, grid=cache.get([0, 1, 2, 3], *m.search_box(ROOM, prior)))
+    assert np.allclose(direct.pose, cached.pose) and direct.response == cached.response
     cache.invalidate()
     cache.get([2, 3], lo, hi)
     assert cache.builds == 2

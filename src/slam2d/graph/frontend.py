@@ -46,8 +46,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order
+from numba import njit
 
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
@@ -123,6 +122,12 @@ class GraphSlamParams(GridParams):
     loop_match_minimum_response_coarse: float = param(
         0.8, low=0.0, high=1.0, help="least response of the coarse loop match [LoopMatchMinimumResponseCoarse]"
     )
+    loop_coarse_relative: bool = param(
+        False,
+        help="the coarse loop threshold is relative to the best coarse response the new scan can reach against "
+        "itself when the truth lies half a coarse step (cell and angle) from every sampled pose (not in Karto): "
+        "the coarse grid's sampling alone costs long-range scans a tenth to a third of their response",
+    )
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
     )
@@ -135,6 +140,12 @@ class GraphSlamParams(GridParams):
         0.02, unit="m/m", low=0.0,
         help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
         "(not in Karto); inf turns the gate off",
+    )
+    loop_retry_distance: float = param(
+        0.3, unit="m", low=0.0,
+        help="a chain a loop match was tried against (or a near chain that failed to link) is tried again only "
+        "once the robot is this far from where it was tried or the graph was optimised since (not in Karto, "
+        "which retries at every kept scan; 0 retries always)",
     )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
@@ -270,6 +281,11 @@ class GraphFrontend:
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
         self.optimizations: list[dict[str, float]] = []
+        # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
+        self._tried: list[tuple[int, int, float, float]] = []
+        self._self_response: dict[int, float] = {}
+        # Near chains that failed to link since the last optimisation, the same way.
+        self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
@@ -305,10 +321,12 @@ class GraphFrontend:
     def _node_reference(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return self._world_points(i), self._sigmas[i]
 
-    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine):
+    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine,
+               min_response=-1.0):
         """Match the query points at ``prior`` against the nodes' scans, through the grid cache."""
         grid = cache.get(nodes, *matcher.search_box(points, prior))
-        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid)
+        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid,
+                             min_response=min_response)
 
     def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Where each node is for distance tests: barycentre of its points, or the robot position."""
@@ -322,13 +340,8 @@ class GraphFrontend:
         n = self.graph.num_nodes
         d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
         near = d2 < max_distance**2 + 1e-9
-        ei, ej = self.graph.edge_i, self.graph.edge_j
-        keep = near[ei] & near[ej]
-        adj = coo_matrix((np.ones(int(keep.sum()), dtype=np.int8), (ei[keep], ej[keep])), shape=(n, n)).tocsr()
-        order = breadth_first_order(adj, node, directed=False, return_predecessors=False)
-        out = np.zeros(n, dtype=bool)
-        out[order] = True
-        return out
+        return _reachable(node, near, np.asarray(self.graph.edge_i, dtype=np.int64),
+                          np.asarray(self.graph.edge_j, dtype=np.int64), n)
 
     def _moved_enough(self, odom: NDArray[np.float64], t: float) -> bool:
         if not self._odom:
@@ -478,9 +491,18 @@ class GraphFrontend:
         for a, b in _runs(near):
             if a <= node < b or not linked[a:b].any() or b - a < p.loop_match_minimum_chain_size:
                 continue
+            if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
+                self._count("near_skipped_retry")
+                continue
             chain = list(range(a, b))
             result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
-            if result.response > p.link_match_minimum_response_fine:
+            if result.response <= p.link_match_minimum_response_fine:
+                # Only a chain far from linking (out of view, behind a wall) is skipped next
+                # time: one that nearly linked may link from the next pose.
+                if result.response < 0.5 * p.link_match_minimum_response_fine:
+                    self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
+                    del self._near_failed[:-100]
+            else:
                 means.append(result.pose)
                 covs.append(result.covariance)
                 self._link_chain_to_scan(chain, node, result.pose, result.covariance)
@@ -491,11 +513,13 @@ class GraphFrontend:
         p = self.params
         closed = 0
         start = 0
+        candidate = None
         while True:
-            ref_xy = self.reference_positions()
-            linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
-            d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
-            candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
+            if candidate is None:  # the graph changes only when a closure is accepted
+                ref_xy = self.reference_positions()
+                linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
+                d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
+                candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
             chains = [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
             if not chains:
                 return closed
@@ -503,19 +527,36 @@ class GraphFrontend:
             start = b
             chain = list(range(a, b))
             pose = self.graph.poses[node].copy()
-            coarse = self._match(self.loop, self._loop_cache, chain, points, pose, penalize=False, refine=False)
+            if self._tried_nearby(a, b, pose, p.loop_retry_distance):
+                self._count("loop_skipped_retry")
+                continue
+            self._tried.append((a, b, float(pose[0]), float(pose[1])))
+            del self._tried[:-100]  # only recent attempts can be near the robot
+            # Poses that cannot reach the acceptance threshold are not searched (exact for every
+            # accepted closure; a rejected one may report a lower response than the best).
+            coarse_threshold = p.loop_match_minimum_response_coarse
+            if p.loop_coarse_relative:
+                coarse_threshold *= self._coarse_self_response(node, points)
+            # The drift gate bounds the correction a closure may make, so the window need not
+            # reach farther (a look-alike beyond it would be rejected anyway).
+            path = self._path_length(b - 1, node)
+            allowed = p.loop_match_maximum_correction + p.loop_match_maximum_drift * path
+            matcher = self.loop
+            if 2.0 * allowed < self.loop.search_size:
+                matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
+            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False, refine=False,
+                                 min_response=coarse_threshold)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
-            path = self._path_length(b - 1, node)
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
                        "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
-                       "correction_m": correction, "path_m": path}
+                       "correction_m": correction, "path_m": path, "threshold_coarse": coarse_threshold}
             self.loop_attempts.append(attempt)
             if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
                 self._count("loop_rejected_drift")
                 continue
             if not (
-                coarse.response > p.loop_match_minimum_response_coarse
+                coarse.response > coarse_threshold
                 and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
                 and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse
             ):
@@ -540,6 +581,36 @@ class GraphFrontend:
             )
             self._count("loop_closures")
             closed += 1
+            candidate = None
+
+    def _coarse_self_response(self, node: int, points: NDArray[np.float64]) -> float:
+        """Coarse loop response of the scan against itself, the truth half a coarse step off every sample.
+
+        This is what a perfect loop match is sure to reach on the loop grid: points
+        far from the robot leave their cell when the angle is off by a degree, so a
+        long-range scan scores well below 1 even at the right place.
+        """
+        got = self._self_response.get(node)
+        if got is None:
+            m = self.loop
+            sig = self._sigmas[node]
+            lo, hi = points.min(axis=0) - 1.0, points.max(axis=0) + 1.0
+            grid = m.correlation_grid(points, sig, lo, hi)
+            off = np.array([0.5 * m.resolution, 0.5 * m.resolution, 0.25 * m.coarse_angle_resolution])
+            small = m.with_window(8.0 * m.resolution)
+            r = small.match(None, None, points, off, penalize=False, refine=False, grid=grid)
+            got = float(min(max(r.response, 0.5), 1.0))
+            self._self_response[node] = got
+        return got
+
+    def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float, tried=None) -> bool:
+        """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""
+        if distance <= 0:
+            return False
+        for ta, tb, x, y in reversed(self._tried if tried is None else tried):
+            if ta < b and a < tb and math.hypot(pose[0] - x, pose[1] - y) < distance:
+                return True
+        return False
 
     def optimize(self) -> tuple[float, float]:
         """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
@@ -553,6 +624,8 @@ class GraphFrontend:
         self._world = [None] * len(self._world)
         self._seq_cache.invalidate()
         self._loop_cache.invalidate()
+        self._tried.clear()
+        self._near_failed.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
@@ -581,6 +654,8 @@ class GraphFrontend:
             "loop_closures": [c.as_dict() for c in self.loop_closures],
             "loop_attempts": list(self.loop_attempts),
             "optimizations": list(self.optimizations),
+            "grid_builds": {"sequential": self._seq_cache.builds, "loop": self._loop_cache.builds},
+            "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
         }
 
 
@@ -596,6 +671,41 @@ def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: flo
     _, first = np.unique(cells, axis=0, return_index=True)
     keep = np.sort(first)
     return points[keep], sigmas[keep]
+
+
+@njit(cache=True)
+def _reachable(start, near, ei, ej, n):
+    """Nodes reachable from ``start`` over edges whose both ends are ``near`` (breadth first)."""
+    deg = np.zeros(n + 1, np.int64)
+    for k in range(ei.shape[0]):
+        if near[ei[k]] and near[ej[k]]:
+            deg[ei[k] + 1] += 1
+            deg[ej[k] + 1] += 1
+    for i in range(n):
+        deg[i + 1] += deg[i]
+    adj = np.empty(deg[n], np.int64)
+    fill = deg[:n].copy()
+    for k in range(ei.shape[0]):
+        if near[ei[k]] and near[ej[k]]:
+            adj[fill[ei[k]]] = ej[k]
+            fill[ei[k]] += 1
+            adj[fill[ej[k]]] = ei[k]
+            fill[ej[k]] += 1
+    out = np.zeros(n, np.bool_)
+    queue = np.empty(n, np.int64)
+    out[start] = True
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        v = queue[head]
+        head += 1
+        for k in range(deg[v], deg[v + 1]):
+            w = adj[k]
+            if not out[w]:
+                out[w] = True
+                queue[tail] = w
+                tail += 1
+    return out
 
 
 def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float64]]) -> NDArray[np.float64]:

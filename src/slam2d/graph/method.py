@@ -117,6 +117,8 @@ class GraphSlam(SlamMethod):
                 "loop_closures": s["loop_closures"],
                 "loop_attempts": s["loop_attempts"],
                 "optimizations": s["optimizations"],
+                "grid_builds": s["grid_builds"],
+                "grid_extensions": s["grid_extensions"],
             }
         )
 

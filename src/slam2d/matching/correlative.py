@@ -36,6 +36,7 @@ fraction of the lookups.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -225,15 +226,18 @@ def _block_bounds(pooled, rows, cols, n_blocks, block_cells, width):
 
 
 @njit(cache=True)
-def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points):
-    """Branch and bound: score whole blocks in ``order`` until the bound drops below best - band.
+def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points, floor):
+    """Branch and bound: score whole blocks in ``order`` until the bound drops below max(best, floor) - band.
+
+    ``floor`` is the least response the caller will accept: blocks that cannot come
+    within ``band`` of it are never needed, whatever the best turns out to be.
 
     Unscored poses are left at -1. Returns the (angles, n, n) sums and the lookups done.
     """
     na = rows.shape[0]
     out = np.full((na, n_steps, n_steps), -1.0)
     buf = np.zeros((block, block))
-    best = -1.0
+    best = floor
     lookups = 0
     nbb = n_blocks * n_blocks
     for idx in range(order.shape[0]):
@@ -312,6 +316,13 @@ class CorrelativeMatcher:
         # Coarse translations: two cells per step, covering half the window each way.
         self._coarse_half = max(1, int(round(0.5 * self.search_size / (2.0 * self.resolution))))
         self.branch_and_bound = True
+
+    def with_window(self, search_size: float) -> "CorrelativeMatcher":
+        """The same matcher over a smaller (or larger) x, y window; its grids are interchangeable."""
+        out = copy.copy(self)
+        out.search_size = float(search_size)
+        out._coarse_half = max(1, int(round(0.5 * out.search_size / (2.0 * out.resolution))))
+        return out
 
     # ----------------------------------------------------------------- pieces
 
@@ -399,7 +410,7 @@ class CorrelativeMatcher:
         pa = np.maximum(1.0 - _PENALTY_GAIN * dth * dth / self.angle_variance_penalty, self.minimum_angle_penalty)
         return pd * pa
 
-    def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb):
+    def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb, floor=-1.0):
         """One search phase around ``center``: (best pose, best response, raw, surface, lookups)."""
         res = self.resolution
         n_steps = 2 * half + 1
@@ -423,7 +434,7 @@ class CorrelativeMatcher:
             order = np.argsort(-flat, kind="stable")
             band = _COVARIANCE_BAND + 1e-9
             sums, lookups = _score_blocks(
-                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points)
+                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
             )
             lookups += flat.size * n_points
         raw = sums / (n_points * _SCALE)
@@ -488,13 +499,18 @@ class CorrelativeMatcher:
         penalize: bool = True,
         refine: bool = True,
         grid: tuple[NDArray[np.uint8], float, float] | None = None,
+        min_response: float = -1.0,
     ) -> MatchResult:
         """Best pose of the query scan (points ``(N, 2)`` in its robot frame) against world points.
 
         ``prior`` is the predicted robot pose: the window's centre and the
         penalty's zero. ``ref_sigmas`` (one per reference point, m) replace the
         smear deviation; None uses it for all. A prebuilt ``grid`` (from
-        :meth:`correlation_grid`) skips building one.
+        :meth:`correlation_grid`) skips building one. ``min_response`` is the least
+        response the caller accepts: a branch-and-bound search skips every pose that
+        cannot come within the covariance band of it, so a match that reaches it is the
+        exhaustive one (pose, response, covariance) and one that cannot returns some
+        response below it, early.
         """
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
@@ -513,7 +529,7 @@ class CorrelativeMatcher:
             n_half = int(round(offset / self.coarse_angle_resolution))
             angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
             pose, best, raw, resp, offs, n = self._search(
-                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True
+                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response
             )
             lookups += n
             if best > 0.0:
@@ -549,40 +565,76 @@ class GridCache:
 
     The sequential matcher's reference set (the running scans) and a near
     chain change by a scan or two from one kept scan to the next, while
-    smearing them costs as much as the search. An entry holds a grid over a
-    world box (the query's reach plus ``margin``) and the nodes drawn into it;
-    a request for a node set whose box fits and which differs from the entry
-    only by nodes to add, and by at most ``max_extra`` nodes drawn but no
-    longer asked for, smears just the new nodes. The grid is therefore a
-    superset of the asked-for scans by at most ``max_extra`` neighbouring
-    scans (Karto rebuilds it every time; the difference is a slightly longer
-    buffer). ``invalidate()`` (after an optimisation moved the nodes) drops
-    everything.
+    smearing them costs as much as the search. An entry holds a grid, the
+    nodes drawn into it and the bounding box of all their points (``ext``,
+    including points that fell outside the grid). A request for a node set
+    which differs from the entry only by nodes to add, and by at most
+    ``max_extra`` nodes drawn but no longer asked for, smears just the new
+    nodes, provided every reference point the query can reach (the part of
+    ``ext`` inside the query's box) lies in the grid. Cells outside a grid
+    read as empty, exactly as empty cells do, so the grid need only hold the
+    reference points the query can reach: it is sized by the points' extent
+    plus ``margin`` (clipped to the query's box plus ``query_margin``), not by the query's reach,
+    and a robot moving along its reference scans rarely needs a new one.
+    The grid is thus a superset of the asked-for scans by at most
+    ``max_extra`` neighbouring scans (Karto rebuilds it every time; the
+    difference is a slightly longer buffer). ``invalidate()`` (after an
+    optimisation moved the nodes) drops everything.
     """
 
-    def __init__(self, matcher: CorrelativeMatcher, points_of, *, margin: float = 1.0,
-                 max_extra: int = 10, max_entries: int = 6) -> None:
+    def __init__(self, matcher: CorrelativeMatcher, points_of, *, margin: float = 3.0,
+                 max_extra: int = 10, max_entries: int = 8, query_margin: float = 10.0) -> None:
         self.matcher = matcher
         self.points_of = points_of  # node -> (world points (N, 2), sigmas (N,))
         self.margin = float(margin)
+        self.query_margin = float(query_margin)
         self.max_extra = int(max_extra)
         self.max_entries = int(max_entries)
         self._entries: list[dict] = []
+        self._bbox: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
         self.builds = 0
         self.extensions = 0
 
     def invalidate(self) -> None:
         self._entries.clear()
+        self._bbox.clear()
+
+    def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
+        lo = np.full(2, np.inf)
+        hi = np.full(2, -np.inf)
+        reach = 0.0
+        for n in nodes:
+            b = self._bbox.get(n)
+            if b is None:
+                pts, sig = self.points_of(n)
+                if pts.shape[0]:
+                    b = (pts.min(axis=0), pts.max(axis=0), 2.0 * float(sig.max()))
+                else:
+                    b = (np.full(2, np.inf), np.full(2, -np.inf), 0.0)
+                self._bbox[n] = b
+            lo = np.minimum(lo, b[0])
+            hi = np.maximum(hi, b[1])
+            reach = max(reach, b[2])
+        return lo, hi, reach + 2.0 * self.matcher.resolution
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         wanted = set(int(n) for n in nodes)
         for k, e in enumerate(self._entries):
-            if not (np.all(lo >= e["lo"]) and np.all(hi <= e["hi"])):
-                continue
             have = e["nodes"]
             if not (have & wanted) or len(have - wanted) > self.max_extra:
                 continue
             missing = sorted(wanted - have)
+            xlo, xhi, reach = self._extent(missing)
+            xlo = np.minimum(xlo, e["ext_lo"])
+            xhi = np.maximum(xhi, e["ext_hi"])
+            reach = max(reach, e["reach"])
+            # The reference points (with their smear) the query can reach must lie in the grid.
+            need_lo = np.maximum(lo, xlo - reach)
+            need_hi = np.minimum(hi, xhi + reach)
+            empty = np.any(need_lo > need_hi)
+            if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
+                continue
             if missing:
                 pts, sig = self._gather(missing)
                 grid, ox, oy = e["grid"]
@@ -591,18 +643,25 @@ class GridCache:
                              np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
                              np.ascontiguousarray(sig[order]))
                 have.update(missing)
+                e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
             self._entries.insert(0, self._entries.pop(k))
             return e["grid"]
-        pts, sig = self._gather(sorted(wanted))
-        blo, bhi = lo - self.margin, hi + self.margin
+        order_nodes = sorted(wanted)
+        xlo, xhi, reach = self._extent(order_nodes)
+        pts, sig = self._gather(order_nodes)
+        # Room to grow by ``margin`` around the points (the next scans extend them), but never
+        # far beyond the query's reach (a long buffer in open space would make a huge grid).
+        blo = np.maximum(lo - self.query_margin, xlo - reach - self.margin)
+        bhi = np.minimum(hi + self.query_margin, xhi + reach + self.margin)
         grid = self.matcher.correlation_grid(pts, sig, blo, bhi, clip=False)
         # The grid's true extent (whole cells) bounds what later requests may ask for.
         ox, oy = grid[1], grid[2]
         rows, cols = grid[0].shape
         res = self.matcher.resolution
         self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
-                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res])})
+                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
+                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach})
         del self._entries[self.max_entries:]
         self.builds += 1
         return grid
