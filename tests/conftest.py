@@ -24,3 +24,34 @@ def dataset_file(relative: str) -> Path:
     if not path.exists():
         pytest.skip(f"dataset file {path} not found (CI has ../shared/datasets)")
     return path
+
+
+@pytest.fixture(scope="session")
+def paper_arena(tmp_path_factory) -> Path:
+    """One pass of the study's arena as ``slam2d simulate paper-arena`` makes it (seed 0), with exact truth.
+
+    Simulated once per test process and shared, read-only, by the methods' arena tests.
+    """
+    from slam2d.cli import main
+
+    out = tmp_path_factory.mktemp("paper-arena")
+    assert main(["simulate", "paper-arena", "--out", str(out)]) == 0
+    return out
+
+
+def run_ate(method: str, sim: Path, out: Path, *options: str) -> float:
+    """``slam2d run METHOD`` on a simulation's recording, then ``slam2d evaluate``: the ATE RMSE in metres."""
+    import json
+
+    from slam2d.cli import main
+
+    assert main(["run", method, str(sim / "recording.log.gz"), "--out", str(out), *options]) == 0
+    assert main(["evaluate", str(out), "--truth", str(sim), "--json"]) == 0
+    return json.loads((out / "evaluation.json").read_text())["trajectory"]["ate"]["translation_m"]["rmse"]
+
+
+def recording_frames(path: Path) -> list:
+    """Every frame of a recording, read with the default options."""
+    from slam2d.io import open_recording
+
+    return list(open_recording(path).frames())

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from slam2d.cli import main
 from slam2d.core import se2
 from slam2d.core import make_scan
 from slam2d.errors import InputError
@@ -19,6 +18,7 @@ from slam2d.methods.coreslam import CoreSlam, CoreSlamParams
 from slam2d.params import from_mapping
 from slam2d.sensors.range_noise import ConstantSigma
 from tests._room import frame, room_scan
+from tests.conftest import run_ate
 
 
 def _blend(cell, target, q):
@@ -165,16 +165,9 @@ def test_bad_parameters_are_input_errors(text):
     assert name in str(err.value)
 
 
-def test_coreslam_on_the_simulated_arena(tmp_path):
+def test_coreslam_on_the_simulated_arena(tmp_path, paper_arena):
     """The issue's target: paper-arena without odometry, ATE under 5 cm."""
-    import json
-
-    sim = tmp_path / "sim"
-    assert main(["simulate", "paper-arena", "--out", str(sim)]) == 0
-    assert main(["run", "coreslam", str(sim / "recording.log.gz"), "--out", str(tmp_path / "run")]) == 0
-    assert main(["evaluate", str(tmp_path / "run"), "--truth", str(sim), "--json"]) == 0
-    report = json.loads((tmp_path / "run" / "evaluation.json").read_text())
-    ate = report["trajectory"]["ate"]["translation_m"]["rmse"]
+    ate = run_ate("coreslam", paper_arena, tmp_path / "run")
     assert ate < 0.05, ate
 
 
@@ -231,14 +224,7 @@ def test_constant_velocity_prediction():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
-def test_coreslam_on_the_simulated_arena_over_seeds(tmp_path, seed):
+def test_coreslam_on_the_simulated_arena_over_seeds(tmp_path, paper_arena, seed):
     """The arena target must hold for seeds generally, not for one."""
-    import json
-
-    sim = tmp_path / "sim"
-    assert main(["simulate", "paper-arena", "--out", str(sim)]) == 0
-    run = tmp_path / "run"
-    assert main(["run", "coreslam", str(sim / "recording.log.gz"), "--out", str(run), "--seed", str(seed)]) == 0
-    assert main(["evaluate", str(run), "--truth", str(sim), "--json"]) == 0
-    ate = json.loads((run / "evaluation.json").read_text())["trajectory"]["ate"]["translation_m"]["rmse"]
+    ate = run_ate("coreslam", paper_arena, tmp_path / "run", "--seed", str(seed))
     assert ate < 0.05, ate

@@ -20,6 +20,7 @@ from slam2d.methods import get_method
 from slam2d.methods.crsm import Crsm, CrsmParams, ray_points
 from slam2d.params import from_mapping
 from tests._room import frame, room_scan
+from tests.conftest import run_ate
 
 # The URG-04LX's beams over 240 degrees: at the 2 cm cells CRSM uses, coarser scans leave gaps between beams.
 URG_BEAMS = 682
@@ -259,16 +260,9 @@ def test_bad_parameters_are_input_errors(text):
     assert name in str(err.value)
 
 
-def test_crsm_on_the_simulated_arena(tmp_path):
+def test_crsm_on_the_simulated_arena(tmp_path, paper_arena):
     """The issue's target: paper-arena (no odometry used), ATE under 5 cm."""
-    import json
-
-    sim = tmp_path / "sim"
-    assert main(["simulate", "paper-arena", "--out", str(sim)]) == 0
-    assert main(["run", "crsm", str(sim / "recording.log.gz"), "--out", str(tmp_path / "run")]) == 0
-    assert main(["evaluate", str(tmp_path / "run"), "--truth", str(sim), "--json"]) == 0
-    report = json.loads((tmp_path / "run" / "evaluation.json").read_text())
-    ate = report["trajectory"]["ate"]["translation_m"]["rmse"]
+    ate = run_ate("crsm", paper_arena, tmp_path / "run")
     assert ate < 0.05, ate
 
 

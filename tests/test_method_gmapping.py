@@ -26,7 +26,7 @@ from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 from slam2d.sensors.range_noise import ConstantSigma
-from tests.conftest import dataset_file
+from tests.conftest import dataset_file, recording_frames
 
 
 @pytest.fixture(scope="module")
@@ -35,12 +35,6 @@ def arena(tmp_path_factory):
     out = tmp_path_factory.mktemp("arena")
     assert main(["simulate", "paper-arena", "--out", str(out), "--duration", "20", "--seed", "5"]) == 0
     return out
-
-
-def _frames(path):
-    from slam2d.io import open_recording
-
-    return list(open_recording(path).frames())
 
 
 def _ate(slam, truth_tum):
@@ -223,7 +217,7 @@ DENSE = dict(delta=0.025, linearUpdate=0.1, angularUpdate=0.1, free_cell_check=T
 
 
 def test_gmapping_beats_odometry_on_a_short_simulation(arena):
-    frames = _frames(arena / "recording.log.gz")
+    frames = recording_frames(arena / "recording.log.gz")
     truth = arena / "truth.tum"
     ate_odo = _ate(get_method("odometry")().run(frames), truth)
     default = get_method("gmapping")(GMappingParams(particles=15), seed=1).run(frames)
@@ -247,7 +241,7 @@ def test_gmapping_beats_odometry_on_a_short_simulation(arena):
 
 
 def test_same_seed_same_trajectory_bit_for_bit(arena):
-    frames = _frames(arena / "recording.log.gz")[:80]
+    frames = recording_frames(arena / "recording.log.gz")[:80]
     params = GMappingParams(particles=8)
     a = GMapping(params, seed=7).run(frames).trajectory()[1]
     b = GMapping(params, seed=7).run(frames).trajectory()[1]
@@ -257,7 +251,7 @@ def test_same_seed_same_trajectory_bit_for_bit(arena):
 
 
 def test_gaussian_proposal_tracks_too(arena):
-    frames = _frames(arena / "recording.log.gz")
+    frames = recording_frames(arena / "recording.log.gz")
     slam = GMapping(GMappingParams(particles=10, proposal="gaussian"), seed=2).run(frames)
     ate_odo = _ate(get_method("odometry")().run(frames), arena / "truth.tum")
     assert _ate(slam, arena / "truth.tum") < 0.5 * ate_odo
@@ -307,7 +301,7 @@ def test_match_failure_falls_back_to_odometry_and_is_counted():
 
 
 def test_sensor_model_hook_widens_per_beam_sigma(arena):
-    frames = _frames(arena / "recording.log.gz")[:60]
+    frames = recording_frames(arena / "recording.log.gz")[:60]
     params = GMappingParams(particles=6)
 
     class Counting(ConstantSigma):
@@ -326,7 +320,7 @@ def test_sensor_model_hook_widens_per_beam_sigma(arena):
 
 
 def test_map_outputs_rebuilt_and_best_particle(arena):
-    frames = _frames(arena / "recording.log.gz")[:100]
+    frames = recording_frames(arena / "recording.log.gz")[:100]
     rebuilt = GMapping(GMappingParams(particles=5), seed=4).run(frames)
     own = GMapping(GMappingParams(particles=5, map_output="best-particle"), seed=4).run(frames)
     g1, g2 = rebuilt.map(), own.map()

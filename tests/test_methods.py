@@ -15,6 +15,7 @@ from slam2d.methods import SlamMethod, available, get_method
 from slam2d.methods.base import Diagnostics
 from slam2d.methods.runner import build_method, run_method
 from slam2d.params import from_mapping
+from tests.conftest import recording_frames
 
 
 @pytest.fixture(scope="module")
@@ -23,12 +24,6 @@ def sim(tmp_path_factory):
     out = tmp_path_factory.mktemp("sim")
     assert main(["simulate", "paper-arena", "--out", str(out), "--duration", "20", "--seed", "3"]) == 0
     return out
-
-
-def _frames(path):
-    from slam2d.io import open_recording
-
-    return list(open_recording(path).frames())
 
 
 # --------------------------------------------------------------------------- registry and parameters
@@ -83,7 +78,7 @@ def test_diagnostics_pad_missing_values_with_nan():
 
 
 def test_odometry_baseline_follows_the_odometry(sim):
-    frames = _frames(sim / "recording.log.gz")
+    frames = recording_frames(sim / "recording.log.gz")
     slam = get_method("odometry")().run(frames)
     times, poses = slam.trajectory()
     assert len(times) == len(frames)
@@ -98,7 +93,7 @@ def test_odometry_baseline_follows_the_odometry(sim):
 
 
 def test_known_poses_follows_the_truth_and_counts_scans_without_pose(sim, tmp_path):
-    frames = _frames(sim / "recording.log.gz")
+    frames = recording_frames(sim / "recording.log.gz")
     t, p = read_tum(sim / "truth.tum")
     half = len(t) // 2
     write_tum(tmp_path / "half.tum", t[:half], p[:half])
