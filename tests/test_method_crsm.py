@@ -292,3 +292,44 @@ def test_crsm_on_mines_exp1_beats_the_odometry_map(tmp_path):
     # error codes would put rays on the laser's cell; the run must have seen and dropped them
     diag = json.loads((tmp_path / "crsm" / "diagnostics.json").read_text())
     assert diag["counters"]["short_readings"] > 10_000
+
+
+def _mines_consistency(name: str, seed: int = 0, settings: dict | None = None) -> float:
+    """``scan_consistency`` mean of ``name``'s trajectory on mines-exp2 (no odometry used by the SLAM methods)."""
+    from slam2d.eval import scan_consistency
+    from slam2d.io import open_recording
+    from slam2d.methods.runner import build_method
+    from tests.conftest import dataset_file
+
+    frames = list(open_recording(dataset_file("mines-exp2/mines-exp2.clf.gz")).frames())
+    slam = build_method(name, settings=settings or {}, seed=seed)
+    slam.run(frames)
+    times, poses = slam.trajectory()
+    return scan_consistency(frames, times, poses)["mean"]
+
+
+@pytest.fixture(scope="module")
+def hector_mines_exp2() -> float:
+    return _mines_consistency("hector")
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
+    """On the real log the number orders what the pictures show: hector's map (consistent) above the odometry's.
+
+    Measured: hector 0.66, odometry 0.55, crsm with the original's defaults (seed 0) 0.40 (rooms turned).
+    """
+    odometry = _mines_consistency("odometry")
+    assert hector_mines_exp2 > 0.6
+    assert odometry < hector_mines_exp2 - 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+@pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: crsm turns parts of mines-exp2 "
+                   "(0.40 with 40 rays, 0.53-0.67 with 120-200 rays, seed-dependent; see docs/methods/crsm.md)")
+@pytest.mark.parametrize("seed", [0, 1])
+def test_crsm_mines_exp2_is_as_consistent_as_hector(hector_mines_exp2, seed):
+    """The target: within 5 % of hector's consistency (a map with a room turned by a few degrees scores ~0.6)."""
+    assert _mines_consistency("crsm", seed) >= 0.95 * hector_mines_exp2
