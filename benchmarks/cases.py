@@ -408,6 +408,27 @@ def crsm_latency(_: Path) -> tuple[float, str]:
         f"median CPU s per scan; p95 {np.percentile(per_scan, 95) * 1e3:.2f} ms, total {cpu:.2f} s CPU "
         f"for {len(per_scan)} scans, {rays:.0f} critical rays per scan"
     )
+def crsm_mines_consistency(_: Path) -> tuple[None, str]:
+    """scan_consistency (per-scan agreement with the map rebuilt from the trajectory, 5 cm) of crsm, hector and the
+    odometry on the mines logs, read with ``--range-min 0.02`` (URG error codes dropped); crsm seeds 0 and 1."""
+    from slam2d.eval import scan_consistency
+    from slam2d.io import open_recording
+    from slam2d.io.base import ReadOptions
+    from slam2d.methods.runner import build_method
+
+    notes = []
+    for ds in ("mines-exp1", "mines-exp2"):
+        frames = list(open_recording(DATA / ds / f"{ds}.clf.gz", ReadOptions(range_min=0.02)).frames())
+        values = []
+        for name, seed in (("hector", 0), ("odometry", 0), ("crsm", 0), ("crsm", 1)):
+            slam = build_method(name, seed=seed)
+            slam.run(frames)
+            times, poses = slam.trajectory()
+            values.append(f"{name}{'' if name != 'crsm' else f' s{seed}'} {scan_consistency(frames, times, poses)['mean']:.3f}")
+        notes.append(f"{ds}: " + ", ".join(values))
+    return None, "; ".join(notes)
+
+
 def _gmapping(rel: str, particles: int = 30) -> Callable[[Path], tuple[float, str]]:
     """`gmapping` with default parameters on a shared log, in this process (so peak memory is its own).
 
@@ -555,6 +576,9 @@ CASES: list[Case] = [
          needs=(SHARED,)),
     Case("crsm-latency", "crsm with its defaults on mines-exp1: median CPU time per scan", crsm_latency,
          target="< 3 ms", max_seconds=0.003, needs=(SHARED,)),
+    Case("crsm-mines-consistency", "crsm (defaults, no odometry) on mines-exp1/2: scan_consistency mean vs hector's "
+         "and the odometry's (same mapper, 5 cm)", crsm_mines_consistency,
+         target="consistent maps: within 5 % of hector's value", needs=(SHARED,), repeat=1, warmup=False),
     Case("gmapping-intel", "`gmapping` defaults (30 particles) on intel, whole run; per-update latency in notes",
          _gmapping("intel/intel.clf.gz"), target="< 30 s (C++ original 46 s)", max_seconds=30.0,
          needs=(SHARED,), repeat=1),
