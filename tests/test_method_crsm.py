@@ -15,7 +15,7 @@ from slam2d.errors import InputError
 from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rrhc import HEADING_STEP, _cells_at, _fitness, _restart_table, rrhc_search
+from slam2d.matching.rrhc import HEADING_STEP, _cells_at, _fitness, _restart_table, refine_offset, rrhc_search
 from slam2d.methods import get_method
 from slam2d.methods.crsm import Crsm, CrsmParams, ray_points
 from slam2d.params import from_mapping
@@ -161,6 +161,24 @@ def test_the_final_neighbour_climb_walks_to_the_fit_from_near_it():
     assert math.hypot(x, y) <= 1.5 * m.resolution and abs(t) <= 1.5 * HEADING_STEP, (x, y, t)
 
 
+def test_the_dense_refinement_scores_every_beam_and_walks_to_the_fit():
+    """refine_offset climbs with every beam's endpoint (not only critical rays) from a few cells off to the fit."""
+    m, scan = _room_map()
+    d = np.nan_to_num(scan.ranges)
+    pts = ray_points(scan, d, np.flatnonzero(d > 0), 0.02)
+    qx, qy = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+    ox, oy = m.origin
+    start = (3 * m.resolution, -2 * m.resolution, 3 * HEADING_STEP)
+    dx, dy, dk, fit, moved = refine_offset(m.values, ox, oy, m.resolution, qx, qy, *start, 0, 0, 0, 50)
+    _, _, _, fit0, moved0 = refine_offset(m.values, ox, oy, m.resolution, qx, qy, *start, 0, 0, 0, 0)
+    assert moved >= 2 and moved0 == 0 and fit > fit0
+    x, y, t = start[0] + dx * m.resolution, start[1] + dy * m.resolution, start[2] + dk * HEADING_STEP
+    assert math.hypot(x, y) <= 1.5 * m.resolution and abs(t) <= 1.5 * HEADING_STEP, (x, y, t)
+    # from the fit itself it stays within a cell (the wall is two cells thick)
+    ex, ey, ek = refine_offset(m.values, ox, oy, m.resolution, qx, qy, 0.0, 0.0, 0.0, 0, 0, 0, 50)[:3]
+    assert max(abs(ex), abs(ey), abs(ek)) <= 1, (ex, ey, ek)
+
+
 def test_error_code_readings_are_no_return():
     """URG-04LX error codes (a few mm) are not returns: counted, never critical rays, never on the map."""
     scan = room_scan(np.zeros(3), n=URG_BEAMS)
@@ -215,7 +233,9 @@ def test_crsm_tracks_a_drive_and_is_deterministic():
     c = Crsm(seed=4).run(frames)
     pa = a.trajectory()[1]
     assert np.array_equal(pa, b.trajectory()[1])
-    assert not np.array_equal(pa, c.trajectory()[1])
+    assert np.array_equal(a.diagnostics.array("restarts"), b.diagnostics.array("restarts"), equal_nan=True)
+    # another seed searches differently (the final every-beam climb may still settle on the same poses)
+    assert not np.array_equal(a.diagnostics.array("restarts"), c.diagnostics.array("restarts"), equal_nan=True)
     # the warm-up holds the first scans at the start while the robot already moves: judge the shape (as ATE does)
     aligned = se2.compose(align_se2(pa[:, :2], truth[:, :2]), pa)
     err = np.hypot(*(aligned[:, :2] - truth[:, :2]).T)
@@ -328,10 +348,9 @@ def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
 @pytest.mark.slow
 @pytest.mark.datasets
 @pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: crsm stalls and turns parts of mines-exp2 "
-                   "(consistency 0.57-0.60 with 120 rays against hector's 0.66; docs/methods/crsm.md)")
-@pytest.mark.parametrize("seed", [0, 1])
-def test_crsm_mines_exp2_is_as_consistent_as_hector(hector_mines_exp2, seed):
+                   "(consistency 0.58-0.63 over seeds 0-2 against hector's 0.66; docs/methods/crsm.md)")
+def test_crsm_mines_exp2_is_as_consistent_as_hector(hector_mines_exp2):
     """The target: scan_consistency within 5 % of hector's (0.66; coreslam reaches 0.69, crsm's maps with a
-    room turned by a few degrees ~0.6)."""
-    consistency = _mines_run("crsm", seed)[0]
-    assert consistency >= 0.95 * hector_mines_exp2[0], consistency
+    room turned by a few degrees ~0.6) for every one of three seeds."""
+    consistency = [_mines_run("crsm", seed)[0] for seed in (0, 1, 2)]
+    assert min(consistency) >= 0.95 * hector_mines_exp2[0], consistency

@@ -225,3 +225,28 @@ def _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r,
         dx, dy, k, best = cdx, cdy, ck, cbest
         moved += 1
     return dx, dy, k, best, moved, evaluations
+
+
+@njit(cache=True)
+def refine_offset(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dx, dy, k, rounds):
+    """:func:`_refine` from offset ``(dx, dy, k)`` for another set of points (e.g. every beam, not the critical rays).
+
+    Returns ``(dx, dy, k, fitness, rounds that moved)``, fitness normalised as :func:`rrhc_search`'s.
+    """
+    n = qx.shape[0]
+    inv = 1.0 / resolution
+    bx = (x - origin_x) * inv
+    by = (y - origin_y) * inv
+    qxc = qx * inv
+    qyc = qy * inv
+    kmax = abs(k) + rounds + 1
+    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
+    tmp_r = np.empty(n, dtype=np.int64)
+    tmp_c = np.empty(n, dtype=np.int64)
+    r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
+    best = _fitness(values, r_k, c_k, dx, dy)
+    dx, dy, k, best, moved, _ = _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c,
+                                        dx, dy, k, best, rounds)
+    return dx, dy, k, best / (255.0 * 14.0 * max(n, 1)), moved
