@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
-"""Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/).
+"""Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/), and
+crsm-mines.png when ../shared/datasets is there.
 
-Each picture: the method's map of the simulated paper-arena (no odometry
+Each arena picture: the method's map of the simulated paper-arena (no odometry
 used), its trajectory against the true one, and the per-scan match score and
-CPU time from its diagnostics.
+CPU time from its diagnostics. crsm-mines.png: the mines logs mapped (same
+mapper, 5 cm) along hector's and crsm's trajectories, with scan_consistency.
 
 Run from the repository root: ``.venv/bin/python docs/plot_lightweight.py``.
 The pictures depend only on the code and the fixed seeds.
@@ -69,6 +71,45 @@ def draw(name: str, frames, t_truth, p_truth) -> None:
     print(f"wrote {out} (ATE {ate:.3f} m)")
 
 
+def draw_mines() -> None:
+    """hector, crsm with the original's 40 rays and crsm with its defaults on mines-exp1/2 (seed 0, no odometry)."""
+    from slam2d.eval import scan_consistency
+    from slam2d.grids.mapping import map_from_poses
+    from slam2d.grids.occupancy import GridParams
+    from slam2d.methods.runner import build_method
+
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+    if not (data / "mines-exp2").is_dir():
+        print(f"no {data}: crsm-mines.png not drawn")
+        return
+    runs = (("hector", {}), ("crsm", {"desired_number_of_picked_rays": "40", "dense_refine_rounds": "0"}),
+            ("crsm", {}))
+    titles = ("hector", "crsm, the original's 40 rays", "crsm, defaults")
+    fig, axes = plt.subplots(2, 3, figsize=(13, 9))
+    for row, ds in enumerate(("mines-exp1", "mines-exp2")):
+        frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
+        for col, ((name, settings), title) in enumerate(zip(runs, titles)):
+            slam = build_method(name, settings=settings, seed=0)
+            slam.run(frames)
+            t, p = slam.trajectory()
+            grid, _ = map_from_poses(frames, t, p, params=GridParams(resolution=0.05))
+            grid = grid.crop_to_observed(margin=10)
+            score = scan_consistency(frames, t, p)["mean"]
+            x0, y0, x1, y1 = grid.extent()
+            ax = axes[row, col]
+            ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
+            ax.plot(p[:, 0], p[:, 1], color="tab:red", lw=0.6)
+            ax.set_title(f"{ds}: {title}\nscan_consistency {score:.3f}", fontsize=10)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.tight_layout()
+    out = IMAGES / "crsm-mines.png"
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=70, format="png")
+    plt.close(fig)
+    print(f"wrote {out}")
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate("paper-arena", SimulationParams(seed=1))
@@ -77,6 +118,7 @@ def main() -> None:
         t_truth, p_truth = read_tum(Path(tmp) / "truth.tum")
     for name in ("coreslam", "crsm"):
         draw(name, frames, t_truth, p_truth)
+    draw_mines()
 
 
 if __name__ == "__main__":
