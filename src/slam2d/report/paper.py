@@ -86,7 +86,16 @@ def _flatten(doc: Any, prefix: str = "") -> list[tuple[str, str]]:
         for k, v in doc.items():
             out += _flatten(v, f"{prefix}.{k}" if prefix else str(k))
         return out
-    return [(prefix, format_cell(doc))]
+    if isinstance(doc, (list, tuple)):
+        return [(prefix, ", ".join(_exact(v) for v in doc))]
+    return [(prefix, _exact(doc))]
+
+
+def _exact(value: Any) -> str:
+    """The study's published numbers as published (shortest round-trip form), not rounded."""
+    if isinstance(value, float) and math.isfinite(value):
+        return repr(value)
+    return format_cell(value)
 
 
 def _figure_file(section: SectionRun, result: ExperimentResult, figure: Figure) -> Path | None:
