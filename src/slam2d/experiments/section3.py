@@ -321,5 +321,5 @@ def _result(rows, spread, failures, verdicts, sims, seeds, laps, long_walls, fir
     failed = [f"{m}: {'; '.join(v)}" for m, v in failures.items() if v]
     if failed:
         summary += " Failed runs: " + " | ".join(failed) + "."
-    return ExperimentResult("section3-methods", "Section III: the SLAM methods on the study's test space", summary,
+    return ExperimentResult("section3-methods", "Every method on one paper-arena recording (Figs. 2-4)", summary,
                             tables, figures, study, verdict, numbers)
