@@ -25,6 +25,7 @@ from typing import Any
 from slam2d.experiments.result import ExperimentResult, Figure, Table
 from slam2d.io.atomic import write_text_atomic
 from slam2d.report.comparison import _CSS as _BASE_CSS
+from slam2d.report.comparison import _SCRIPT as _BASE_SCRIPT
 
 __all__ = ["SectionRun", "write_paper_report", "format_cell", "REPORT_HTML", "REPORT_MD"]
 
@@ -157,7 +158,8 @@ _CSS = _BASE_CSS + """
 td.text { max-width: 40em; }
 """
 
-# Counts pictures that decoded and script errors, for the browser check (and a reader: a red banner).
+# Counts script errors for the browser check; the comparison report's script then counts the pictures
+# that decoded (data-images-loaded) and shows a red banner naming any that did not.
 _SCRIPT = """
 (function () {
   var errors = 0;
@@ -166,19 +168,8 @@ _SCRIPT = """
   var original = console.error;
   console.error = function () { errors += 1; mark(); return original.apply(console, arguments); };
   mark();
-  window.addEventListener("load", function () {
-    var images = Array.prototype.slice.call(document.images);
-    var failed = images.filter(function (img) { return !(img.complete && img.naturalWidth > 0); });
-    document.documentElement.dataset.imagesLoaded = (images.length - failed.length) + "/" + images.length;
-    if (failed.length) {
-      var banner = document.getElementById("image-check");
-      banner.textContent = failed.length + " of " + images.length + " images failed to load: " +
-        failed.map(function (img) { return img.alt || "(unnamed)"; }).join(", ");
-      banner.hidden = false;
-    }
-  });
 })();
-"""
+""" + _BASE_SCRIPT
 
 
 def _e(text: Any) -> str:
