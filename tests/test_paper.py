@@ -362,6 +362,17 @@ def test_rerun_replaces_an_earlier_output(quick_run, tmp_path: Path, monkeypatch
     assert json.loads((out / paper_mod.MARKER).read_text())["quick"] is True
 
 
+def test_an_old_demo_output_counts_as_replaceable(tmp_path: Path) -> None:
+    (tmp_path / "paper-arena").mkdir()
+    (tmp_path / "paper-arena" / "simulation.json").write_text("{}")
+    (tmp_path / "compare").mkdir()
+    (tmp_path / "compare" / "report.html").write_text("<html></html>")
+    paper_mod.check_out_dir(tmp_path)  # what `make demo` wrote before it ran `slam2d paper`
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(InputError):
+        paper_mod.check_out_dir(tmp_path)
+
+
 @pytest.mark.slow
 def test_cli_quick_end_to_end(tmp_path: Path) -> None:
     from slam2d.cli import main

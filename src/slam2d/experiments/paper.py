@@ -62,7 +62,7 @@ def check_out_dir(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder; give a new folder or an earlier 'slam2d paper' output",
                          path=out, field="--out")
-    if out.is_dir() and any(out.iterdir()) and not (out / MARKER).is_file():
+    if out.is_dir() and any(out.iterdir()) and not _replaceable(out):
         raise InputError(f"is a folder that is not empty and holds no {MARKER} (not an earlier 'slam2d paper' "
                          "output); it is not replaced: give a new or empty folder", path=out, field="--out")
     parent = out.resolve().parent
@@ -71,6 +71,15 @@ def check_out_dir(out: Path) -> None:
         probe = probe.parent
     if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
         raise InputError(f"cannot write into {probe}", path=out, field="--out")
+
+
+def _replaceable(out: Path) -> bool:
+    """An earlier ``slam2d paper`` output, or an earlier ``slam2d demo`` one (what ``make demo`` used to write)."""
+    if (out / MARKER).is_file():
+        return True
+    demo = {"paper-arena", "compare"}
+    return ({p.name for p in out.iterdir()} <= demo and (out / "paper-arena" / "simulation.json").is_file()
+            and (out / "compare" / "report.html").is_file())
 
 
 def _cpu() -> float:
