@@ -37,8 +37,8 @@ MARKER = "paper.json"
 SECTION5_MODULE = "slam2d.experiments.section5"
 #: What --quick leaves out, in the report's words.
 QUICK_SKIPS = ("Section III drives one lap on one seed instead of two laps on three seeds (so no mean or spread over "
-               "seeds); Section IV is the same as the full run (500 readings per set-up cost about 3 s); Section V "
-               "runs its own quick variant (fewer repetitions), as it states.")
+               "seeds); Section IV is the same as the full run (500 readings per set-up cost about 3 s); Section V, "
+               "when this build has it, is called with quick=True and its own text says what that leaves out.")
 
 
 @dataclass

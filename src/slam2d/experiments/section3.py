@@ -306,7 +306,9 @@ def _result(rows, spread, failures, verdicts, sims, seeds, laps, long_walls, fir
                "known-poses are references (the raw odometry, and the scans placed at the true poses: the best map "
                "these scans can make). The simulated laser's noise is the study's own model (Sec. IV), with "
                "dropouts, and each scan is skewed by the robot's motion during the sweep (the URG-04LX's slow "
-               "measurement cycle, which made the study limit the speed). "
+               "measurement cycle, which made the study limit the speed). known-poses places each scan at the true pose "
+               "at the start of its sweep, so that skew shows in full in its map (its wall spread); methods that "
+               "match scans absorb part of it. "
                + (f"The full comparison report, with per-method diagnostics: {first_dir.relative_to(out_dir)}/report.html. "
                   if first_dir is not None else "")
                + ("Quick mode: one lap and one seed (the full run drives two laps on three seeds). " if quick else ""))
