@@ -154,6 +154,15 @@ def test_renderer_output_loads_in_the_browser(tmp_path: Path) -> None:
     assert 'data-console-errors="0"' in dom
 
 
+def test_browser_check_can_fail(tmp_path: Path) -> None:
+    # The console-error count must be able to fail: a page with a script error counts it.
+    write_paper_report([SectionRun("V", "v", [_fake_result()], folder=tmp_path / "none")], tmp_path, title="T")
+    html = (tmp_path / "report.html").read_text().replace("</body>", "<script>notAFunction();</script></body>")
+    (tmp_path / "broken.html").write_text(html)
+    dom = browser.dump_dom(tmp_path / "broken.html")
+    assert 'data-console-errors="1"' in dom
+
+
 # --------------------------------------------------------------------------- bad input
 
 
