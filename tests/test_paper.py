@@ -371,6 +371,17 @@ def test_rerun_replaces_an_earlier_output(quick_run, tmp_path: Path, monkeypatch
     assert json.loads((out / paper_mod.MARKER).read_text())["quick"] is True
 
 
+def test_texts_name_files_where_they_end_up() -> None:
+    r = _fake_result()
+    r.summary = "model at /stage/section5/model.yaml"
+    r.tables[0].rows.append(["/stage/x", 1.5, 2])
+    r.study = {"file": ["/stage/y"]}
+    moved = paper_mod._relocated(r, "/stage", "/final")
+    assert moved.summary == "model at /final/section5/model.yaml"
+    assert moved.tables[0].rows[-1] == ["/final/x", 1.5, 2] and moved.study == {"file": ["/final/y"]}
+    assert moved.numbers == r.numbers and r.summary.startswith("model at /stage")
+
+
 def test_an_old_demo_output_counts_as_replaceable(tmp_path: Path) -> None:
     (tmp_path / "paper-arena").mkdir()
     (tmp_path / "paper-arena" / "simulation.json").write_text("{}")

@@ -23,7 +23,7 @@ import shutil
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -146,6 +146,8 @@ def run_paper(out: Path, *, quick: bool, seed: int = 0, jobs: int | None = None,
         say("section V")
         s5 = _section5(stage / "section5", quick, seed)
         sections = [s3, s4, s5]
+        for sec in sections:  # texts that name a file name it where it will be, not in the staging folder
+            sec.results = [_relocated(r, str(stage), str(out.resolve())) for r in sec.results]
         wall, cpu = time.perf_counter() - wall0, _cpu() - cpu0
         facts = _facts(quick, seed, command, wall, cpu, sections)
         written = write_paper_report(sections, stage, title="The source study, rerun in simulation by slam2d",
@@ -217,6 +219,21 @@ def _record(sections: list[SectionRun], quick: bool, seed: int, command: str, wa
         "sections": [{"key": s.key, "title": s.title, "status": s.status, "note": s.note, "wall_s": s.wall_s,
                       "cpu_s": s.cpu_s, "results": [asdict(r) for r in s.results]} for s in sections],
     })
+
+
+def _relocated(value: Any, old: str, new: str) -> Any:
+    """``value`` (a result, table, figure, or plain data) with every ``old`` path prefix in its texts made ``new``."""
+    if isinstance(value, str):
+        return value.replace(old, new)
+    if isinstance(value, list):
+        return [_relocated(v, old, new) for v in value]
+    if isinstance(value, tuple):
+        return tuple(_relocated(v, old, new) for v in value)
+    if isinstance(value, dict):
+        return {k: _relocated(v, old, new) for k, v in value.items()}
+    if is_dataclass(value) and not isinstance(value, type):
+        return replace(value, **{f.name: _relocated(getattr(value, f.name), old, new) for f in fields(value)})
+    return value
 
 
 def _swap_into_place(stage: Path, out: Path) -> None:
