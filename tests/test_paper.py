@@ -263,18 +263,41 @@ def test_section5_absent_and_present(tmp_path: Path, monkeypatch: pytest.MonkeyP
 # --------------------------------------------------------------------------- a real quick run
 
 
+_QUICK_SCRIPT = """
+import sys
+from pathlib import Path
+import slam2d.experiments.paper as p
+from slam2d.report.paper import SectionRun
+p._section5 = lambda folder, quick, seed: SectionRun("V", "v", status="not run", note="left out by the test")
+p.run_paper(Path(sys.argv[1]), quick=True, seed=0, jobs=2, command="test")
+"""
+
+
+def _results(record: dict) -> list[SectionRun]:
+    """The sections of a paper.json, with their ExperimentResults rebuilt (NaN was written as null)."""
+    out = []
+    for s in record["sections"]:
+        results = [ExperimentResult(**{**r, "tables": [Table(**t) for t in r["tables"]],
+                                       "figures": [Figure(**f) for f in r["figures"]]}) for r in s["results"]]
+        out.append(SectionRun(s["key"], s["title"], results, status=s["status"], note=s["note"]))
+    return out
+
+
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory: pytest.TempPathFactory):
-    """run_paper --quick for real (Sections III and IV; Section V as this build has it, skipped here for time)."""
-    mp = pytest.MonkeyPatch()
-    mp.setattr(paper_mod, "_section5", lambda folder, quick, seed: SectionRun("V", "v", status="not run",
-                                                                              note="left out by the test"))
+    """run_paper --quick for real (Sections III and IV; Section V, as this build has it, left out for time).
+
+    In a fresh process: methods run in processes forked from it, and a pytest worker may carry
+    threads and handlers of earlier tests (a Dask cluster's) that forked children should not inherit.
+    """
+    import subprocess
+
     out = tmp_path_factory.mktemp("paper") / "out"
-    try:
-        run = paper_mod.run_paper(out, quick=True, seed=0, jobs=2, command="test")
-    finally:
-        mp.undo()
-    return run
+    proc = subprocess.run([sys.executable, "-c", _QUICK_SCRIPT, str(out)], capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    record = json.loads((out / paper_mod.MARKER).read_text())
+    return types.SimpleNamespace(out=out, sections=_results(record), record=record)
 
 
 def _table(result: ExperimentResult, caption_start: str) -> Table:
