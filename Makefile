@@ -20,9 +20,9 @@ $(VENV)/.installed: pyproject.toml
 	$(PIP) install --quiet -e '.[test]'
 	@touch $@
 
-## demo: set up and run the main job on built-in data (writes demo-out/)
+## demo: set up and rerun the source study in simulation, quick version (writes demo-out/report.html)
 demo: $(VENV)/.installed
-	$(VENV)/bin/slam2d demo --out demo-out
+	$(VENV)/bin/slam2d paper --out demo-out --quick
 
 ## browser: install Debian's chromium for the report test when it is missing
 browser:

@@ -531,6 +531,21 @@ def karto_loop_precision(_: Path) -> tuple[float, str]:
     share = correct / total if total else float("nan")
     return time.perf_counter() - t0, f"precision {correct}/{total} = {share:.1%}; " + "; ".join(notes)
 
+
+def paper_quick(workdir: Path) -> tuple[float, str]:
+    """`slam2d paper --quick` as `make demo` runs it: wall time of the whole command; CPU and verdicts noted."""
+    out = workdir / "paper-quick"
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(Path(sys.executable).with_name("slam2d")), "paper", "--out", str(out), "--quick"],
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "slam2d paper failed")
+    record = json.loads((out / "paper.json").read_text())
+    sections = "; ".join(f"{s['key']} {s['status']}" + (f" {s['cpu_s']:.1f} s CPU" if s["cpu_s"] is not None else "")
+                         for s in record["sections"])
+    return wall, f"CPU {record['cpu_s']:.1f} s; sections {sections}"
+
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
          simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
@@ -597,6 +612,8 @@ CASES: list[Case] = [
          repeat=1),
     Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
+    Case("paper-quick", "`slam2d paper --quick` (what `make demo` runs): every section, report included, whole "
+         "command", paper_quick, target="< 120 s", max_seconds=120.0, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -551,6 +551,50 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return status
 
 
+# --------------------------------------------------------------------------- paper
+
+
+def _add_paper(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "paper",
+        help="rerun the source study end to end in simulation and write one report",
+        description="Rerun the source study in simulation: Section III (paper-arena with a youBot and a "
+        "URG-04LX at limited speed, every method on the same recording, maps side by side, ATE, map error, "
+        "Filatov metrics, speed, memory, and the study's ranking tested by stated rules), Section IV (the "
+        "repeatability experiment: Table I, Figs. 5-7, eq. 1 beside the study's) and Section V when this build "
+        "has it. Writes OUT/report.html (self-contained), OUT/report.md, OUT/paper.json (every number) and each "
+        "section's files under OUT/section3/, OUT/section4/, OUT/section5/. The report is built in a staging "
+        "folder and moved into place at the end; an existing OUT is replaced only if it is an earlier "
+        "'slam2d paper' output.",
+    )
+    p.add_argument("--out", type=Path, required=True, help="output folder (new, empty, or an earlier paper output)")
+    p.add_argument("--quick", action="store_true",
+                   help="one lap on one seed in Section III instead of two laps on three seeds (about a minute)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the simulations (default: 0)")
+    p.add_argument("--jobs", type=int, metavar="N", help="methods run at once (default: one per core)")
+    p.set_defaults(handler=cmd_paper)
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    from slam2d.experiments.paper import run_paper
+
+    out = _console()
+    err = _console(stderr=True)
+    result = run_paper(args.out, quick=args.quick, seed=args.seed, jobs=args.jobs, command=_command_line(),
+                       log=lambda msg: err.print(msg, markup=False))
+    for s in result.sections:
+        timing = f" (wall {s.wall_s:.1f} s, CPU {s.cpu_s:.1f} s)" if s.wall_s is not None else ""
+        out.print(f"Section {s.key}: {s.status}{timing}", markup=False)
+        for r in s.results:
+            out.print(f"  {r.title}: {r.verdict}", markup=False)
+        if s.status != "ok":
+            out.print(f"  {s.note}", markup=False)
+    out.print(f"total: wall {result.wall_s:.1f} s, CPU {result.cpu_s:.1f} s", markup=False)
+    for path in result.written:
+        out.print(f"  wrote {path}", markup=False)
+    return 1 if result.failed else 0
+
+
 # --------------------------------------------------------------------------- simulate
 
 
@@ -938,7 +982,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
-    _add_repeatability, _add_demo, _add_calibrate, _add_sweep,
+    _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep,
 ]
 
 
