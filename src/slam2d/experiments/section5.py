@@ -105,7 +105,7 @@ class Setting:
         if quick:
             return cls(True, seed, 10, 1, 3.0, 3, 3.0, 100, 8, ("paper-arena",), 1, 12.0)
         return cls(False, seed, 30, 5, 20.0, STUDY["entropy_runs_each"], 20.0, 500, 24,
-                   ("paper-arena", "office", "corridor-loop"), 3, 60.0)
+                   ("paper-arena", "office", "corridor-loop"), 2, 30.0)
 
     def describe(self) -> str:
         if self.quick:
