@@ -510,6 +510,18 @@ def karto_loop_precision(_: Path) -> tuple[float, str]:
     share = correct / total if total else float("nan")
     return time.perf_counter() - t0, f"precision {correct}/{total} = {share:.1%}; " + "; ".join(notes)
 
+
+def section5_entropy(workdir: Path) -> tuple[float, str]:
+    """The study's entropy experiment, full size (10 runs per setting, 30 particles, 20 s each): CPU seconds."""
+    from slam2d.experiments.section5 import run_experiment
+
+    t0 = time.process_time()
+    r = run_experiment("entropy", workdir / "entropy", quick=False, seed=0)
+    n = r.numbers
+    return time.process_time() - t0, (f"{int(n['runs'])} runs; static default entropy ln 30 - "
+                                      f"{n['default.distance_from_ln_n']:.3g}; creeping default "
+                                      f"{n['creeping.default.mean_entropy']:.6f} nats (CPU seconds)")
+
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
          simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
@@ -573,6 +585,8 @@ CASES: list[Case] = [
          repeat=1),
     Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
+    Case("section5-entropy", "`slam2d experiment entropy`: 10 runs x 4 settings x static/creeping robot, "
+         "30 particles, 20 s recordings (CPU s, calibration included)", section5_entropy, warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

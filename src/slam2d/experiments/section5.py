@@ -282,7 +282,7 @@ def _judge(name: str, unit_scale: float, unit: str, a: list[float], b: list[floa
     if z < 2.0:
         return text + f" (+-{se * unit_scale:.2g}: not measurable)"
     better = (d < 0) == (lower_is == "better")
-    return text + f" (+-{se * unit_scale:.2g}: {'better' if better else 'worse'} with the model)"
+    return text + f" (+-{se * unit_scale:.2g}: {'better' if better else 'worse'} than the default)"
 
 
 def _fmt(value: float, digits: int = 4) -> Any:
