@@ -112,9 +112,9 @@ class Setting:
             return (f"quick mode: {self.particles} particles, {self.seeds} seed, {self.static_s:g} s static "
                     f"recordings, {self.entropy_runs} entropy runs per setting, {self.repetitions} readings per "
                     "calibration set-up; numbers are indicative only")
-        return (f"full mode: {self.particles} particles, {self.seeds} seeds per setting, {self.static_s:g} s static "
-                f"recordings, {self.entropy_runs} entropy runs per setting, {self.repetitions} readings per "
-                "calibration set-up")
+        return (f"full mode: {self.particles} particles, {self.seeds} recordings per map experiment, "
+                f"{self.static_s:g} s static recordings, {self.entropy_runs} entropy runs per setting, "
+                f"{self.repetitions} readings per calibration set-up")
 
 
 def gmapping_params(particles: int, *, static: bool) -> Any:
@@ -766,8 +766,12 @@ def held_out(out_dir: Path, setting: Setting, model_dir: Path | None = None) -> 
         numbers[f"{variant}.ate_minus_default_m"] = float(d.mean())
         numbers[f"{variant}.map_error_minus_default_m"] = float(dm.mean())
         se_d = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        same = int(np.sum(np.array([r["pose_difference_m"] for r in per_run if r["variant"] == variant]) == 0.0))
+        measurable = math.isfinite(se_d) and abs(d.mean()) > 2.0 * se_d
         judged.append(f"{VARIANTS[variant]} minus default: ATE {1000 * d.mean():+.2f} mm (+-{1000 * se_d:.2g}, "
-                      f"lower in {int(np.sum(d < 0))} of {d.size} paired runs), map error {1000 * dm.mean():+.2f} mm")
+                      f"{'measurable' if measurable else 'not measurable'}; lower in {int(np.sum(d < 0))}, higher in "
+                      f"{int(np.sum(d > 0))}, identical trajectory in {same} of {d.size} paired runs), map error "
+                      f"{1000 * dm.mean():+.2f} mm")
     order = sorted(models, key=lambda v: numbers[f"{v}.ate_m"])
     verdict = (f"Lowest mean ATE: {VARIANTS[order[0]]} ({1000 * numbers[f'{order[0]}.ate_m']:.1f} mm), then "
                + ", ".join(f"{VARIANTS[v]} ({1000 * numbers[f'{v}.ate_m']:.1f} mm)" for v in order[1:])
@@ -777,7 +781,7 @@ def held_out(out_dir: Path, setting: Setting, model_dir: Path | None = None) -> 
     summary = (f"GMapping with each sensor-model setting on {', '.join(setting.held_worlds)} "
                f"({setting.held_seeds} seed(s) each, "
                f"{'one pass of the default path' if setting.held_duration is None else f'{setting.held_duration:g} s'}"
-               f"), the same recording and filter seed for all three settings. ATE after the best SE(2) alignment; "
+               f"), the same recording and filter seed for every setting. ATE after the best SE(2) alignment; "
                f"map error as 'slam2d evaluate' (true walls the laser could see -> nearest map wall). "
                f"{setting.describe()}.")
     tables = [Table("Held-out comparison: mean and spread over seeds", columns, rows, units),
