@@ -25,7 +25,7 @@ PICTURES = {
     "broken-wall": "figures/maps.png",
     "rebound": "figures/maps.png",
     "entropy": "figures/entropy.png",
-    "new-conditions": "verify-calibrated/figures/verify.png",
+    "new-conditions": "figures/new-conditions.png",
     "held-out": "figures/ate.png",
 }
 

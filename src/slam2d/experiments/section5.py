@@ -81,6 +81,9 @@ VARIANTS: dict[str, str] = {
     # literally, GMapping's own ``sigma`` parameter set to 0.0041 (a divisor in m^2, default 0.05).
     "param": "GMapping sigma:=0.0041 (the study's value as the parameter)",
 }
+#: Short labels for figure axes.
+_SHORT = {"default": "default", "constant": "constant\n0.0041 m", "calibrated": "calibrated\nsigma(r, inc)",
+          "param": "sigma:=0.0041\n(parameter)"}
 
 
 @dataclass(frozen=True)
@@ -592,7 +595,7 @@ def entropy(out_dir: Path, setting: Setting, model_dir: Path | None = None) -> E
             numbers.update({f"{prefix}{variant}.mean_entropy": m, f"{prefix}{variant}.std_entropy": sd,
                             f"{prefix}{variant}.distance_from_ln_n": ln_n - m})
             if robot == "creeping":
-                groups.append((VARIANTS[variant].split(" (")[0].replace("GMapping ", ""), [ln_n - x for x in v]))
+                groups.append((_SHORT[variant], [ln_n - x for x in v]))
     rows.append(["without the model", "study (ROS GMapping, URG-04LX), robot static", STUDY["entropy_runs_each"],
                  STUDY["entropy_without_model"], "", "", "", _fmt(ln_n - STUDY["entropy_without_model"], 11)])
     rows.append(["with the model (0.0041 m)", "study (ROS GMapping, URG-04LX), robot static",
@@ -624,7 +627,7 @@ def entropy(out_dir: Path, setting: Setting, model_dir: Path | None = None) -> E
                f"Here, robot static: default {numbers['default.mean_entropy']:.11f} nats "
                f"({numbers['default.distance_from_ln_n']:.3g} below ln N); {diffs['static']}. A robot standing still "
                "gives no odometry motion, hence no motion noise: every particle stays identical and the entropy is "
-               "ln N whatever the model, so the study's 2e-7 can only come from odometry jitter of its real robot. "
+               "ln N whatever the model; the study's 2e-7 must come from something this simulation lacks, e.g. odometry jitter of its real robot. "
                f"Robot creeping 0.2 m: default {numbers['creeping.default.mean_entropy']:.6f} nats "
                f"({numbers['creeping.default.distance_from_ln_n']:.3g} below ln N); {diffs['creeping']}.")
     png = _strip_png(groups, f"ln {particles} - mean entropy per run [nats]",
@@ -678,6 +681,7 @@ def new_conditions(out_dir: Path, setting: Setting, model_dir: Path | None = Non
     candidates = {"calibrated": (model, str(model_path)), "constant": (ConstantSigma(STUDY["gmapping_sigma_m"]),
                   "constant:0.0041"), "study": (StudyModel(), "study (the simulator's injected truth)")}
     rows, numbers, figures, files = [], {}, [], {}
+    verified: dict[str, Any] = {}
     for key, (m, source) in candidates.items():
         ver = verify_model(m, data, source=source)
         rep = verify_report(ver, m, data.sources, f"slam2d experiment new-conditions (model: {source})")
@@ -691,8 +695,11 @@ def new_conditions(out_dir: Path, setting: Setting, model_dir: Path | None = Non
                      _fmt(100 * float(np.median(np.abs(rel))), 1)])
         numbers.update({f"{key}.share_inside": ver.share_inside, f"{key}.share_below": below / len(ver.rows),
                         f"{key}.median_abs_rel_error": float(np.median(np.abs(rel)))})
-        figures.append(Figure(f"verify-{key}/figures/verify.png",
-                              f"measured sigma under new conditions against {source} (Fig. 11 form)"))
+        verified[key] = ver
+    files["figures/new-conditions.png"] = _new_conditions_png(verified["calibrated"], model)
+    figures.append(Figure("figures/new-conditions.png", "measured sigma under new conditions (dots, with 95 % "
+                          "intervals) against the calibrated model at 0 and 30 deg incidence (lines) and the study's "
+                          "constant (dotted); shaded: the distances calibrated (Fig. 11 form)"))
     verdict = (f"Study: {STUDY['new_conditions']}. Here the calibrated model has "
                f"{100 * numbers['calibrated.share_inside']:.0f} % of the new set-ups inside its 95 % band "
                f"({100 * numbers['calibrated.share_below']:.0f} % at or below its curve); the study's constant "
@@ -709,6 +716,33 @@ def new_conditions(out_dir: Path, setting: Setting, model_dir: Path | None = Non
     return _with_files(ExperimentResult("new-conditions", "Repeatability under new conditions (Fig. 11)", summary,
                                         [table, setups_table], figures, {"finding": STUDY["new_conditions"]},
                                         verdict, numbers), files)
+
+
+def _new_conditions_png(cal: Any, model: Any) -> bytes:
+    from slam2d.report.plots import _new_figure, _png, _style
+    from slam2d.sensors.beam_model import TABULATED_MATERIALS
+
+    with _style():
+        fig = _new_figure(6.0, 3.6, layout="constrained")
+        ax = fig.subplots()
+        for surface, colour in (("white-paper", "#1f77b4"), ("cardboard", "#ff7f0e")):
+            rows = [r for r in cal.rows if r.setup.material == surface]
+            d = np.array([r.setup.distance for r in rows])
+            s = np.array([r.setup.sigma for r in rows])
+            lo_hi = np.array([r.setup.interval() for r in rows]).reshape(-1, 2)
+            ax.errorbar(d, 1000 * s, yerr=1000 * np.abs(lo_hi.T - s), fmt="o", ms=3, color=colour, lw=0.8,
+                        label=f"measured, {surface}")
+        d = np.linspace(0.5, 4.6, 100)
+        mats = np.array(TABULATED_MATERIALS)
+        for inc, style in ((0.0, "-"), (30.0, "--")):
+            pred = np.mean([model.sigma(d, np.full(d.size, math.radians(inc)), np.full(d.size, m)) for m in mats], axis=0)
+            ax.plot(d, 1000 * pred, style, color="k", lw=1, label=f"calibrated model, {inc:g} deg incidence")
+        ax.axhline(1000 * STUDY["gmapping_sigma_m"], color="#d62728", lw=0.8, ls=":", label="study's constant 0.0041 m")
+        ax.axvspan(1.0, 4.0, color="#000000", alpha=0.04, lw=0)
+        ax.set_xlabel("distance [m] (calibrated over the shaded 1-4 m)")
+        ax.set_ylabel("sigma [mm]")
+        ax.legend(fontsize=6)
+        return _png(fig)
 
 
 def _concat_rows(parts: list[Any]) -> Any:
@@ -776,7 +810,7 @@ def held_out(out_dir: Path, setting: Setting, model_dir: Path | None = None) -> 
     verdict = (f"Lowest mean ATE: {VARIANTS[order[0]]} ({1000 * numbers[f'{order[0]}.ate_m']:.1f} mm), then "
                + ", ".join(f"{VARIANTS[v]} ({1000 * numbers[f'{v}.ate_m']:.1f} mm)" for v in order[1:])
                + ". " + "; ".join(judged) + ".")
-    groups = [(VARIANTS[v].replace(" (", "\n("), [r["ate_m"] for r in per_run if r["variant"] == v]) for v in models]
+    groups = [(_SHORT[v], [r["ate_m"] for r in per_run if r["variant"] == v]) for v in models]
     png = _strip_png(groups, "ATE per run [m]")
     summary = (f"GMapping with each sensor-model setting on {', '.join(setting.held_worlds)} "
                f"({setting.held_seeds} seed(s) each, "
