@@ -545,6 +545,16 @@ def paper_quick(workdir: Path) -> tuple[float, str]:
     sections = "; ".join(f"{s['key']} {s['status']}" + (f" {s['cpu_s']:.1f} s CPU" if s["cpu_s"] is not None else "")
                          for s in record["sections"])
     return wall, f"CPU {record['cpu_s']:.1f} s; sections {sections}"
+def section5_entropy(workdir: Path) -> tuple[float, str]:
+    """The study's entropy experiment, full size (10 runs per setting, 30 particles, 20 s each): CPU seconds."""
+    from slam2d.experiments.section5 import run_experiment
+
+    t0 = time.process_time()
+    r = run_experiment("entropy", workdir / "entropy", quick=False, seed=0)
+    n = r.numbers
+    return time.process_time() - t0, (f"{int(n['runs'])} runs; static default entropy ln 30 - "
+                                      f"{n['default.distance_from_ln_n']:.3g}; creeping default "
+                                      f"{n['creeping.default.mean_entropy']:.6f} nats (CPU seconds)")
 
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
@@ -614,6 +624,8 @@ CASES: list[Case] = [
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
     Case("paper-quick", "`slam2d paper --quick` (what `make demo` runs): every section, report included, whole "
          "command", paper_quick, target="< 120 s", max_seconds=120.0, repeat=1),
+    Case("section5-entropy", "`slam2d experiment entropy`: 10 runs x 4 settings x static/creeping robot, "
+         "30 particles, 20 s recordings (CPU s, calibration included)", section5_entropy, warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -417,16 +417,18 @@ def test_target_sigma_within_5_percent_from_half_a_metre_to_four_for_every_surfa
     0.5-4 m every 0.25 m, 2000 readings per set-up, then `slam2d calibrate laser`; the model file's
     sigma(distance) for every surface at both angles is within 5 % of the truth over 0.5-4 m.
 
-    The study model below 1 m is its cubic's tangent, so over 0.5-4 m it is not a cubic: at 45 deg
-    the best cubic is off by 4.3 % at the ends before any noise, hence --max-degree 4 here.
+    Default settings: the degree is chosen by cross-validation. The study model below 1 m is its
+    cubic's tangent, so over 0.5-4 m it is not a cubic (at 45 deg the best cubic is off by 4.3 % at
+    the ends before any noise); with 15 distances cross-validation can and does choose a higher degree.
     """
     distances = ",".join(f"{d:g}" for d in np.arange(0.5, 4.01, 0.25))
     code, _, err = run(capsys, "repeatability", "--out", tmp_path / "rep", "--distances", distances,
                        "--repetitions", "2000", "--seed", "11")
     assert code == 0, err
-    code, _, err = run(capsys, "calibrate", "laser", tmp_path / "rep" / "repeatability.csv", "--out", tmp_path / "cal",
-                       "--max-degree", "4")
+    code, _, err = run(capsys, "calibrate", "laser", tmp_path / "rep" / "repeatability.csv", "--out", tmp_path / "cal")
     assert code == 0, err
+    chosen = yaml.safe_load((tmp_path / "cal" / "model.yaml").read_text())["fits"]
+    assert all(f["degree"] > 3 for f in chosen), [f["degree"] for f in chosen]  # cross-validation asked for more
     model = load_sensor_model(tmp_path / "cal" / "model.yaml")
     truth = StudyModel()
     d = np.linspace(0.5, 4.0, 71)
