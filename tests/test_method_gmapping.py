@@ -250,6 +250,48 @@ def test_same_seed_same_trajectory_bit_for_bit(arena):
     assert not np.array_equal(a, c)
 
 
+def test_matched_poses_between_updates_leave_the_filter_alone_and_beat_odometry(arena):
+    """between_updates: the update scans' poses are the same either way; the scans between them get closer."""
+    frames = recording_frames(arena / "recording.log.gz")
+    truth = arena / "truth.tum"
+    runs = {}
+    for mode in ("odometry", "matched"):
+        slam = GMapping(GMappingParams(particles=10, between_updates=mode), seed=3).run(frames)
+        runs[mode] = (slam, _ate(slam, truth))
+    odo, matched = runs["odometry"][0], runs["matched"][0]
+    updated = np.nan_to_num(odo.diagnostics.array("updated")) == 1
+    assert 5 < updated.sum() < len(frames) - 50
+    assert np.array_equal(odo.best_nodes(), matched.best_nodes())  # the filter is untouched
+    po, pm = odo.trajectory()[1], matched.trajectory()[1]
+    assert np.array_equal(po[updated], pm[updated])
+    assert not np.allclose(po[~updated], pm[~updated])
+    assert runs["matched"][1] < 0.8 * runs["odometry"][1], (runs["matched"][1], runs["odometry"][1])
+    assert np.array_equal(matched.current_pose(), pm[-1])
+
+
+def test_angular_search_every_splits_the_particles():
+    """With angular_search_every=2 the even particles search the headings, the odd ones climb as GMapping."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    c, s = np.cos(angles), np.sin(angles)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
+        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
+    ranges = np.minimum(tx, ty)
+    n = 4
+    maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
+    for _ in range(3):
+        maps.register(np.arange(n), np.zeros((n, 3)), np.broadcast_to(ranges, (n, 720)), angles, max_range=20.0,
+                      usable_range=20.0, generate_map=False)
+    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
+    start = np.tile([0.0, 0.0, 0.9], (n, 1))
+    out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
+    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
+                    np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
+                    0.05, 0.05, 5, 1.0, 2, 0.0, out, score, like, ok)
+    assert np.all(np.abs(out[0::2, 2]) < 0.01)
+    assert np.all(np.abs(out[1::2, 2]) > 0.1)
+
+
 def test_gaussian_proposal_tracks_too(arena):
     frames = recording_frames(arena / "recording.log.gz")
     slam = GMapping(GMappingParams(particles=10, proposal="gaussian"), seed=2).run(frames)

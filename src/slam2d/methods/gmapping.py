@@ -119,10 +119,10 @@ class GMappingParams:
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     between_updates: str = param(
-        "odometry", choices=("odometry", "matched"),
-        help="the pose reported for a scan between filter updates: odometry: the best particle's last pose moved "
-        "on by the odometry (the ROS node's map->odom); matched: that pose hill-climbed on the best particle's "
-        "map (one particle, no filter update; the filter and the maps are unchanged)")
+        "matched", choices=("matched", "odometry"),
+        help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
+        "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
+        "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom)")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
