@@ -408,6 +408,10 @@ def crsm_latency(_: Path) -> tuple[float, str]:
         f"median CPU s per scan; p95 {np.percentile(per_scan, 95) * 1e3:.2f} ms, total {cpu:.2f} s CPU "
         f"for {len(per_scan)} scans, {rays:.0f} critical rays per scan"
     )
+#: docs/methods/gmapping.md, "Recommended parameters": odometry better than GMapping's defaults assume
+GMAPPING_GOOD_ODOMETRY = {"srt": 0.05, "stt": 0.05}
+
+
 def _gmapping(rel: str, particles: int = 30, settings: dict | None = None,
               range_max: float | None = None) -> Callable[[Path], tuple[float, str]]:
     """`gmapping` on a shared log, in this process (so peak memory is its own).
@@ -572,6 +576,10 @@ CASES: list[Case] = [
     Case("gmapping-memory-intel-100", "`gmapping` with 100 particles on intel: peak memory (copy-on-write tiles)",
          _gmapping("intel/intel.clf.gz", particles=100), target="< 1 GB", max_peak_mb=1000.0,
          needs=(SHARED,), repeat=1),
+    Case("gmapping-aces-recommended", "`gmapping` on aces with the docs' setting for odometry better than "
+         "GMapping's defaults assume (`srt=0.05 stt=0.05`) and `--range-max 49.9` (aces reports no return as 50 m)",
+         _gmapping("aces/aces.clf.gz", settings=GMAPPING_GOOD_ODOMETRY, range_max=49.9),
+         target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-compile", "cold numba compile of gmapping's kernels (filter and map rebuild)",
          gmapping_compile, warmup=False, repeat=1, needs=(SHARED,)),
     Case("karto-intel", "`karto` over intel (910 scans, reading excluded); ATE vs reference.tum in the notes",

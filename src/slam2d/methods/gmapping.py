@@ -119,10 +119,12 @@ class GMappingParams:
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     between_updates: str = param(
-        "matched", choices=("matched", "odometry"),
+        "matched", choices=("matched", "odometry", "guided"),
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
         "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
-        "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom)")
+        "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom); guided: "
+        "every scan is climbed so, and the climbed increment replaces the odometry's in the motion model and "
+        "the update gating (scan-matched odometry)")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -191,21 +193,31 @@ class GMapping(SlamMethod):
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
         p = self.params
+        self._odom = odom
+        tracked = None
+        if p.between_updates == "guided":
+            # the scan-matched increment replaces the odometry's in the motion model and the update gating
+            before = self._track_start()[0]
+            tracked = self._track(frame)
+            if tracked is not None:
+                delta = se2.relative(before, tracked)
+                step = math.hypot(delta[0], delta[1])
         if p.motion_noise == "scan":
             draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
             draw_from_motion(self._state, delta, np.zeros((self._n, 3)), 0.0, 0.0, 0.0, 0.0)
-        self._odom = odom
         self._linear += step
         self._angular += abs(float(delta[2]))
         due = (self._linear >= p.linearUpdate or self._angular >= p.angularUpdate
                or (p.temporalUpdate >= 0.0 and frame.timestamp - self._last_update_time > p.temporalUpdate))
         values: dict[str, float] = {"updated": 0.0}
+        if not due and p.between_updates == "matched":
+            tracked = self._track(frame)
         rel = None
+        if not due and tracked is not None:
+            rel = se2.relative(self._node_poses[self._nodes - 1, self.best_particle()], tracked)
         if due:
             values = self._filter_update(frame)
-        elif p.between_updates == "matched":
-            rel = self._track(frame)
         self._store_frame(frame.timestamp, rel)
         return values
 
@@ -248,11 +260,17 @@ class GMapping(SlamMethod):
         s2 = np.nan_to_num(2.0 * s * s)
         return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
 
-    def _track(self, frame: Frame) -> NDArray[np.float64] | None:
-        """``between_updates=matched``: the best particle's pose for this scan, hill-climbed on its map.
+    def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The last tracked pose of the best particle and the odometry there (its node after an update)."""
+        if self._track_pose is None:
+            return self._node_poses[self._nodes - 1, self.best_particle()], self._node_odom[self._nodes - 1]
+        return self._track_pose, self._track_odom
 
-        Returned relative to that particle's last node, so the trajectory can put it on whichever
-        path ends up best. None (odometry is used) when the scan has no valid beam or the match fails.
+    def _track(self, frame: Frame) -> NDArray[np.float64] | None:
+        """``between_updates``: the best particle's pose for this scan, hill-climbed on its own map.
+
+        The climb starts from the last tracked pose moved on by the odometry since. None (odometry
+        is used) when the scan has no valid beam or the match fails.
         """
         p = self.params
         beams = self._beams(frame.scan)
@@ -260,10 +278,8 @@ class GMapping(SlamMethod):
             self.diagnostics.count("scans_without_valid_beam")
             return None
         best = self.best_particle()
-        node = self._node_poses[self._nodes - 1, best]
-        if self._track_pose is None:
-            self._track_pose, self._track_odom = node, self._node_odom[self._nodes - 1]
-        start = se2.compose(self._track_pose, se2.relative(self._track_odom, self._odom))
+        last, last_odom = self._track_start()
+        start = se2.compose(last, se2.relative(last_odom, self._odom))
         maps = self._maps
         x, y, th, _, ok = match_one(maps.pool, maps.occ, maps.table, best, maps.origin[0], maps.origin[1],
                                     maps.resolution, p.kernelSize, p.free_cell_check, start,
@@ -272,9 +288,10 @@ class GMapping(SlamMethod):
                                     p.minimumScore)
         if not ok:
             self.diagnostics.count("tracking_failures")
+            self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
             return None
         self._track_pose, self._track_odom = np.array([x, y, th]), self._odom
-        return se2.relative(node, self._track_pose)
+        return self._track_pose
 
     def _filter_update(self, frame: Frame) -> dict[str, float]:
         p = self.params
