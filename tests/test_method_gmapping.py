@@ -178,7 +178,7 @@ def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
         out, score, like, ok = np.empty((1, 3)), np.empty(1), np.empty(1), np.empty(1, bool)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                         np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                        0.05, 0.05, 5, search, 1, 0.0, out, score, like, ok)
+                        0.05, 0.05, 5, search, 1, 0.0, 0.0, 0.0, out, score, like, ok)
         found[search] = out[0].copy()
     assert abs(found[1.0][2]) < 0.01 and np.hypot(found[1.0][0], found[1.0][1]) < 0.02
     assert abs(found[0.0][2]) > 0.1  # the greedy climb alone does not get there
@@ -203,7 +203,7 @@ def test_hill_climb_recovers_a_displaced_pose():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 0.0, 1, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, 0.0, out, score, like, ok)
     assert ok.all()
     assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
     assert np.all(score > 600)  # most of the 720 beams match
@@ -287,7 +287,7 @@ def test_angular_search_every_splits_the_particles():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                     np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 1.0, 2, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 1.0, 2, 0.0, 0.0, 0.0, out, score, like, ok)
     assert np.all(np.abs(out[0::2, 2]) < 0.01)
     assert np.all(np.abs(out[1::2, 2]) > 0.1)
 

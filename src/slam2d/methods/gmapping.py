@@ -73,6 +73,11 @@ class GMappingParams:
     angular_search_every: int = param(
         1, low=1, help="not in GMapping: only every k-th particle does the angular_search, the others climb as "
         "the original (a mixture proposal); 1: all particles")
+    linearOdometryReliability: float = param(
+        0.0, unit="1/m^2", low=0.0, help="GMapping core (not in the ROS node): the hill climb multiplies a pose's "
+        "score by exp(-this * d^2), d its distance from where the climb started; 0: off")
+    angularOdometryReliability: float = param(
+        0.0, unit="1/rad^2", low=0.0, help="GMapping core: the same for the heading change")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -119,12 +124,13 @@ class GMappingParams:
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     between_updates: str = param(
-        "matched", choices=("matched", "odometry", "guided"),
+        "matched", choices=("matched", "odometry", "guided", "guided-heading"),
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
         "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
         "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom); guided: "
         "every scan is climbed so, and the climbed increment replaces the odometry's in the motion model and "
-        "the update gating (scan-matched odometry)")
+        "the update gating (scan-matched odometry); guided-heading: only its heading change does, the "
+        "translation stays the odometry's")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -195,13 +201,17 @@ class GMapping(SlamMethod):
         p = self.params
         self._odom = odom
         tracked = None
-        if p.between_updates == "guided":
+        if p.between_updates in ("guided", "guided-heading"):
             # the scan-matched increment replaces the odometry's in the motion model and the update gating
             before = self._track_start()[0]
             tracked = self._track(frame)
             if tracked is not None:
-                delta = se2.relative(before, tracked)
-                step = math.hypot(delta[0], delta[1])
+                matched = se2.relative(before, tracked)
+                if p.between_updates == "guided":
+                    delta = matched
+                    step = math.hypot(delta[0], delta[1])
+                else:  # the heading from the scans, the translation from the odometry
+                    delta = np.array([delta[0], delta[1], matched[2]])
         if p.motion_noise == "scan":
             draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
@@ -285,7 +295,8 @@ class GMapping(SlamMethod):
                                     maps.resolution, p.kernelSize, p.free_cell_check, start,
                                     np.asarray(frame.scan.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux,
                                     beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations,
-                                    p.minimumScore)
+                                    p.linearOdometryReliability,
+                                    p.angularOdometryReliability, p.minimumScore)
         if not ok:
             self.diagnostics.count("tracking_failures")
             self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
@@ -313,6 +324,7 @@ class GMapping(SlamMethod):
                   p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
                         beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search, p.angular_search_every,
+                        p.linearOdometryReliability, p.angularOdometryReliability,
                         p.minimumScore,
                         out_poses, score, like, ok)
         failures = int(n - ok.sum())
