@@ -292,6 +292,39 @@ def test_angular_search_every_splits_the_particles():
     assert np.all(np.abs(out[1::2, 2]) > 0.1)
 
 
+def test_guided_follows_a_turn_the_odometry_does_not_report():
+    """The robot turns 0.6 rad on the spot while its odometry reports nothing (fr079, t = 175 s).
+
+    With the odometry's increments the filter never updates and the pose keeps the old heading;
+    between_updates=guided moves the particles by the scan-matched increments, so the turn
+    triggers angularUpdate and the heading follows the laser.
+    """
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+
+    def room(theta):  # ranges from the origin at heading theta in a 6 m x 4 m room with a box
+        a = angles + theta
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore"):
+            tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
+            ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
+        r = np.minimum(tx, ty)
+        box = np.abs(se2.wrap_angle(a - 0.8)) < 0.15
+        r[box] = np.minimum(r[box], 1.5)
+        return r
+
+    headings = np.concatenate([np.zeros(5), np.linspace(0.0, 0.6, 13)[1:], np.full(5, 0.6)])
+    frames = [Frame(k, make_scan(0.1 * k, room(h), angles[0], angles[1] - angles[0], 0.02, 30.0), np.zeros(3))
+              for k, h in enumerate(headings)]
+    final = {}
+    for mode in ("odometry", "guided"):
+        slam = GMapping(GMappingParams(particles=5, between_updates=mode, stt=0.05, srt=0.05), seed=0).run(frames)
+        final[mode] = (slam.trajectory()[1][-1], int(np.nansum(slam.diagnostics.array("updated"))))
+    assert abs(final["odometry"][0][2]) < 1e-9 and final["odometry"][1] == 1  # only the first scan
+    pose, updates = final["guided"]
+    assert abs(se2.wrap_angle(pose[2] - 0.6)) < 0.03 and np.hypot(pose[0], pose[1]) < 0.05, pose
+    assert updates >= 2
+
+
 def test_gaussian_proposal_tracks_too(arena):
     frames = recording_frames(arena / "recording.log.gz")
     slam = GMapping(GMappingParams(particles=10, proposal="gaussian"), seed=2).run(frames)

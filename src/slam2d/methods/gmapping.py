@@ -124,13 +124,12 @@ class GMappingParams:
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     between_updates: str = param(
-        "matched", choices=("matched", "odometry", "guided", "guided-heading"),
+        "matched", choices=("matched", "odometry", "guided"),
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
         "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
         "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom); guided: "
         "every scan is climbed so, and the climbed increment replaces the odometry's in the motion model and "
-        "the update gating (scan-matched odometry); guided-heading: only its heading change does, the "
-        "translation stays the odometry's")
+        "the update gating (scan-matched odometry)")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -201,17 +200,13 @@ class GMapping(SlamMethod):
         p = self.params
         self._odom = odom
         tracked = None
-        if p.between_updates in ("guided", "guided-heading"):
+        if p.between_updates == "guided":
             # the scan-matched increment replaces the odometry's in the motion model and the update gating
             before = self._track_start()[0]
-            tracked = self._track(frame)
+            tracked = self._track(frame, count=False)
             if tracked is not None:
-                matched = se2.relative(before, tracked)
-                if p.between_updates == "guided":
-                    delta = matched
-                    step = math.hypot(delta[0], delta[1])
-                else:  # the heading from the scans, the translation from the odometry
-                    delta = np.array([delta[0], delta[1], matched[2]])
+                delta = se2.relative(before, tracked)
+                step = math.hypot(delta[0], delta[1])
         if p.motion_noise == "scan":
             draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
@@ -223,6 +218,8 @@ class GMapping(SlamMethod):
         values: dict[str, float] = {"updated": 0.0}
         if not due and p.between_updates == "matched":
             tracked = self._track(frame)
+        elif not due and p.between_updates == "guided" and tracked is None and self._beams(frame.scan) is None:
+            self.diagnostics.count("scans_without_valid_beam")
         rel = None
         if not due and tracked is not None:
             rel = se2.relative(self._node_poses[self._nodes - 1, self.best_particle()], tracked)
@@ -276,7 +273,7 @@ class GMapping(SlamMethod):
             return self._node_poses[self._nodes - 1, self.best_particle()], self._node_odom[self._nodes - 1]
         return self._track_pose, self._track_odom
 
-    def _track(self, frame: Frame) -> NDArray[np.float64] | None:
+    def _track(self, frame: Frame, count: bool = True) -> NDArray[np.float64] | None:
         """``between_updates``: the best particle's pose for this scan, hill-climbed on its own map.
 
         The climb starts from the last tracked pose moved on by the odometry since. None (odometry
@@ -285,7 +282,8 @@ class GMapping(SlamMethod):
         p = self.params
         beams = self._beams(frame.scan)
         if beams is None:
-            self.diagnostics.count("scans_without_valid_beam")
+            if count:
+                self.diagnostics.count("scans_without_valid_beam")
             return None
         best = self.best_particle()
         last, last_odom = self._track_start()
