@@ -159,14 +159,19 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
 # --------------------------------------------------------------------------- scan matcher
 
 
-def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
-    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
-    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+def _room(angles):
+    """Ranges along world bearings ``angles`` from the origin inside a 6 m x 4 m room (walls at x -2.8, 3.2; y -1.9, 2.1)."""
     c, s = np.cos(angles), np.sin(angles)
     with np.errstate(divide="ignore"):
         tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
         ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    ranges = np.minimum(tx, ty)
+    return np.minimum(tx, ty)
+
+
+def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
+    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    ranges = _room(angles)
     maps = TiledMaps(1, 0.05, (-5, -5, 5, 5))
     for _ in range(3):
         maps.register(np.arange(1), np.zeros((1, 3)), ranges[None, :], angles, max_range=20.0, usable_range=20.0,
@@ -187,12 +192,7 @@ def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
 def test_hill_climb_recovers_a_displaced_pose():
     """A room mapped from the origin; the matcher started 8 cm / 0.04 rad off finds the origin again."""
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    # a 6 m x 4 m rectangular room seen from inside
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
-        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    ranges = np.minimum(tx, ty)
+    ranges = _room(angles)
     n = 3
     maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
     for _ in range(3):  # a few scans so cells have a stable mean hit point
@@ -272,11 +272,7 @@ def test_matched_poses_between_updates_leave_the_filter_alone_and_beat_odometry(
 def test_angular_search_every_splits_the_particles():
     """With angular_search_every=2 the even particles search the headings, the odd ones climb as GMapping."""
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
-        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    ranges = np.minimum(tx, ty)
+    ranges = _room(angles)
     n = 4
     maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
     for _ in range(3):
@@ -301,13 +297,9 @@ def test_guided_follows_a_turn_the_odometry_does_not_report():
     """
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
 
-    def room(theta):  # ranges from the origin at heading theta in a 6 m x 4 m room with a box
+    def room(theta):  # ranges from the origin at heading theta in the room, with a box
         a = angles + theta
-        c, s = np.cos(a), np.sin(a)
-        with np.errstate(divide="ignore"):
-            tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
-            ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-        r = np.minimum(tx, ty)
+        r = _room(a)
         box = np.abs(se2.wrap_angle(a - 0.8)) < 0.15
         r[box] = np.minimum(r[box], 1.5)
         return r
