@@ -582,8 +582,9 @@ CASES: list[Case] = [
          "GMapping's defaults assume (`srt=0.05 stt=0.05`) and `--range-max 49.9` (aces reports no return as 50 m)",
          _gmapping("aces/aces.clf.gz", settings=GMAPPING_GOOD_ODOMETRY, range_max=49.9),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
-    Case("gmapping-fr079-guided", "`gmapping` on fr079 with the docs' setting for dense logs (`between_updates=guided`: "
-         "the scan-matched increment between scans drives the motion model), 30 particles, whole run",
+    Case("gmapping-fr079-guided", "`gmapping` on fr079 with the docs' setting for dense logs "
+         "(`between_updates=guided`: the scan-matched increment between scans drives the motion model), "
+         "30 particles, whole run",
          _gmapping("fr079/fr079.clf.gz", settings=GMAPPING_DENSE), target="< 40 s, ATE < 0.30 m (in the notes)",
          max_seconds=40.0, needs=(SHARED,), repeat=1),
     Case("gmapping-compile", "cold numba compile of gmapping's kernels (filter and map rebuild)",

@@ -160,7 +160,7 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
 
 
 def _room(angles):
-    """Ranges along world bearings ``angles`` from the origin inside a 6 m x 4 m room (walls at x -2.8, 3.2; y -1.9, 2.1)."""
+    """Ranges along world bearings ``angles`` from the origin in a 6 m x 4 m room (x -2.8..3.2, y -1.9..2.1)."""
     c, s = np.cos(angles), np.sin(angles)
     with np.errstate(divide="ignore"):
         tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))

@@ -321,7 +321,8 @@ class GMapping(SlamMethod):
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search, p.angular_search_every,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search,
+                        p.angular_search_every,
                         p.linearOdometryReliability, p.angularOdometryReliability,
                         p.minimumScore,
                         out_poses, score, like, ok)
