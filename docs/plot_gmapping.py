@@ -35,7 +35,7 @@ def main() -> None:
         write_outputs(sim, Path(tmp) / "arena")
         frames = list(open_recording(Path(tmp) / "arena" / "recording.log.gz").frames())
         truth_t, truth = read_tum(Path(tmp) / "arena" / "truth.tum")
-    params = GMappingParams(delta=0.025, linearUpdate=0.1, angularUpdate=0.1, free_cell_check=True)
+    params = GMappingParams()  # the defaults (between_updates=matched)
     slam = GMapping(params, seed=0).run(frames)
     _, est = slam.trajectory()
     odom = np.stack([f.odometry for f in frames])

@@ -26,7 +26,7 @@ from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 from slam2d.sensors.range_noise import ConstantSigma
-from tests.conftest import dataset_file, recording_frames
+from tests.conftest import dataset_file, recording_frames, run_ate
 
 
 @pytest.fixture(scope="module")
@@ -159,14 +159,19 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
 # --------------------------------------------------------------------------- scan matcher
 
 
-def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
-    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
-    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+def _room(angles):
+    """Ranges along world bearings ``angles`` from the origin in a 6 m x 4 m room (x -2.8..3.2, y -1.9..2.1)."""
     c, s = np.cos(angles), np.sin(angles)
     with np.errstate(divide="ignore"):
         tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
         ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    ranges = np.minimum(tx, ty)
+    return np.minimum(tx, ty)
+
+
+def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
+    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    ranges = _room(angles)
     maps = TiledMaps(1, 0.05, (-5, -5, 5, 5))
     for _ in range(3):
         maps.register(np.arange(1), np.zeros((1, 3)), ranges[None, :], angles, max_range=20.0, usable_range=20.0,
@@ -178,7 +183,7 @@ def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
         out, score, like, ok = np.empty((1, 3)), np.empty(1), np.empty(1), np.empty(1, bool)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                         np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                        0.05, 0.05, 5, search, 0.0, out, score, like, ok)
+                        0.05, 0.05, 5, search, 1, 0.0, 0.0, 0.0, out, score, like, ok)
         found[search] = out[0].copy()
     assert abs(found[1.0][2]) < 0.01 and np.hypot(found[1.0][0], found[1.0][1]) < 0.02
     assert abs(found[0.0][2]) > 0.1  # the greedy climb alone does not get there
@@ -187,12 +192,7 @@ def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
 def test_hill_climb_recovers_a_displaced_pose():
     """A room mapped from the origin; the matcher started 8 cm / 0.04 rad off finds the origin again."""
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    # a 6 m x 4 m rectangular room seen from inside
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
-        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    ranges = np.minimum(tx, ty)
+    ranges = _room(angles)
     n = 3
     maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
     for _ in range(3):  # a few scans so cells have a stable mean hit point
@@ -203,7 +203,7 @@ def test_hill_climb_recovers_a_displaced_pose():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 0.0, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, 0.0, out, score, like, ok)
     assert ok.all()
     assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
     assert np.all(score > 600)  # most of the 720 beams match
@@ -248,6 +248,76 @@ def test_same_seed_same_trajectory_bit_for_bit(arena):
     c = GMapping(params, seed=8).run(frames).trajectory()[1]
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
+    guided = GMappingParams(particles=8, between_updates="guided")
+    assert np.array_equal(GMapping(guided, seed=7).run(frames).trajectory()[1],
+                          GMapping(guided, seed=7).run(frames).trajectory()[1])
+
+
+def test_matched_poses_between_updates_leave_the_filter_alone_and_beat_odometry(arena):
+    """between_updates: the update scans' poses are the same either way; the scans between them get closer."""
+    frames = recording_frames(arena / "recording.log.gz")
+    truth = arena / "truth.tum"
+    runs = {}
+    for mode in ("odometry", "matched"):
+        slam = GMapping(GMappingParams(particles=10, between_updates=mode), seed=3).run(frames)
+        runs[mode] = (slam, _ate(slam, truth))
+    odo, matched = runs["odometry"][0], runs["matched"][0]
+    updated = np.nan_to_num(odo.diagnostics.array("updated")) == 1
+    assert 5 < updated.sum() < len(frames) - 50
+    assert np.array_equal(odo.best_nodes(), matched.best_nodes())  # the filter is untouched
+    po, pm = odo.trajectory()[1], matched.trajectory()[1]
+    assert np.array_equal(po[updated], pm[updated])
+    assert not np.allclose(po[~updated], pm[~updated])
+    assert runs["matched"][1] < 0.8 * runs["odometry"][1], (runs["matched"][1], runs["odometry"][1])
+    assert np.array_equal(matched.current_pose(), pm[-1])
+
+
+def test_angular_search_every_splits_the_particles():
+    """With angular_search_every=2 the even particles search the headings, the odd ones climb as GMapping."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    ranges = _room(angles)
+    n = 4
+    maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
+    for _ in range(3):
+        maps.register(np.arange(n), np.zeros((n, 3)), np.broadcast_to(ranges, (n, 720)), angles, max_range=20.0,
+                      usable_range=20.0, generate_map=False)
+    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
+    start = np.tile([0.0, 0.0, 0.9], (n, 1))
+    out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
+    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
+                    np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
+                    0.05, 0.05, 5, 1.0, 2, 0.0, 0.0, 0.0, out, score, like, ok)
+    assert np.all(np.abs(out[0::2, 2]) < 0.01)
+    assert np.all(np.abs(out[1::2, 2]) > 0.1)
+
+
+def test_guided_follows_a_turn_the_odometry_does_not_report():
+    """The robot turns 0.6 rad on the spot while its odometry reports nothing (fr079, t = 175 s).
+
+    With the odometry's increments the filter never updates and the pose keeps the old heading;
+    between_updates=guided moves the particles by the scan-matched increments, so the turn
+    triggers angularUpdate and the heading follows the laser.
+    """
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+
+    def room(theta):  # ranges from the origin at heading theta in the room, with a box
+        a = angles + theta
+        r = _room(a)
+        box = np.abs(se2.wrap_angle(a - 0.8)) < 0.15
+        r[box] = np.minimum(r[box], 1.5)
+        return r
+
+    headings = np.concatenate([np.zeros(5), np.linspace(0.0, 0.6, 13)[1:], np.full(5, 0.6)])
+    frames = [Frame(k, make_scan(0.1 * k, room(h), angles[0], angles[1] - angles[0], 0.02, 30.0), np.zeros(3))
+              for k, h in enumerate(headings)]
+    final = {}
+    for mode in ("odometry", "guided"):
+        slam = GMapping(GMappingParams(particles=5, between_updates=mode, stt=0.05, srt=0.05), seed=0).run(frames)
+        final[mode] = (slam.trajectory()[1][-1], int(np.nansum(slam.diagnostics.array("updated"))))
+    assert abs(final["odometry"][0][2]) < 1e-9 and final["odometry"][1] == 1  # only the first scan
+    pose, updates = final["guided"]
+    assert abs(se2.wrap_angle(pose[2] - 0.6)) < 0.03 and np.hypot(pose[0], pose[1]) < 0.05, pose
+    assert updates >= 2
 
 
 def test_gaussian_proposal_tracks_too(arena):
@@ -370,3 +440,15 @@ def test_cells_hold_gmappings_accumulators():
     hit = cells[cells[:, HITS] > 0]
     assert hit.shape[0] == 1 and hit[0, HITS] == 2 and hit[0, VISITS] == 2
     assert TILE == 32
+
+
+def test_defaults_meet_the_arena_target(paper_arena, tmp_path):
+    """Issue 5: ATE under 0.03 m on one pass of the simulated paper-arena, with the defaults.
+
+    GMapping's own output (odometry between updates) misses it (0.062 m): the defaults' matched
+    poses between updates are what get it there.
+    """
+    ate = run_ate("gmapping", paper_arena, tmp_path / "run")
+    assert ate < 0.03, ate
+    plain = run_ate("gmapping", paper_arena, tmp_path / "plain", "--set", "between_updates=odometry")
+    assert plain > ate

@@ -42,7 +42,7 @@ from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 
-__all__ = ["BeamSet", "match_particles", "score_particles", "gaussian_proposal"]
+__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal"]
 
 _MASK = (1 << TILE_SHIFT) - 1
 FREE_CELL_RATIO = math.sqrt(2.0)  # GMapping m_freeCellRatio
@@ -154,13 +154,20 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
 
 @njit(cache=True)
 def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
-           lstep, astep, iterations, angular_search):
+           lstep, astep, iterations, angular_search, lin_rel, ang_rel):
     """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``.
 
     With ``angular_search`` > 0 the climb starts from the best of the headings
     ``th + k astep`` within +-angular_search (not in GMapping): a greedy climb
     does not cross the local optima that a heading error of several ``astep``
     puts between it and the right pose.
+
+    ``lin_rel`` (1/m^2) and ``ang_rel`` (1/rad^2) are GMapping's odometry
+    reliabilities (``m_linearOdometryReliability``, ``m_angularOdometryReliability``,
+    0 in GMapping): a candidate's score is multiplied by
+    ``exp(-lin_rel d^2 - ang_rel dtheta^2)``, ``d`` and ``dtheta`` its distance
+    from the start pose, so the climb does not wander where the scan does not
+    constrain it (along a corridor).
     """
     x, y, th = start[0], start[1], start[2]
     current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
@@ -201,6 +208,10 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
                 cth -= adelta
             sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
                            div_s, div_l, False)[0]
+            if lin_rel > 0.0 or ang_rel > 0.0:
+                ddx, ddy = cx - start[0], cy - start[1]
+                dth = (cth - start[2] + math.pi) % (2.0 * math.pi) - math.pi
+                sc *= math.exp(-lin_rel * (ddx * ddx + ddy * ddy) - ang_rel * dth * dth)
             if sc > current:
                 current = sc
                 bx, by, bth = cx, cy, cth
@@ -212,17 +223,22 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
 
 @njit(cache=True, parallel=True)
 def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
-                    lstep, astep, iterations, angular_search, minimum_score, out_poses, out_score, out_like, out_ok):
+                    lstep, astep, iterations, angular_search, search_every, lin_rel, ang_rel, minimum_score, out_poses,
+                    out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
 
     A particle whose best score is not above ``minimum_score`` keeps its pose
     (``out_ok`` False: the match failed, odometry is used). ``angular_search``:
-    see :func:`_climb` (0: GMapping's climb). ``out_like`` is the
+    see :func:`_climb` (0: GMapping's climb); only particles whose index is a
+    multiple of ``search_every`` search, the others climb as GMapping does (a
+    mixture proposal: a wrong wide-search heading does not take every particle
+    with it, the weights of the following scans choose). ``out_like`` is the
     log-likelihood at the pose kept.
     """
     for p in prange(poses.shape[0]):
+        wide = angular_search if p % search_every == 0 else 0.0
         x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
-                              div_s, div_l, lstep, astep, iterations, angular_search)
+                              div_s, div_l, lstep, astep, iterations, wide, lin_rel, ang_rel)
         ok = sc > minimum_score
         if not ok:
             x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]
@@ -232,6 +248,20 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mo
         out_ok[p] = ok
         out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
                                 div_s, div_l, True)[1]
+
+
+@njit(cache=True)
+def match_one(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy, div_s, div_l,
+              lstep, astep, iterations, lin_rel, ang_rel, minimum_score):
+    """Hill-climb one pose on map ``p`` (GMapping's climb): ``(x, y, theta, score, ok)``.
+
+    ``ok`` False (score not above ``minimum_score``): the pose returned is ``pose``.
+    """
+    x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy,
+                          div_s, div_l, lstep, astep, iterations, 0.0, lin_rel, ang_rel)
+    if not sc > minimum_score:
+        return pose[0], pose[1], pose[2], sc, False
+    return x, y, (th + math.pi) % (2.0 * math.pi) - math.pi, sc, True
 
 
 @njit(cache=True, parallel=True)

@@ -35,7 +35,7 @@ from slam2d.filters import (
 )
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
-from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_particles
+from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_one, match_particles
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -70,6 +70,14 @@ class GMappingParams:
     angular_search: float = param(
         0.0, unit="rad", low=0.0, high=3.2, help="not in GMapping: the hill climb starts from the best heading "
         "within +-this of the particle's (steps of astep); 0: the original's climb")
+    angular_search_every: int = param(
+        1, low=1, help="not in GMapping: only every k-th particle does the angular_search, the others climb as "
+        "the original (a mixture proposal); 1: all particles")
+    linearOdometryReliability: float = param(
+        0.0, unit="1/m^2", low=0.0, help="GMapping core (not in the ROS node): the hill climb multiplies a pose's "
+        "score by exp(-this * d^2), d its distance from where the climb started; 0: off")
+    angularOdometryReliability: float = param(
+        0.0, unit="1/rad^2", low=0.0, help="GMapping core: the same for the heading change")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -115,6 +123,13 @@ class GMappingParams:
         help="update: one draw of the motion noise for the whole odometry increment since the last filter "
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
+    between_updates: str = param(
+        "matched", choices=("matched", "odometry", "guided"),
+        help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
+        "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
+        "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom); guided: "
+        "every scan is climbed so, and the climbed increment replaces the odometry's in the motion model and "
+        "the update gating (scan-matched odometry)")
     jump_warning: float = param(
         2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
 
@@ -158,6 +173,9 @@ class GMapping(SlamMethod):
         self._frame_times: list[float] = []
         self._frame_odom: list[NDArray[np.float64]] = []
         self._frame_node: list[int] = []
+        self._frame_rel: list[NDArray[np.float64] | None] = []  # matched pose relative to its node (between_updates)
+        self._track_pose: NDArray[np.float64] | None = None  # last matched pose of the best particle, and its odometry
+        self._track_odom: NDArray[np.float64] | None = None
         self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
 
     # ----------------------------------------------------------------- the filter
@@ -180,19 +198,34 @@ class GMapping(SlamMethod):
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
         p = self.params
+        self._odom = odom
+        tracked = None
+        if p.between_updates == "guided":
+            # the scan-matched increment replaces the odometry's in the motion model and the update gating
+            before = self._track_start()[0]
+            tracked = self._track(frame, count=False)
+            if tracked is not None:
+                delta = se2.relative(before, tracked)
+                step = math.hypot(delta[0], delta[1])
         if p.motion_noise == "scan":
             draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
             draw_from_motion(self._state, delta, np.zeros((self._n, 3)), 0.0, 0.0, 0.0, 0.0)
-        self._odom = odom
         self._linear += step
         self._angular += abs(float(delta[2]))
         due = (self._linear >= p.linearUpdate or self._angular >= p.angularUpdate
                or (p.temporalUpdate >= 0.0 and frame.timestamp - self._last_update_time > p.temporalUpdate))
         values: dict[str, float] = {"updated": 0.0}
+        if not due and p.between_updates == "matched":
+            tracked = self._track(frame)
+        elif not due and p.between_updates == "guided" and tracked is None and self._beams(frame.scan) is None:
+            self.diagnostics.count("scans_without_valid_beam")
+        rel = None
+        if not due and tracked is not None:
+            rel = se2.relative(self._node_poses[self._nodes - 1, self.best_particle()], tracked)
         if due:
             values = self._filter_update(frame)
-        self._store_frame(frame.timestamp)
+        self._store_frame(frame.timestamp, rel)
         return values
 
     def _initialise(self, frame: Frame, odom: NDArray[np.float64]) -> Mapping[str, float]:
@@ -221,24 +254,66 @@ class GMapping(SlamMethod):
         self._maps.register(which, laser, ranges, scan.angles, max_range=self._max_range,
                             usable_range=self._usable, generate_map=self.params.generateMap)
 
-    def _filter_update(self, frame: Frame) -> dict[str, float]:
+    def _beams(self, scan) -> BeamSet | None:
+        """The beams matching uses (GMapping's range limits and lskip) with their divisors; None if none is valid."""
         p = self.params
-        scan = frame.scan
-        maps = self._maps
         r = scan.ranges
         with np.errstate(invalid="ignore"):
             use = (r > 0.0) & (r <= self._max_range) & (r <= self._usable)
         use &= (np.arange(r.shape[0]) % (p.lskip + 1)) == p.lskip
         if not use.any():
+            return None
+        s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
+        s2 = np.nan_to_num(2.0 * s * s)
+        return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
+
+    def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The last tracked pose of the best particle and the odometry there (its node after an update)."""
+        if self._track_pose is None:
+            return self._node_poses[self._nodes - 1, self.best_particle()], self._node_odom[self._nodes - 1]
+        return self._track_pose, self._track_odom
+
+    def _track(self, frame: Frame, count: bool = True) -> NDArray[np.float64] | None:
+        """``between_updates``: the best particle's pose for this scan, hill-climbed on its own map.
+
+        The climb starts from the last tracked pose moved on by the odometry since. None (odometry
+        is used) when the scan has no valid beam or the match fails.
+        """
+        p = self.params
+        beams = self._beams(frame.scan)
+        if beams is None:
+            if count:
+                self.diagnostics.count("scans_without_valid_beam")
+            return None
+        best = self.best_particle()
+        last, last_odom = self._track_start()
+        start = se2.compose(last, se2.relative(last_odom, self._odom))
+        maps = self._maps
+        x, y, th, _, ok = match_one(maps.pool, maps.occ, maps.table, best, maps.origin[0], maps.origin[1],
+                                    maps.resolution, p.kernelSize, p.free_cell_check, start,
+                                    np.asarray(frame.scan.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux,
+                                    beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations,
+                                    p.linearOdometryReliability,
+                                    p.angularOdometryReliability, p.minimumScore)
+        if not ok:
+            self.diagnostics.count("tracking_failures")
+            self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
+            return None
+        self._track_pose, self._track_odom = np.array([x, y, th]), self._odom
+        return self._track_pose
+
+    def _filter_update(self, frame: Frame) -> dict[str, float]:
+        p = self.params
+        scan = frame.scan
+        maps = self._maps
+        beams = self._beams(scan)
+        if beams is None:
             self.diagnostics.count("scans_without_valid_beam")
             return {"updated": 0.0}
         if p.motion_noise == "update":
             self._state = self._update_poses.copy()
             draw_from_motion(self._state, se2.relative(self._update_odom, self._odom),
                              self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
-        s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
-        s2 = np.nan_to_num(2.0 * s * s)
-        beams = BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
         n = self._n
         out_poses = np.empty((n, 3))
         score, like, ok = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
@@ -246,7 +321,10 @@ class GMapping(SlamMethod):
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
         match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search, p.minimumScore,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search,
+                        p.angular_search_every,
+                        p.linearOdometryReliability, p.angularOdometryReliability,
+                        p.minimumScore,
                         out_poses, score, like, ok)
         failures = int(n - ok.sum())
         if failures:
@@ -274,6 +352,7 @@ class GMapping(SlamMethod):
         self._last_update_time = frame.timestamp
         self._update_odom = self._odom
         self._update_poses = self._state.copy()
+        self._track_pose = self._track_odom = None
         self._store_node(parents, scan)
         return {
             "updated": 1.0, "neff": neff, "entropy": published_entropy(self._weight), "weight_entropy": h_w,
@@ -311,10 +390,11 @@ class GMapping(SlamMethod):
         self._scans.append((scan.ranges, scan.angles, scan.mount))
         self._nodes += 1
 
-    def _store_frame(self, timestamp: float) -> None:
+    def _store_frame(self, timestamp: float, rel: NDArray[np.float64] | None = None) -> None:
         self._frame_times.append(timestamp)
         self._frame_odom.append(self._odom)
         self._frame_node.append(self._nodes - 1)
+        self._frame_rel.append(rel)
 
     # ----------------------------------------------------------------- outputs
 
@@ -327,6 +407,8 @@ class GMapping(SlamMethod):
         if self._maps is None:
             return None
         node = self._node_poses[self._nodes - 1, self.best_particle()]
+        if self._frame_rel and self._frame_rel[-1] is not None:
+            return se2.compose(node, self._frame_rel[-1])
         return se2.compose(node, se2.relative(self._node_odom[self._nodes - 1], self._odom))
 
     def best_nodes(self) -> NDArray[np.float64]:
@@ -342,7 +424,11 @@ class GMapping(SlamMethod):
         nodes = self.best_nodes()
         k = np.asarray(self._frame_node)
         odom = np.stack(self._frame_odom)
-        return np.array(self._frame_times), se2.compose(nodes[k], se2.relative(self._node_odom[k], odom))
+        rel = se2.relative(self._node_odom[k], odom)
+        matched = np.array([r is not None for r in self._frame_rel])
+        if matched.any():  # between_updates=matched
+            rel[matched] = np.stack([r for r in self._frame_rel if r is not None])
+        return np.array(self._frame_times), se2.compose(nodes[k], rel)
 
     def map(self) -> OccupancyGrid:
         key = (self._nodes, self.best_particle())
