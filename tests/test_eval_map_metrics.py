@@ -194,21 +194,42 @@ def test_a_ghost_wall_raises_map_to_truth_but_not_truth_to_map():
 def test_maps_of_different_resolutions_are_compared_in_metres():
     # The same wall: y in [1.0, 1.05) at 0.05 m cells, [1.0, 1.1) at 0.1 m
     # cells. Fine centres (0.025 + 0.05 k, 1.025), coarse (0.05 + 0.1 k, 1.05):
-    # every fine centre is 0.025 m off in x and in y from a coarse one.
+    # every fine centre is 0.025 m off in x and in y from a coarse one. A truth
+    # coarser than the map is compared as it is, centre to centre.
     fine_values = np.full((40, 40), UNKNOWN, dtype=np.int16)
     fine_values[20, 0:40] = OCCUPIED
     coarse_values = np.full((20, 20), UNKNOWN, dtype=np.int16)
     coarse_values[10, 0:20] = OCCUPIED
     fine = make_grid(fine_values, 0.05)
     coarse = make_grid(coarse_values, 0.1)
-    result = map_to_truth(coarse, fine, tolerance=0.05)
+    result = map_to_truth(fine, coarse, tolerance=0.05)
     diagonal = math.hypot(0.025, 0.025)
     for key in ("truth_to_map_m", "map_to_truth_m"):
         assert result[key]["mean"] == pytest.approx(diagonal, abs=1e-9)
         assert result[key]["max"] == pytest.approx(diagonal, abs=1e-9)
     assert result["precision"] == result["recall"] == 1.0
-    assert (result["map_cells"], result["truth_cells"]) == (20, 40)
-    assert map_to_truth(coarse, fine, tolerance=0.03)["recall"] == 0.0
+    assert (result["map_cells"], result["truth_cells"]) == (40, 20)
+    assert map_to_truth(fine, coarse, tolerance=0.03)["recall"] == 0.0
+
+
+def test_a_truth_finer_than_the_map_is_judged_on_the_maps_own_cells():
+    # A perfect 0.1 m map of a wall the 0.05 m truth knows more precisely: its cells are
+    # where a perfect map on its lattice puts the wall, so it scores 0, not the half
+    # diagonal that the cell centres' offset would give.
+    fine_values = np.full((40, 40), UNKNOWN, dtype=np.int16)
+    fine_values[20, 0:40] = OCCUPIED
+    coarse_values = np.full((20, 20), UNKNOWN, dtype=np.int16)
+    coarse_values[10, 0:20] = OCCUPIED
+    perfect = map_to_truth(make_grid(coarse_values, 0.1), make_grid(fine_values, 0.05), tolerance=0.05)
+    for key in ("truth_to_map_m", "map_to_truth_m"):
+        assert perfect[key]["max"] == pytest.approx(0.0, abs=1e-9)
+    assert perfect["truth_cells"] == 20  # one per map cell the wall falls in
+    # The wall one map cell off is 0.1 m off, whatever the lattices.
+    shifted_values = np.full((20, 20), UNKNOWN, dtype=np.int16)
+    shifted_values[11, 0:20] = OCCUPIED
+    shifted = map_to_truth(make_grid(shifted_values, 0.1), make_grid(fine_values, 0.05), tolerance=0.05)
+    assert shifted["truth_to_map_m"]["mean"] == pytest.approx(0.1, abs=1e-9)
+    assert shifted["recall"] == 0.0
 
 
 def test_a_map_without_obstacles_scores_as_documented():

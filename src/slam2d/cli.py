@@ -600,7 +600,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
     from slam2d.sensors.motion_noise import OdometryNoise
-    from slam2d.sim.simulate import SimulationParams
+    from slam2d.sim.simulate import TRUTH_MAP_RESOLUTION, SimulationParams
 
     p = sub.add_parser(
         "simulate",
@@ -616,8 +616,9 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--path", type=Path, help="YAML with 'waypoints: [[x, y], ...]' or "
                    "'commands: [[seconds, vx, vy, omega], ...]' (default: the world's own path)")
     p.add_argument("--ros1", action="store_true", help="write a ROS 1 bag instead of a ROS 2 bag")
-    p.add_argument("--map-resolution", type=float, default=0.05, metavar="M",
-                   help="cell size of the true occupancy map [m] (default: 0.05)")
+    p.add_argument("--map-resolution", type=float, default=TRUTH_MAP_RESOLUTION, metavar="M",
+                   help="cell size of the true occupancy map [m]; finer than the maps it judges, so their "
+                   f"errors are measured on their own cells (default: {TRUTH_MAP_RESOLUTION})")
     add_arguments(p.add_argument_group("simulation"), SimulationParams)
     add_arguments(p.add_argument_group("odometry noise"), OdometryNoise)
     p.set_defaults(handler=cmd_simulate)

@@ -215,7 +215,13 @@ def _poses_at(times: NDArray[np.float64], poses: NDArray[np.float64], query: NDA
     return se2.interpolate(poses[k], poses[k + 1], frac)
 
 
-def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False, map_resolution: float = 0.05) -> list[Path]:
+#: The true map's cell size: finer than the 0.05 m maps it usually judges, so that map error is
+#: measured against the cells a perfect map on their own lattice would mark (eval.map_metrics).
+TRUTH_MAP_RESOLUTION = 0.02
+
+
+def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
+                  map_resolution: float = TRUTH_MAP_RESOLUTION) -> list[Path]:
     """Write the recording and its ground truth into ``out_dir``; return the paths written.
 
     - ``recording.log.gz``: CARMEN log (ROBOTLASER1 + ODOM at the odometry rate);
