@@ -17,7 +17,7 @@ from slam2d.methods import get_method
 from slam2d.methods.coreslam import CoreSlam, CoreSlamParams
 from slam2d.params import from_mapping
 from slam2d.sensors.range_noise import ConstantSigma
-from tests._room import frame, room_scan
+from tests._room import PILLAR, ROOM, _box_hits, frame, room_scan
 from tests.conftest import run_ate
 
 
@@ -119,16 +119,17 @@ def test_coreslam_tracks_a_drive_without_odometry_and_is_deterministic():
 
 def test_coreslam_uses_odometry_as_the_prediction_when_asked():
     frames, truth = _drive(n=12, step=0.25)  # 25 cm per scan: beyond the blind search's reach
-    odo = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
+    # room_scan is instantaneous (no sweep time): de-skewing it would skew it
+    odo = CoreSlam(CoreSlamParams(use_odometry=True, deskew="none"), seed=1).run(frames)
     err = np.hypot(*(odo.trajectory()[1][:, :2] - truth[:, :2]).T)
     assert err.max() < 0.05
     # without odometry frames lacking it are fine; with it, they are counted
     frames[3] = frame(frames[3].scan, None, 3)
-    odo2 = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
+    odo2 = CoreSlam(CoreSlamParams(use_odometry=True, deskew="none"), seed=1).run(frames)
     assert odo2.diagnostics.counters["frames_without_odometry"] == 1
     # an odometry jump (a reset, a corrupt reading) is counted and predicts no motion
     frames[6] = frame(frames[6].scan, frames[6].odometry + np.array([500.0, 0.0, 0.0]), 6)
-    odo3 = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
+    odo3 = CoreSlam(CoreSlamParams(use_odometry=True, deskew="none"), seed=1).run(frames)
     assert odo3.diagnostics.counters["odometry_jumps"] == 2  # into the bad reading and out of it
     assert np.all(np.isfinite(odo3.trajectory()[1]))
 
@@ -220,6 +221,46 @@ def test_constant_velocity_prediction():
     for f in frames[:5]:
         plain.feed(f)
     assert np.allclose(plain._predict(frame(frames[5].scan, None, 5)), plain.pose)
+
+
+def _swept_scan(p0, p1, n=361, fov=np.radians(240), t=0.0):
+    """A room scan measured while the laser moves from ``p0`` towards ``p1`` (one period's motion): beam ``i``
+    from the pose ``i / (n - 1)`` of the way through a sweep of ``fov / 2 pi`` of the period (a rotating mirror)."""
+    share = n * (fov / (n - 1)) / (2 * math.pi)
+    a = -fov / 2 + fov * np.arange(n) / (n - 1)
+    poses = se2.interpolate(p0, p1, share * np.arange(n) / (n - 1))
+    d = poses[:, 2] + a
+    dx, dy = np.cos(d), np.sin(d)
+    px, py = poses[:, 0], poses[:, 1]
+    r = np.fmin(_box_hits(px, py, dx, dy, ROOM, True), _box_hits(px, py, dx, dy, PILLAR, False))
+    return make_scan(t, np.where(r < 20.0, r, np.nan), -fov / 2, fov / (n - 1), 0.02, 20.0)
+
+
+def test_deskew_undoes_the_motion_during_the_sweep():
+    """A fast turn (0.15 rad per scan) skews each scan; with odometry the sweep is undone (as BreezySLAM does)."""
+    n = 30
+    poses = [np.array([0.03 * i, 0.01 * i, 0.15 * i]) for i in range(n + 1)]
+    frames = [frame(_swept_scan(poses[i], poses[i + 1], t=0.1 * i), odometry=poses[i], index=i) for i in range(n)]
+    truth = np.stack(poses[:n])
+
+    def worst(**kw):
+        p = CoreSlam(CoreSlamParams(**kw), seed=1).run(frames).trajectory()[1]
+        return np.hypot(*(p[:, :2] - truth[:, :2]).T).max(), np.abs(se2.wrap_angle(p[:, 2] - truth[:, 2])).max()
+
+    fixed, skewed = worst(use_odometry=True), worst(use_odometry=True, deskew="none")
+    assert fixed[0] < 0.05 and fixed[1] < math.radians(4), fixed
+    assert skewed[0] > 2 * fixed[0] and skewed[1] > fixed[1], (skewed, fixed)
+    # without odometry the default (BreezySLAM) has no velocity to undo; "motion" uses the last matched one
+    assert worst()[0] > 2 * fixed[0]
+    assert worst(deskew="motion")[0] < 0.05
+    # the beams' poses: the mount at the first beam, the sweep's share of the step at the last
+    m = CoreSlam(seed=0)
+    scan = frames[0].scan
+    m._sweep_step = np.array([0.1, 0.0, 0.3])
+    beams = m._beam_poses(scan)
+    share = scan.num_beams * scan.angle_increment / (2 * math.pi)
+    assert np.allclose(beams[0], [0.0, 0.0, scan.angles[0]])
+    assert np.allclose(beams[-1], [0.1 * share, 0.0, scan.angles[-1] + 0.3 * share])
 
 
 @pytest.mark.slow

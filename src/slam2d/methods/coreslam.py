@@ -74,6 +74,12 @@ class CoreSlamParams:
         True, help="end each search with a deterministic compass search (one cell and 1/3 cell per 3 m of heading, "
         "halving to 1/8); not in BreezySLAM",
     )
+    deskew: str = param(
+        "odometry", choices=("none", "odometry", "motion"),
+        help="undo the robot's motion during the laser's sweep (one mirror turn per scan period assumed): "
+        "with the odometry increment when it predicts the pose (BreezySLAM), also with the last matched motion "
+        "without odometry (motion), or never (none)",
+    )
     min_range: float = param(
         0.02, unit="m", low=0.0,
         help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
@@ -88,6 +94,11 @@ class CoreSlamParams:
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
     )
+
+
+def _endpoints(beams: NDArray[np.float64], ranges: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Robot-frame endpoints ``(N, 2)`` of beams with poses ``beams`` (heading = beam direction) and ``ranges``."""
+    return np.stack([beams[:, 0] + ranges * np.cos(beams[:, 2]), beams[:, 1] + ranges * np.sin(beams[:, 2])], axis=-1)
 
 
 @register
@@ -113,6 +124,7 @@ class CoreSlam(SlamMethod):
         self._pose: NDArray[np.float64] | None = None
         self._last_odom: NDArray[np.float64] | None = None
         self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._sweep_step = np.zeros(3)  # the motion over one scan period used to de-skew this scan
         self._scans_in_map = 0
         self._random = new_state(self.rng)
 
@@ -125,6 +137,7 @@ class CoreSlam(SlamMethod):
             step = se2.relative(self._last_odom, odom)
             if np.all(np.isfinite(step)) and math.hypot(step[0], step[1]) <= _MAX_ODOMETRY_STEP:
                 pred = se2.compose(self._pose, step)
+                self._sweep_step = step
             else:
                 self.diagnostics.count("odometry_jumps")  # a reset or corrupt reading: predict no motion
                 pred = self._pose.copy()
@@ -143,6 +156,8 @@ class CoreSlam(SlamMethod):
         p = self.params
         scan = frame.scan
         previous = self._pose
+        # without odometry BreezySLAM has no velocity and does not de-skew; "motion" uses the last matched one
+        self._sweep_step = self._step if self.params.deskew == "motion" else np.zeros(3)
         pose = self._predict(frame)
         ranges = scan.ranges
         short = ranges < max(p.min_range, scan.range_min)  # NaN compares False
@@ -157,9 +172,8 @@ class CoreSlam(SlamMethod):
             self.diagnostics.count("scans_too_few_returns")
             self._set_pose(previous, pose)
             return values
-        a = scan.angles[valid]
-        r = ranges[valid]
-        points = se2.transform_points(scan.mount, np.stack([r * np.cos(a), r * np.sin(a)], axis=-1))
+        beams = self._beam_poses(scan)
+        points = _endpoints(beams[valid], ranges[valid])
         if self._scans_in_map > 0:
             result = rmhc_match(
                 self._map, points, pose, sigma_xy=p.sigma_xy, sigma_theta=p.sigma_theta,
@@ -171,7 +185,7 @@ class CoreSlam(SlamMethod):
             else:
                 self.diagnostics.count("match_failures")  # no endpoint on the map
         self._set_pose(previous, pose)
-        values["cells_updated"] = self._integrate(scan, ranges, pose)
+        values["cells_updated"] = self._integrate(scan, ranges, pose, beams)
         self._scans_in_map += 1
         return values
 
@@ -179,7 +193,26 @@ class CoreSlam(SlamMethod):
         self._step = np.zeros(3) if previous is None else se2.relative(previous, pose)
         self._pose = pose
 
-    def _integrate(self, scan, ranges: NDArray[np.float64], pose: NDArray[np.float64]) -> float:
+    def _beam_poses(self, scan) -> NDArray[np.float64]:
+        """Each beam's laser pose in the robot frame at the scan's timestamp ``(N, 3)``, heading with the beam angle.
+
+        With ``deskew``, beam ``i`` of ``N`` was measured ``i / (N - 1)`` of the way through the sweep, which
+        (a rotating mirror turns once per scan period) takes ``N * angle_increment / 2 pi`` of the period: its
+        laser pose is the mount moved by that fraction of the motion over one period.
+        """
+        n = scan.num_beams
+        step = self._sweep_step
+        if self.params.deskew != "none" and n > 1 and np.any(step != 0.0) and np.all(np.isfinite(step)):
+            share = min(1.0, n * scan.angle_increment / (2.0 * math.pi))
+            frac = share * np.arange(n, dtype=np.float64) / (n - 1)
+            poses = se2.compose(se2.interpolate(np.zeros(3), step, frac), scan.mount)
+        else:
+            poses = np.broadcast_to(np.asarray(scan.mount, dtype=np.float64), (n, 3)).copy()
+        poses[:, 2] = poses[:, 2] + scan.angles
+        return poses
+
+    def _integrate(self, scan, ranges: NDArray[np.float64], pose: NDArray[np.float64],
+                   beams: NDArray[np.float64]) -> float:
         p = self.params
         laser = se2.compose(pose, scan.mount)
         hit = ~np.isnan(ranges)
@@ -188,9 +221,9 @@ class CoreSlam(SlamMethod):
             use = np.ones(ranges.shape[0], dtype=bool)
         else:
             use = hit
-        angles = scan.angles[use] + laser[2]
         r = ranges[use]
-        ends = np.stack([laser[0] + r * np.cos(angles), laser[1] + r * np.sin(angles)], axis=-1)
+        # the rays are drawn from the laser's pose at the scan's start: the sweep moves it by centimetres
+        ends = se2.transform_points(pose, _endpoints(beams[use], r))
         half = 0.5 * p.hole_width
         if self.sensor_model is not None:
             sigma = beam_sigmas(scan, self.sensor_model, 0.0)[use]
