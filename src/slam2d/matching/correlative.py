@@ -81,24 +81,35 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
     As in Karto, the point is snapped to its cell (which gets the full value)
     and the kernel, reaching 2 sigma, is evaluated at whole-cell distances, so
     a query point in the same cell as a reference point scores 1 and the
-    response thresholds mean what they mean in Karto. The kernel is separable:
-    one short row of exp() per point and one product per cell.
+    response thresholds mean what they mean in Karto. The kernel is built
+    once per distinct sigma (a separable product of exp() rows), then one comparison per cell.
     """
     rows, cols = grid.shape
     if px.shape[0] == 0:
         return
     widest = int(math.ceil(2.0 * sigma.max() / resolution))
     ex = np.empty(2 * widest + 1)
+    # The kernel in 0..255 is rebuilt only when the sigma changes (once with no sensor model).
+    kern = np.empty((2 * widest + 1, 2 * widest + 1), np.uint8)
+    last = -1.0
+    half = 0
+    n = 1
     for k in range(px.shape[0]):
         s = sigma[k]
+        if s != last:
+            last = s
+            half = int(math.ceil(2.0 * s / resolution))
+            n = 2 * half + 1
+            inv = resolution / s
+            for i in range(n):
+                d = (i - half) * inv
+                ex[i] = math.exp(-0.5 * d * d) * _SCALE
+            for i in range(n):
+                wy = ex[i] / _SCALE
+                for j in range(n):
+                    kern[i, j] = np.uint8(wy * ex[j] + 0.5)
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
-        half = int(math.ceil(2.0 * s / resolution))
-        n = 2 * half + 1
-        inv = resolution / s
-        for i in range(n):
-            d = (i - half) * inv
-            ex[i] = math.exp(-0.5 * d * d) * _SCALE
         r0 = cv - half
         c0 = cu - half
         i_lo = max(0, -r0)
@@ -106,12 +117,11 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
         j_lo = max(0, -c0)
         j_hi = min(n, cols - c0)
         for i in range(i_lo, i_hi):
-            wy = ex[i] / _SCALE
             row = grid[r0 + i]
+            kr = kern[i]
             for j in range(j_lo, j_hi):
-                q = np.uint8(wy * ex[j] + 0.5)
-                if q > row[c0 + j]:
-                    row[c0 + j] = q
+                if kr[j] > row[c0 + j]:
+                    row[c0 + j] = kr[j]
 
 
 @njit(cache=True)
@@ -137,24 +147,46 @@ def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution,
     return rows, cols
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _add_rows(grid, out, r_base, c_base, ni, nj, step):
+    """out[i, j] += grid[r_base + i step, c_base + j step], every cell inside the grid.
+
+    The strides are literals in their own loops (1 and 2 are the fine and coarse
+    steps) so the compiler vectorises the strided byte loads into int32 sums.
+    """
+    # Row slices start at index 0, so the loads need no negative-index wraparound check.
+    if step == 2:
+        for i in range(ni):
+            row = grid[r_base + 2 * i, c_base:]
+            for j in range(nj):
+                out[i, j] += row[2 * j]
+    elif step == 1:
+        for i in range(ni):
+            row = grid[r_base + i, c_base:]
+            for j in range(nj):
+                out[i, j] += row[j]
+    else:
+        for i in range(ni):
+            row = grid[r_base + i * step, c_base:]
+            for j in range(nj):
+                out[i, j] += row[j * step]
+
+
+@njit(cache=True, inline="always")
 def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
-    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps."""
+    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
     g_rows, g_cols = grid.shape
     for i in range(ni):
         for j in range(nj):
-            out[i, j] = 0.0
+            out[i, j] = 0
     for k in range(rows.shape[1]):
         r_base = rows[a, k] + i0 * step
         c_base = cols[a, k] + j0 * step
         r_last = r_base + (ni - 1) * step
         c_last = c_base + (nj - 1) * step
         if r_base >= 0 and c_base >= 0 and r_last < g_rows and c_last < g_cols:
-            for i in range(ni):
-                r = r_base + i * step
-                for j in range(nj):
-                    out[i, j] += grid[r, c_base + j * step]
-        else:
+            _add_rows(grid, out, r_base, c_base, ni, nj, step)
+        elif r_last >= 0 and c_last >= 0 and r_base < g_rows and c_base < g_cols:
             for i in range(ni):
                 r = r_base + i * step
                 if r < 0 or r >= g_rows:
@@ -170,10 +202,12 @@ def _score_all(grid, rows, cols, n_steps, step):
     """Exhaustive: responses (sums) of every angle and translation, (angles, n, n)."""
     na = rows.shape[0]
     out = np.zeros((na, n_steps, n_steps))
-    buf = np.zeros((n_steps, n_steps))
+    buf = np.zeros((n_steps, n_steps), np.int32)
     for a in range(na):
         _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
-        out[a] = buf
+        for i in range(n_steps):
+            for j in range(n_steps):
+                out[a, i, j] = buf[i, j]
     return out
 
 
@@ -236,7 +270,7 @@ def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps
     """
     na = rows.shape[0]
     out = np.full((na, n_steps, n_steps), -1.0)
-    buf = np.zeros((block, block))
+    buf = np.zeros((block, block), np.int32)
     best = floor
     lookups = 0
     nbb = n_blocks * n_blocks
