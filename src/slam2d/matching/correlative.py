@@ -116,12 +116,14 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
         i_hi = min(n, rows - r0)
         j_lo = max(0, -c0)
         j_hi = min(n, cols - c0)
+        m = j_hi - j_lo
         for i in range(i_lo, i_hi):
-            row = grid[r0 + i]
-            kr = kern[i]
-            for j in range(j_lo, j_hi):
-                if kr[j] > row[c0 + j]:
-                    row[c0 + j] = kr[j]
+            # Slices from the first cell: no negative-index checks, so the loop vectorises.
+            row = grid[r0 + i, c0 + j_lo:]
+            kr = kern[i, j_lo:]
+            for j in range(m):
+                if kr[j] > row[j]:
+                    row[j] = kr[j]
 
 
 @njit(cache=True)
