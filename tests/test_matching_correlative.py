@@ -169,3 +169,42 @@ def test_empty_and_bad_input():
     assert r.response == 0.0
     with pytest.raises(ValueError):
         CorrelativeMatcher(resolution=0.0)
+
+
+def test_score_kernel_equals_a_plain_sum_for_every_step_and_at_the_grid_edges():
+    from slam2d.matching.correlative import _score_all
+
+    rng = np.random.default_rng(3)
+    grid = rng.integers(0, 256, (60, 70)).astype(np.uint8)
+    # Points inside, partly outside and wholly outside the grid.
+    rows = rng.integers(-30, 80, (4, 50)).astype(np.int64)
+    cols = rng.integers(-30, 90, (4, 50)).astype(np.int64)
+    for step in (1, 2, 3):
+        n = 7
+        got = _score_all(grid, rows, cols, n, step)
+        want = np.zeros((4, n, n))
+        for a in range(4):
+            for i in range(n):
+                for j in range(n):
+                    r = rows[a] + i * step
+                    c = cols[a] + j * step
+                    ok = (r >= 0) & (r < grid.shape[0]) & (c >= 0) & (c < grid.shape[1])
+                    want[a, i, j] = grid[r[ok], c[ok]].astype(np.int64).sum()
+        assert np.array_equal(got, want), step
+
+
+def test_smear_skipping_repeated_cells_draws_the_same_grid():
+    from slam2d.matching.correlative import smear_points
+
+    rng = np.random.default_rng(4)
+    px = rng.uniform(0.0, 1.0, 300)
+    py = rng.uniform(0.0, 1.0, 300)
+    px = np.concatenate([px, px + 0.001])  # the same 1 cm cells again
+    py = np.concatenate([py, py + 0.001])
+    sig = np.full(px.size, 0.03)
+    full = np.zeros((110, 110), np.uint8)
+    skipped = np.zeros((110, 110), np.uint8)
+    smear_points(full, -0.05, -0.05, 0.01, px, py, sig, False)
+    smear_points(skipped, -0.05, -0.05, 0.01, px, py, sig, True)
+    assert np.array_equal(full, skipped)
+    assert (full == 255).sum() <= 300  # only kernel centres reach the full value

@@ -75,8 +75,13 @@ class MatchResult:
 
 
 @njit(cache=True)
-def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
+def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
     """Max-combine a Gaussian of each point's sigma into ``grid`` (uint8, 0..255).
+
+    ``skip_drawn``: the caller knows every point ever drawn into ``grid`` had the
+    same sigma, so a point whose cell already holds the full value (only a kernel's
+    centre does) would draw the very same kernel again and is skipped. Overlapping
+    scans put many points into the same 1 cm cell (a third of them on fr079).
 
     As in Karto, the point is snapped to its cell (which gets the full value)
     and the kernel, reaching 2 sigma, is evaluated at whole-cell distances, so
@@ -110,6 +115,8 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
                     kern[i, j] = np.uint8(wy * ex[j] + 0.5)
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
+        if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
+            continue
         r0 = cv - half
         c0 = cu - half
         i_lo = max(0, -r0)
@@ -436,7 +443,7 @@ class CorrelativeMatcher:
             smear_points(
                 grid, float(origin[0]), float(origin[1]), res,
                 np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
-                np.ascontiguousarray(ref_sigmas[order]),
+                np.ascontiguousarray(ref_sigmas[order]), _uniform(ref_sigmas) is not None,
             )
         return grid, float(origin[0]), float(origin[1])
 
@@ -596,6 +603,13 @@ class CorrelativeMatcher:
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups))
 
 
+def _uniform(sigmas: NDArray[np.float64]) -> float | None:
+    """The one sigma every point has, or None when they differ (or there are none)."""
+    if sigmas.size == 0 or sigmas.min() != sigmas.max():
+        return None
+    return float(sigmas[0])
+
+
 class GridCache:
     """Correlation grids kept between matches, extended scan by scan instead of rebuilt.
 
@@ -675,9 +689,13 @@ class GridCache:
                 pts, sig = self._gather(missing)
                 grid, ox, oy = e["grid"]
                 order = np.argsort(np.floor((pts[:, 1] - oy) / self.matcher.resolution), kind="stable")
+                # Repeated cells are skipped only while every point drawn has had one sigma.
+                same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
+                if not same:
+                    e["sigma"] = None
                 smear_points(grid, ox, oy, self.matcher.resolution,
                              np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
-                             np.ascontiguousarray(sig[order]))
+                             np.ascontiguousarray(sig[order]), same)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
@@ -697,7 +715,7 @@ class GridCache:
         res = self.matcher.resolution
         self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
                                  "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
-                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach})
+                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig)})
         del self._entries[self.max_entries:]
         self.builds += 1
         return grid
