@@ -134,6 +134,48 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
 
 
 @njit(cache=True)
+def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
+    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+
+    Row order keeps the smear's writes in cache: many scans overlap in space,
+    not in memory.
+    """
+    n = px.shape[0]
+    rows = grid.shape[0]
+    key = np.empty(n, np.int64)
+    count = np.zeros(rows + 3, np.int64)
+    for k in range(n):
+        r = int(math.floor((py[k] - origin_y) / resolution)) + 1
+        r = min(max(r, 0), rows + 1)
+        key[k] = r
+        count[r + 1] += 1
+    for r in range(rows + 2):
+        count[r + 1] += count[r]
+    sx = np.empty(n)
+    sy = np.empty(n)
+    ss = np.empty(n)
+    for k in range(n):
+        d = count[key[k]]
+        count[key[k]] += 1
+        sx[d] = px[k]
+        sy[d] = py[k]
+        ss[d] = sigma[k]
+    smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
+
+
+@njit(cache=True)
+def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
+    """Indices of the points inside the box."""
+    out = np.empty(px.shape[0], np.int64)
+    m = 0
+    for k in range(px.shape[0]):
+        if px[k] >= lo_x and px[k] <= hi_x and py[k] >= lo_y and py[k] <= hi_y:
+            out[m] = k
+            m += 1
+    return out[:m]
+
+
+@njit(cache=True)
 def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution, first):
     """Cells (row, col) of the query points at every angle, for the translation index 0 corner.
 
@@ -426,25 +468,23 @@ class CorrelativeMatcher:
         lo = np.asarray(lo, dtype=np.float64).copy()
         hi = np.asarray(hi, dtype=np.float64).copy()
         if ref_points.shape[0]:
-            keep = np.all((ref_points >= lo - margin) & (ref_points <= hi + margin), axis=1)
-            ref_points = ref_points[keep]
-            ref_sigmas = ref_sigmas[keep]
-        if ref_points.shape[0] and clip:
-            lo = np.maximum(lo, ref_points.min(axis=0) - margin)
-            hi = np.minimum(hi, ref_points.max(axis=0) + margin)
+            px = np.ascontiguousarray(ref_points[:, 0])
+            py = np.ascontiguousarray(ref_points[:, 1])
+            keep = _inside(px, py, lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin)
+            if keep.size < px.size:
+                px, py, ref_sigmas = px[keep], py[keep], ref_sigmas[keep]
+        else:
+            px = py = np.zeros(0)
+        if px.size and clip:
+            lo = np.maximum(lo, np.array([px.min(), py.min()]) - margin)
+            hi = np.minimum(hi, np.array([px.max(), py.max()]) + margin)
         hi = np.maximum(hi, lo + res)
         origin = np.floor(lo / res) * res
         shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
         grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
-        if ref_points.shape[0]:
-            # Row order keeps the smear's writes in cache (scans overlap in space, not in memory).
-            order = np.argsort(np.floor((ref_points[:, 1] - origin[1]) / res), kind="stable")
-            pts = ref_points[order]
-            smear_points(
-                grid, float(origin[0]), float(origin[1]), res,
-                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
-                np.ascontiguousarray(ref_sigmas[order]), _uniform(ref_sigmas) is not None,
-            )
+        if px.size:
+            smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
+                               np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
 
     def _penalty(self, dx, dy, dth):
@@ -688,14 +728,12 @@ class GridCache:
             if missing:
                 pts, sig = self._gather(missing)
                 grid, ox, oy = e["grid"]
-                order = np.argsort(np.floor((pts[:, 1] - oy) / self.matcher.resolution), kind="stable")
                 # Repeated cells are skipped only while every point drawn has had one sigma.
                 same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
                 if not same:
                     e["sigma"] = None
-                smear_points(grid, ox, oy, self.matcher.resolution,
-                             np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
-                             np.ascontiguousarray(sig[order]), same)
+                smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
+                                   np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
