@@ -681,32 +681,38 @@ class GridCache:
         self.max_extra = int(max_extra)
         self.max_entries = int(max_entries)
         self._entries: list[dict] = []
-        self._bbox: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
+        # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
+        self._box = np.zeros((0, 5))
+        self._known = np.zeros(0, dtype=bool)
         self.builds = 0
         self.extensions = 0
 
     def invalidate(self) -> None:
         self._entries.clear()
-        self._bbox.clear()
+        self._known[:] = False
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
-        lo = np.full(2, np.inf)
-        hi = np.full(2, -np.inf)
-        reach = 0.0
-        for n in nodes:
-            b = self._bbox.get(n)
-            if b is None:
-                pts, sig = self.points_of(n)
-                if pts.shape[0]:
-                    b = (pts.min(axis=0), pts.max(axis=0), 2.0 * float(sig.max()))
-                else:
-                    b = (np.full(2, np.inf), np.full(2, -np.inf), 0.0)
-                self._bbox[n] = b
-            lo = np.minimum(lo, b[0])
-            hi = np.maximum(hi, b[1])
-            reach = max(reach, b[2])
-        return lo, hi, reach + 2.0 * self.matcher.resolution
+        idx = np.asarray(nodes, dtype=np.int64)
+        if idx.size == 0:
+            return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
+        top = int(idx.max()) + 1
+        if top > self._known.size:
+            grow = max(top, 2 * self._known.size)
+            self._known = np.concatenate([self._known, np.zeros(grow - self._known.size, bool)])
+            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 5))])
+        # Each node's box is computed once (until the next invalidate), the rest is array work.
+        for n in idx[~self._known[idx]].tolist():
+            pts, sig = self.points_of(n)
+            if pts.shape[0]:
+                self._box[n, :2] = pts.min(axis=0)
+                self._box[n, 2:4] = pts.max(axis=0)
+                self._box[n, 4] = 2.0 * float(sig.max())
+            else:
+                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0)
+            self._known[n] = True
+        b = self._box[idx]
+        return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         wanted = set(int(n) for n in nodes)
