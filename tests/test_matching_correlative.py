@@ -209,3 +209,19 @@ def test_smear_skipping_repeated_cells_draws_the_same_grid():
     assert np.array_equal(full, skipped)
     centres = {(int(np.floor((y + 0.05) / 0.01)), int(np.floor((x + 0.05) / 0.01))) for x, y in zip(px, py)}
     assert (full == 255).sum() == len(centres) < px.size  # only kernel centres reach the full value
+
+
+def test_refining_a_loop_grid_match_recovers_what_the_coarse_angle_sampling_loses():
+    # A loop-closure matcher (5 cm grid, 2 deg coarse steps); the truth lies one degree
+    # from every sampled heading, so far points miss their cells in the coarse search.
+    rng = np.random.default_rng(5)
+    m = CorrelativeMatcher(search_size=2.0, resolution=0.05)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng, noise=0.002, every=2)
+    prior = truth + np.array([0.1, 0.05, math.radians(1.0)])
+    coarse = m.match(ROOM, None, q, prior, penalize=False, refine=False)
+    refined = m.match(ROOM, None, q, prior, penalize=False, refine=True)
+    assert refined.response > coarse.response + 0.05
+    assert abs(se2.wrap_angle(refined.pose[2] - truth[2])) < abs(se2.wrap_angle(coarse.pose[2] - truth[2]))
+    # the positional covariance is the coarse surface's either way (Karto's loop variance test)
+    np.testing.assert_allclose(refined.covariance[:2, :2], coarse.covariance[:2, :2])

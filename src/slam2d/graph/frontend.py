@@ -128,6 +128,12 @@ class GraphSlamParams(GridParams):
         "itself when the truth lies half a coarse step (cell and angle) from every sampled pose (not in Karto): "
         "the coarse grid's sampling alone costs long-range scans a tenth to a third of their response",
     )
+    loop_coarse_refine: bool = param(
+        True,
+        help="score the coarse loop match after a fine angle and one-cell step on the loop grid (Karto's "
+        "refine step, which its loop closure skips): the 2 deg coarse angle sampling alone costs a long-range "
+        "scan much of its response, so a true closure can miss the coarse threshold (not in Karto)",
+    )
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
     )
@@ -544,8 +550,11 @@ class GraphFrontend:
             matcher = self.loop
             if 2.0 * allowed < self.loop.search_size:
                 matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
-            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False, refine=False,
-                                 min_response=coarse_threshold)
+            # The refine step can lift a coarse pose by about the angle sampling's loss, so the
+            # branch and bound must keep scoring poses that far below the threshold.
+            floor = coarse_threshold - (_REFINE_GAIN if p.loop_coarse_refine else 0.0)
+            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False,
+                                 refine=p.loop_coarse_refine, min_response=floor)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
@@ -660,6 +669,8 @@ class GraphFrontend:
 
 
 MAX_COV = 500.0
+# How far below the coarse loop threshold a pose is still searched when the coarse match is refined.
+_REFINE_GAIN = 0.2
 # Uncertainty of an edge that holds the odometry step (scan matching off or failed).
 ODOMETRY_SIGMA_XY = 0.1  # m
 ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad
