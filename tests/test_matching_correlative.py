@@ -225,3 +225,16 @@ def test_refining_a_loop_grid_match_recovers_what_the_coarse_angle_sampling_lose
     assert abs(se2.wrap_angle(refined.pose[2] - truth[2])) < abs(se2.wrap_angle(coarse.pose[2] - truth[2]))
     # the positional covariance is the coarse surface's either way (Karto's loop variance test)
     np.testing.assert_allclose(refined.covariance[:2, :2], coarse.covariance[:2, :2])
+
+
+def test_coarse_heading_variance_is_wide_only_when_the_heading_is_ambiguous():
+    rng = np.random.default_rng(6)
+    m = CorrelativeMatcher()
+    truth = np.array([0.0, 0.0, 0.1])
+    sharp = m.match(ROOM, None, _query(ROOM, truth, rng), truth)
+    assert sharp.heading_variance_coarse < math.radians(2.0) ** 2
+    # A round room looks the same at every heading.
+    a = np.linspace(0.0, 2.0 * np.pi, 900, endpoint=False)
+    circle = np.stack([3.0 * np.cos(a), 3.0 * np.sin(a)], axis=1)
+    flat = m.match(circle, None, _query(circle, truth, rng), truth)
+    assert flat.heading_variance_coarse > math.radians(8.0) ** 2

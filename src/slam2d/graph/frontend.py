@@ -78,6 +78,13 @@ class GraphSlamParams(GridParams):
         help="a sequential match responding below this is not used: the odometry step is kept instead "
         "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
     )
+    odometry_fusion: bool = param(
+        True,
+        help="when the coarse angles responding within 0.1 of the best spread wider than the odometry's 3 deg, "
+        "fuse the odometry prediction (0.1 m, 3 deg per kept scan) into the sequential match, taking that spread "
+        "as the match's heading variance (not in Karto): a scan that fits about as well 20 deg off (clutter, "
+        "people) keeps the odometry heading",
+    )
     point_spacing: float = param(
         0.0, unit="m", low=0.0,
         help="keep one scan point per square of this side before matching (not in Karto): near clutter "
@@ -429,6 +436,12 @@ class GraphFrontend:
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
+            if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+                c = cov.copy()
+                c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
+                odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+                pose = _weighted_mean([pose, predicted], [c, odo])
+                cov = np.linalg.inv(np.linalg.inv(c) + np.linalg.inv(odo))
             if result.response < p.minimum_match_response:
                 # The scan does not fit the running scans (clutter, people, a new room seen from
                 # its door): trust the odometry for this step, with an odometry-like uncertainty.

@@ -69,6 +69,9 @@ class MatchResult:
     response: float  # in [0, 1], penalised when the match was
     raw_response: float  # the same pose without the penalty
     evaluated: int  # point lookups done (for diagnostics)
+    # Spread of the coarse angles whose best response is within 0.1 of the best (rad^2): wide
+    # when the scan fits about as well at headings many coarse steps apart.
+    heading_variance_coarse: float = 0.0
 
 
 # --------------------------------------------------------------------------- compiled kernels
@@ -620,6 +623,11 @@ class CorrelativeMatcher:
             offset += math.radians(20.0)
         cov = np.zeros((3, 3))
         cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, 2.0 * res)
+        a_curve = resp.max(axis=(1, 2))
+        w = np.where(a_curve >= best - _COVARIANCE_BAND, np.maximum(a_curve, 0.0), 0.0)
+        dth = angles - angles[int(np.argmax(a_curve))]
+        heading_var = float((w * dth * dth).sum() / w.sum()) if w.sum() > 1e-12 else MAX_VARIANCE
+        heading_var = max(heading_var, self.coarse_angle_resolution**2 / 12.0)
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
@@ -640,7 +648,7 @@ class CorrelativeMatcher:
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
-        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups))
+        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var)
 
 
 def _uniform(sigmas: NDArray[np.float64]) -> float | None:
