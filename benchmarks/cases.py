@@ -487,6 +487,14 @@ def karto_fr079(_: Path) -> tuple[float, str]:
     return _karto_on("fr079/fr079.clf.gz", "fr079/reference.tum")
 
 
+def karto_aces(_: Path) -> tuple[float, str]:
+    return _karto_on("aces/aces.clf.gz", "aces/reference.tum")
+
+
+def karto_fr101(_: Path) -> tuple[float, str]:
+    return _karto_on("fr101/fr101.clf.gz", "fr101/reference.tum")
+
+
 def karto_loop_precision(_: Path) -> tuple[float, str]:
     """Loop-closure precision of karto in simulation: closures within 0.2 m and 1 deg of the truth."""
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
@@ -571,6 +579,10 @@ CASES: list[Case] = [
     Case("karto-fr079", "`karto` over fr079 (4791 scans, reading excluded); ATE vs reference.tum in the notes",
          karto_fr079, target="< 6 s wall, ATE < 0.20 m", max_seconds=6.0, needs=(SHARED,), warmup=False,
          repeat=1),
+    Case("karto-aces", "`karto` over aces (reading excluded); ATE vs reference.tum in the notes",
+         karto_aces, target="ATE < 0.10 m", needs=(SHARED,), repeat=1),
+    Case("karto-fr101", "`karto` over fr101 (reading excluded); ATE vs reference.tum in the notes",
+         karto_fr101, target="ATE < 0.10 m", needs=(SHARED,), repeat=1),
     Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
 ] + [
