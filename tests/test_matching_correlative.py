@@ -238,3 +238,13 @@ def test_coarse_heading_variance_is_wide_only_when_the_heading_is_ambiguous():
     circle = np.stack([3.0 * np.cos(a), 3.0 * np.sin(a)], axis=1)
     flat = m.match(circle, None, _query(circle, truth, rng), truth)
     assert flat.heading_variance_coarse > math.radians(8.0) ** 2
+
+
+@pytest.mark.parametrize("width", [1, 2, 3, 7, 8, 15, 40])
+def test_max_pool_equals_the_windowed_maximum(width):
+    from slam2d.matching.correlative import _max_pool
+
+    rng = np.random.default_rng(width)
+    grid = rng.integers(0, 256, (23, 31)).astype(np.uint8)
+    want = np.array([[grid[r:r + width, c:c + width].max() for c in range(31)] for r in range(23)])
+    assert np.array_equal(_max_pool(grid, width), want)
