@@ -15,12 +15,15 @@ For every scan (:meth:`GraphFrontend.process`):
    passes within ``link_scan_maximum_distance`` already connected to it in
    the graph, not penalised) and link those that respond above
    ``link_match_minimum_response_fine``. The node's pose is the
-   information-weighted mean of these matches.
+   information-weighted mean of these matches. With ``odometry_fusion``, a
+   sequential match whose coarse heading spread exceeds the odometry's is
+   first fused with the odometry prediction.
 5. *Loop closure* (``TryCloseLoop``): candidate chains are runs of
    consecutive older scans within ``loop_search_maximum_distance`` that are
    *not* reachable in the graph through scans within that distance, at least
    ``loop_match_minimum_chain_size`` long. Each is matched over the wide
-   loop window (coarse only, no penalty) and accepted if the response
+   loop window (no penalty; coarse, then refined on the same grid when
+   ``loop_coarse_refine``) and accepted if the response
    exceeds ``loop_match_minimum_response_coarse`` and the x and y variances
    are below ``loop_match_maximum_variance_coarse``; then refined with the
    sequential matcher (no penalty) and accepted if the response reaches
