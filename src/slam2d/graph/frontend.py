@@ -327,6 +327,10 @@ class GraphFrontend:
     def node_times(self) -> NDArray[np.float64]:
         return np.asarray(self._times, dtype=np.float64)
 
+    def node_points(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Node i's matched scan points (base frame, (N, 2)) and their smear sigmas (m)."""
+        return self._points[i], self._sigmas[i]
+
     def _world_points(self, i: int) -> NDArray[np.float64]:
         w = self._world[i]
         if w is None:
