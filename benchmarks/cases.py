@@ -518,6 +518,43 @@ def karto_loop_precision(_: Path) -> tuple[float, str]:
     share = correct / total if total else float("nan")
     return time.perf_counter() - t0, f"precision {correct}/{total} = {share:.1%}; " + "; ".join(notes)
 
+
+def karto_sim_bound(_: Path) -> tuple[None, str]:
+    """karto and lago on the simulated rows of the methods table (seed 0), against what their matches can reach.
+
+    The bound (``slam2d.graph.evaluation.sequential_bound``) chains sequential matches
+    against a perfect local map (the previous scans at their true poses): the front end's
+    best without loop closures. Steps whose x, y spread fills the window are corridors
+    longer than the laser's reach, where the matches hold the odometry's drift.
+    """
+    import numpy as np
+
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.graph.evaluation import sequential_bound
+    from slam2d.methods import get_method
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    notes = []
+    for world, duration in (("office", 120.0), ("corridor-loop", None)):
+        sim = simulate(world, SimulationParams(duration=duration, seed=0))
+        ates = {}
+        for name in ("karto", "lago"):
+            slam = get_method(name)().run(sim.frames())
+            t, p = slam.trajectory()
+            ates[name] = absolute_trajectory_error(associate(t, p, sim.scan_times, sim.scan_truth))["translation_m"]["rmse"]
+        fe = slam.frontend
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, fe.node_times())]
+        b = sequential_bound(fe, truth)
+        deg = b["degenerate"]
+        notes.append(
+            f"{world}: ATE karto {ates['karto']:.3f} m, lago {ates['lago']:.3f} m, "
+            f"{len(fe.loop_closures)} closures; perfect-map sequential chain {b['chained_rmse_m']:.3f} m; "
+            f"{deg.mean():.0%} of steps degenerate (match error {b['match_error_m'][deg].mean() * 100:.1f} cm "
+            f"vs {b['match_error_m'][~deg].mean() * 100:.1f} cm elsewhere, odometry prediction "
+            f"{b['prediction_error_m'].mean() * 100:.1f} cm)"
+        )
+    return None, "; ".join(notes)
+
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
          simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
@@ -585,6 +622,9 @@ CASES: list[Case] = [
          karto_fr101, target="ATE < 0.10 m", needs=(SHARED,), repeat=1),
     Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
+    Case("karto-sim-bound", "`karto` and `lago` on office-120s and corridor-loop (seed 0) vs the ATE of their "
+         "sequential matches chained over a perfect local map", karto_sim_bound,
+         target="ATE < 0.05 m (issue 7)", warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,
