@@ -205,6 +205,7 @@ def calibrate_odometry_office(workdir: Path) -> tuple[float, str]:
     parts.append(f"track scale {doc['track_width_scale']['value']:.4f} (0.97)")
     return seconds, f"{doc['intervals']} intervals; " + ", ".join(parts)
 
+
 def _sweep_recording(workdir: Path, duration: float) -> Path:
     """A simulated paper-arena recording with its truth, written once per workdir (not timed)."""
     from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
@@ -275,6 +276,8 @@ def sweep_scaling(workdir: Path) -> tuple[float, str]:
     return two, (f"1 worker {one:.1f} s, 2 workers {two:.1f} s: speedup {one / two:.2f}x "
                  f"(a run: {r1.task_s / r1.executed:.2f} s wall, {cpu1:.2f} s CPU with 1 worker, {cpu2:.2f} s CPU "
                  f"with 2; overhead {1000 * r2.overhead_per_run_s:.0f} ms/run with 2)")
+
+
 def _hector_run(data: Path, out: Path, *settings: str) -> tuple[float, list[float]]:
     """`hector` on a recording in this process: (CPU seconds of the updates, per-scan CPU seconds).
 
@@ -372,6 +375,8 @@ def hector_mines_maps(workdir: Path) -> tuple[None, str]:
         (hc, he), (oc, oe) = counts["hector"], counts["odometry"]
         notes.append(f"{ds}: corners {hc} vs {oc}, enclosed areas {he} vs {oe}")
     return None, "hector vs odometry; " + "; ".join(notes)
+
+
 def _feed_timed(name: str, rel: str, settings: dict[str, str] | None = None):
     """Run a method on a shared log (reading excluded, first scan's compile excluded); the method and CPU times."""
     from slam2d.io import open_recording
@@ -524,6 +529,14 @@ def karto_fr079(_: Path) -> tuple[float, str]:
     return _karto_on("fr079/fr079.clf.gz", "fr079/reference.tum")
 
 
+def karto_aces(_: Path) -> tuple[float, str]:
+    return _karto_on("aces/aces.clf.gz", "aces/reference.tum")
+
+
+def karto_fr101(_: Path) -> tuple[float, str]:
+    return _karto_on("fr101/fr101.clf.gz", "fr101/reference.tum")
+
+
 def karto_loop_precision(_: Path) -> tuple[float, str]:
     """Loop-closure precision of karto in simulation: closures within 0.2 m and 1 deg of the truth."""
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
@@ -573,6 +586,43 @@ def section5_entropy(workdir: Path) -> tuple[float, str]:
     return time.process_time() - t0, (f"{int(n['runs'])} runs; static default entropy ln 30 - "
                                       f"{n['default.distance_from_ln_n']:.3g}; creeping default "
                                       f"{n['creeping.default.mean_entropy']:.6f} nats (CPU seconds)")
+
+
+def karto_sim_bound(_: Path) -> tuple[None, str]:
+    """karto and lago on the simulated rows of the methods table (seed 0), against what their matches can reach.
+
+    The bound (``slam2d.graph.evaluation.sequential_bound``) chains sequential matches
+    against a perfect local map (the previous scans at their true poses): the front end's
+    best without loop closures. Steps whose x, y spread fills the window are corridors
+    longer than the laser's reach, where the matches hold the odometry's drift.
+    """
+    import numpy as np
+
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.graph.evaluation import sequential_bound
+    from slam2d.methods import get_method
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    notes = []
+    for world, duration in (("office", 120.0), ("corridor-loop", None)):
+        sim = simulate(world, SimulationParams(duration=duration, seed=0))
+        ates = {}
+        for name in ("karto", "lago"):
+            slam = get_method(name)().run(sim.frames())
+            t, p = slam.trajectory()
+            ates[name] = absolute_trajectory_error(associate(t, p, sim.scan_times, sim.scan_truth))["translation_m"]["rmse"]
+        fe = slam.frontend
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, fe.node_times())]
+        b = sequential_bound(fe, truth)
+        deg = b["degenerate"]
+        notes.append(
+            f"{world}: ATE karto {ates['karto']:.3f} m, lago {ates['lago']:.3f} m, "
+            f"{len(fe.loop_closures)} closures; perfect-map sequential chain {b['chained_rmse_m']:.3f} m; "
+            f"{deg.mean():.0%} of steps degenerate (match error {b['match_error_m'][deg].mean() * 100:.1f} cm "
+            f"vs {b['match_error_m'][~deg].mean() * 100:.1f} cm elsewhere, odometry prediction "
+            f"{b['prediction_error_m'].mean() * 100:.1f} cm)"
+        )
+    return None, "; ".join(notes)
 
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
@@ -647,12 +697,19 @@ CASES: list[Case] = [
     Case("karto-fr079", "`karto` over fr079 (4791 scans, reading excluded); ATE vs reference.tum in the notes",
          karto_fr079, target="< 6 s wall, ATE < 0.20 m", max_seconds=6.0, needs=(SHARED,), warmup=False,
          repeat=1),
+    Case("karto-aces", "`karto` over aces (reading excluded); ATE vs reference.tum in the notes",
+         karto_aces, target="ATE < 0.10 m", needs=(SHARED,), repeat=1),
+    Case("karto-fr101", "`karto` over fr101 (reading excluded); ATE vs reference.tum in the notes",
+         karto_fr101, target="ATE < 0.10 m", needs=(SHARED,), repeat=1),
     Case("karto-loop-precision", "`karto` loop closures vs truth in corridor-loop and office (3 seeds each, "
          "GMapping's odometry noise)", karto_loop_precision, target="precision >= 98 %", warmup=False, repeat=1),
     Case("paper-quick", "`slam2d paper --quick` (what `make demo` runs): every section, report included, whole "
          "command", paper_quick, target="< 120 s", max_seconds=120.0, repeat=1),
     Case("section5-entropy", "`slam2d experiment entropy`: 10 runs x 4 settings x static/creeping robot, "
          "30 particles, 20 s recordings (CPU s, calibration included)", section5_entropy, warmup=False, repeat=1),
+    Case("karto-sim-bound", "`karto` and `lago` on office-120s and corridor-loop (seed 0) vs the ATE of their "
+         "sequential matches chained over a perfect local map", karto_sim_bound,
+         target="ATE < 0.05 m (issue 7)", warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,

@@ -466,3 +466,33 @@ def test_parameter_objects_and_listing():
     assert b.params.max_iterations == 7 and b.params.robust_delta == 2.5
     with pytest.raises(InputError):
         get_backend("lago", SpaParams())
+
+
+def test_lago_edge_marginals_match_the_pseudo_inverse_including_singular_information():
+    from slam2d.backends.lago import _edge_marginals
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(200, 3, 3))
+    info = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(3)
+    info[:5, 2, :] = 0.0  # edges that measure no rotation
+    info[:5, :, 2] = 0.0
+    info[5:8] = 0.0  # edges that measure nothing
+    w, info_t = _edge_marginals(info)
+    cov = np.linalg.pinv(info, hermitian=True)
+    var = cov[:, 2, 2]
+    w_ref = np.where(var > 0, 1.0 / np.where(var > 0, var, 1.0), 0.0)
+    np.testing.assert_allclose(w, w_ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(info_t, np.linalg.pinv(cov[:, :2, :2], hermitian=True), rtol=1e-9, atol=1e-9)
+    assert np.all(w[:8] == 0.0)
+
+
+def test_spa_reuses_a_solver_handed_over_and_gets_the_same_result():
+    from slam2d.backends.linear import BlockPattern, LinearSolver
+    from slam2d.backends.spa import SpaBackend
+    from slam2d.backends.synthetic import manhattan_graph
+
+    g = manhattan_graph(200, 400, seed=2, initial="odometry")[0]
+    solver = LinearSolver("auto", BlockPattern(g.edge_i, g.edge_j, g.num_nodes, int(g.fixed)))
+    a = SpaBackend().optimize(g)
+    b = SpaBackend().optimize(g, solver=solver)
+    np.testing.assert_array_equal(a.poses, b.poses)

@@ -169,3 +169,82 @@ def test_empty_and_bad_input():
     assert r.response == 0.0
     with pytest.raises(ValueError):
         CorrelativeMatcher(resolution=0.0)
+
+
+def test_score_kernel_equals_a_plain_sum_for_every_step_and_at_the_grid_edges():
+    from slam2d.matching.correlative import _score_all
+
+    rng = np.random.default_rng(3)
+    grid = rng.integers(0, 256, (60, 70)).astype(np.uint8)
+    # Points inside, partly outside and wholly outside the grid.
+    rows = rng.integers(-30, 80, (4, 50)).astype(np.int64)
+    cols = rng.integers(-30, 90, (4, 50)).astype(np.int64)
+    for step in (1, 2, 3):
+        n = 7
+        got = _score_all(grid, rows, cols, n, step)
+        want = np.zeros((4, n, n))
+        for a in range(4):
+            for i in range(n):
+                for j in range(n):
+                    r = rows[a] + i * step
+                    c = cols[a] + j * step
+                    ok = (r >= 0) & (r < grid.shape[0]) & (c >= 0) & (c < grid.shape[1])
+                    want[a, i, j] = grid[r[ok], c[ok]].astype(np.int64).sum()
+        assert np.array_equal(got, want), step
+
+
+def test_smear_skipping_repeated_cells_draws_the_same_grid():
+    from slam2d.matching.correlative import smear_points
+
+    rng = np.random.default_rng(4)
+    px = rng.uniform(0.0, 1.0, 300)
+    py = rng.uniform(0.0, 1.0, 300)
+    px = np.concatenate([px, px + 0.001])  # the same 1 cm cells again
+    py = np.concatenate([py, py + 0.001])
+    sig = np.full(px.size, 0.03)
+    full = np.zeros((110, 110), np.uint8)
+    skipped = np.zeros((110, 110), np.uint8)
+    smear_points(full, -0.05, -0.05, 0.01, px, py, sig, False)
+    smear_points(skipped, -0.05, -0.05, 0.01, px, py, sig, True)
+    assert np.array_equal(full, skipped)
+    centres = {(int(np.floor((y + 0.05) / 0.01)), int(np.floor((x + 0.05) / 0.01))) for x, y in zip(px, py)}
+    assert (full == 255).sum() == len(centres) < px.size  # only kernel centres reach the full value
+
+
+def test_refining_a_loop_grid_match_recovers_what_the_coarse_angle_sampling_loses():
+    # A loop-closure matcher (5 cm grid, 2 deg coarse steps); the truth lies one degree
+    # from every sampled heading, so far points miss their cells in the coarse search.
+    rng = np.random.default_rng(5)
+    m = CorrelativeMatcher(search_size=2.0, resolution=0.05)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng, noise=0.002, every=2)
+    prior = truth + np.array([0.1, 0.05, math.radians(1.0)])
+    coarse = m.match(ROOM, None, q, prior, penalize=False, refine=False)
+    refined = m.match(ROOM, None, q, prior, penalize=False, refine=True)
+    assert refined.response > coarse.response + 0.05
+    assert abs(se2.wrap_angle(refined.pose[2] - truth[2])) < abs(se2.wrap_angle(coarse.pose[2] - truth[2]))
+    # the positional covariance is the coarse surface's either way (Karto's loop variance test)
+    np.testing.assert_allclose(refined.covariance[:2, :2], coarse.covariance[:2, :2])
+
+
+def test_coarse_heading_variance_is_wide_only_when_the_heading_is_ambiguous():
+    rng = np.random.default_rng(6)
+    m = CorrelativeMatcher()
+    truth = np.array([0.0, 0.0, 0.1])
+    sharp = m.match(ROOM, None, _query(ROOM, truth, rng), truth)
+    assert sharp.heading_variance_coarse < math.radians(2.0) ** 2
+    # A round room looks the same at every heading.
+    a = np.linspace(0.0, 2.0 * np.pi, 900, endpoint=False)
+    circle = np.stack([3.0 * np.cos(a), 3.0 * np.sin(a)], axis=1)
+    flat = m.match(circle, None, _query(circle, truth, rng), truth)
+    assert flat.heading_variance_coarse > math.radians(8.0) ** 2
+
+
+@pytest.mark.parametrize("width", [1, 2, 3, 7, 8, 15, 40])
+def test_max_pool_equals_the_windowed_maximum(width):
+    from slam2d.matching.correlative import _max_pool
+
+    rng = np.random.default_rng(width)
+    grid = rng.integers(0, 256, (23, 31)).astype(np.uint8)
+    want = np.array([[grid[r:r + width, c:c + width].max() for c in range(31)] for r in range(23)])
+    assert np.array_equal(_max_pool(grid, width), want)

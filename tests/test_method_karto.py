@@ -11,7 +11,7 @@ from slam2d.core import make_scan, se2
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
-from slam2d.graph.evaluation import loop_closure_precision
+from slam2d.graph.evaluation import loop_closure_precision, sequential_bound
 from slam2d.methods import get_method
 from slam2d.params import from_mapping
 from slam2d.sim.simulate import SimulationParams, simulate
@@ -58,6 +58,24 @@ def test_closes_the_loop_correctly_and_beats_odometry(karto_run, loop_sim):
     assert 0 < s["nodes"] < len(loop_sim.scans) and s["edges"] >= s["nodes"] - 1
     resp = karto_run.diagnostics.array("response")
     assert np.nanmedian(resp) > 0.8
+
+
+def test_sequential_bound_against_a_perfect_local_map(karto_run, loop_sim):
+    fe = karto_run.frontend
+    truth = loop_sim.scan_truth[np.searchsorted(loop_sim.scan_times, fe.node_times())]
+    b = sequential_bound(fe, truth)
+    n = fe.num_nodes
+    assert b["match_error_m"].shape == (n - 1,) and b["chained"].shape == (n, 3)
+    deg = b["degenerate"]
+    # Corridors longer than the laser's reach leave the match flat along them; elsewhere the
+    # match is far better than the odometry prediction it started from.
+    assert 0 < deg.sum() < n - 1
+    good = b["match_error_m"][~deg]
+    assert np.median(good) < 0.01 < np.median(b["prediction_error_m"]), (np.median(good), np.median(b["prediction_error_m"]))
+    assert b["match_error_m"][deg].mean() > good.mean()
+    assert np.isfinite(b["chained_rmse_m"])
+    with pytest.raises(ValueError):
+        sequential_bound(fe, truth[:-1])
 
 
 def test_map_is_drawn_at_the_optimised_poses(karto_run):

@@ -229,10 +229,10 @@ def test_local_pool_sweep_on_a_simulated_world_writes_table_plots_and_summary(tm
     assert (tmp_path / "out" / "plots" / "ate-vs-resolution.png").stat().st_size > 1000
     summary = (tmp_path / "out" / "summary.html").read_text()
     assert "<h3>odometry</h3>" in summary and "resolution=0.05" in summary and "±" in summary
-    # the map error is lower at the finer resolution for both seeds (a coarse cell blurs the walls)
-    by = {(r["swept"].get("resolution"), r["dataset_seed"]): r["metrics"]["map_error"] for r in rows
-          if r["method"] == "odometry"}
-    assert all(by[(0.05, s)] < by[(0.1, s)] for s in (0, 1)), by
+    # the map error is measured per run: the drifting odometry's maps are worse than the true poses' at
+    # either resolution, for both simulation seeds
+    by = {(r["method"], r["swept"].get("resolution"), r["dataset_seed"]): r["metrics"]["map_error"] for r in rows}
+    assert all(by[("odometry", res, s)] > by[("known-poses", None, s)] + 0.02 for res in (0.05, 0.1) for s in (0, 1)), by
 
 
 def test_resume_skips_finished_runs_and_redoes_only_missing_ones(tmp_path, recordings):

@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from slam2d.backends.base import Backend, OptimizationResult
 from slam2d.backends.graph import PoseGraph
-from slam2d.backends.linear import SOLVERS, BlockPattern, LinearSolver
+from slam2d.backends.linear import SOLVERS, BlockPattern, LinearSolver, node_ordering
 from slam2d.backends.spa import SpaBackend, SpaParams
 from slam2d.core import se2
 from slam2d.errors import InputError
@@ -67,16 +67,43 @@ def _propagate_tree(order: NDArray, pred: NDArray, tree_edge: NDArray, sign: NDA
 
 
 def _edge_marginals(info: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Rotation weights ``1/Sigma_thth`` ``(M,)`` and translation information ``inv(Sigma_tt)`` ``(M, 2, 2)``."""
-    cov = np.linalg.pinv(info, hermitian=True)
-    var_th = cov[:, 2, 2]
-    w_th = np.where(var_th > 0, 1.0 / np.where(var_th > 0, var_th, 1.0), 0.0)
-    info_t = np.linalg.pinv(cov[:, :2, :2], hermitian=True)
+    """Rotation weights ``1/Sigma_thth`` ``(M,)`` and translation information ``inv(Sigma_tt)`` ``(M, 2, 2)``.
+
+    Both are Schur complements of the information matrix, in closed form for the
+    whole array; an edge whose information is singular (a direction it does not
+    measure) goes through the pseudo-inverse of its covariance instead.
+    """
+    info = np.asarray(info, dtype=np.float64)
+    i_tt = info[:, :2, :2]
+    i_ta = info[:, :2, 2]
+    i_aa = info[:, 2, 2]
+    det = i_tt[:, 0, 0] * i_tt[:, 1, 1] - i_tt[:, 0, 1] * i_tt[:, 1, 0]
+    scale = np.maximum(np.abs(info).max(axis=(1, 2)), 1e-300)
+    ok = (i_aa > 1e-9 * scale) & (det > 1e-9 * scale * scale)
+    safe_det = np.where(ok, det, 1.0)
+    safe_aa = np.where(ok, i_aa, 1.0)
+    # i_ta^T i_tt^-1 i_ta with the 2x2 inverse written out
+    quad = (i_tt[:, 1, 1] * i_ta[:, 0] ** 2 - (i_tt[:, 0, 1] + i_tt[:, 1, 0]) * i_ta[:, 0] * i_ta[:, 1]
+            + i_tt[:, 0, 0] * i_ta[:, 1] ** 2) / safe_det
+    w_th = i_aa - quad
+    info_t = i_tt - i_ta[:, :, None] * i_ta[:, None, :] / safe_aa[:, None, None]
+    ok &= w_th > 1e-9 * scale
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        cov = np.linalg.pinv(info[bad], hermitian=True)
+        var_th = cov[:, 2, 2]
+        w_th[bad] = np.where(var_th > 0, 1.0 / np.where(var_th > 0, var_th, 1.0), 0.0)
+        info_t[bad] = np.linalg.pinv(cov[:, :2, :2], hermitian=True)
     return w_th, info_t
 
 
-def lago_orientations(graph: PoseGraph, linear_solver: str = "auto") -> tuple[NDArray, NDArray]:
-    """Step 1: headings relative to the fixed node (not wrapped) and the regularised edge rotations."""
+def lago_orientations(graph: PoseGraph, linear_solver: str = "auto", *, rank: NDArray | None = None,
+                      w_th: NDArray | None = None) -> tuple[NDArray, NDArray]:
+    """Step 1: headings relative to the fixed node (not wrapped) and the regularised edge rotations.
+
+    ``rank`` (the node elimination order) and ``w_th`` (the edge rotation weights)
+    may be passed in when the caller has them already.
+    """
     n = graph.num_nodes
     fixed = int(graph.fixed)
     ei, ej, z = graph.edge_i, graph.edge_j, graph.measurements
@@ -104,9 +131,10 @@ def lago_orientations(graph: PoseGraph, linear_solver: str = "auto") -> tuple[ND
     delta = z[:, 2]
     k = np.round((theta_tree[ej] - theta_tree[ei] - delta) / TWO_PI)
     delta_reg = delta + TWO_PI * k
-    w_th, _ = _edge_marginals(graph.information)
+    if w_th is None:
+        w_th, _ = _edge_marginals(graph.information)
     # weighted Laplacian over the headings (1x1 blocks), fixed node removed
-    pat = BlockPattern(ei, ej, n, fixed, d=1)
+    pat = BlockPattern(ei, ej, n, fixed, d=1, rank=rank)
     blocks = np.stack([w_th, -w_th, -w_th, w_th], axis=1)[:, :, None, None]
     values = pat.values(blocks)
     rhs = pat.vector(np.stack([-w_th * delta_reg, w_th * delta_reg], axis=1)[:, :, None])
@@ -136,10 +164,13 @@ class LagoBackend(Backend):
                                       cost0, cost0, "nothing to optimise")
         fixed = int(graph.fixed)
         ei, ej, z = graph.edge_i, graph.edge_j, graph.measurements
-        theta_hat, _ = lago_orientations(graph, self.params.linear_solver)
+        # One node ordering and one set of edge marginals serve both linear steps and the
+        # refinement (which also reuses step 2's factorisation pattern).
+        w_th, info_t = _edge_marginals(graph.information)
+        rank = node_ordering(ei, ej, n, fixed)
+        theta_hat, _ = lago_orientations(graph, self.params.linear_solver, rank=rank, w_th=w_th)
 
         # step 2: unknowns (x, y, theta) per node, linear in x, y and in theta about theta_hat
-        w_th, info_t = _edge_marginals(graph.information)
         c, s = np.cos(theta_hat[ei]), np.sin(theta_hat[ei])
         m = ei.size
         Rt = np.zeros((m, 2, 2))
@@ -169,12 +200,13 @@ class LagoBackend(Backend):
         gj = np.einsum("kab,ka->kb", Jb, Wr)
         gi[:, 2] += w_th * dth  # d/dtheta_i of w (theta_j - theta_i - dth)^2 / 2 at zero
         gj[:, 2] -= w_th * dth
-        pat = BlockPattern(ei, ej, n, fixed)
+        pat = BlockPattern(ei, ej, n, fixed, rank=rank)
         values = pat.values(blocks)
         g = pat.vector(np.stack([gi, gj], axis=1))
         tiny = np.full(pat.size, 1e-12 * max(float(values[pat.diag_slot].max()), 1.0))
         # frame of the fixed node, which sits at the origin
-        local = pat.expand(LinearSolver(self.params.linear_solver, pat).solve(values, tiny, -g))
+        solver = LinearSolver(self.params.linear_solver, pat)
+        local = pat.expand(solver.solve(values, tiny, -g))
         anchor = graph.poses[fixed]
         x = se2.compose(anchor, local)
         iterations = 2
@@ -183,7 +215,7 @@ class LagoBackend(Backend):
         if self.params.refine_iterations > 0:
             spa = SpaBackend(SpaParams(max_iterations=self.params.refine_iterations, initial_lambda=0.0,
                                        linear_solver=self.params.linear_solver))
-            ref = spa.optimize(graph, poses=x)
+            ref = spa.optimize(graph, poses=x, solver=solver)
             x = ref.poses
             iterations += ref.iterations
             message = f"linear estimate + {ref.iterations} Gauss-Newton step(s)"

@@ -63,13 +63,14 @@ class BlockPattern:
     where its gradient part goes.
     """
 
-    def __init__(self, ei: NDArray, ej: NDArray, n: int, fixed: int, d: int = 3) -> None:
+    def __init__(self, ei: NDArray, ej: NDArray, n: int, fixed: int, d: int = 3, rank: NDArray | None = None) -> None:
         self.n = n
         self.d = d
         self.fixed = fixed
         # elimination rank of every node (-1 for the gauge node): the reduced system is
-        # numbered in a fill-reducing order so no permutation is needed later
-        rank = node_ordering(ei, ej, n, fixed)
+        # numbered in a fill-reducing order so no permutation is needed later. A caller
+        # with several patterns over the same edges (LAGO) passes the one ordering in.
+        rank = node_ordering(ei, ej, n, fixed) if rank is None else np.asarray(rank, dtype=np.int64)
         self.rank = rank
         self.base = np.where(rank >= 0, rank * d, -1)
         m = n - 1

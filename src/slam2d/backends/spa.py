@@ -87,8 +87,12 @@ class SpaBackend(Backend):
     def __init__(self, params: SpaParams | None = None) -> None:
         self.params = params or SpaParams()
 
-    def optimize(self, graph: PoseGraph, poses: NDArray | None = None) -> OptimizationResult:
-        """Optimise from the graph's poses (or ``poses``); the graph itself is not modified."""
+    def optimize(self, graph: PoseGraph, poses: NDArray | None = None, *, solver: LinearSolver | None = None) -> OptimizationResult:
+        """Optimise from the graph's poses (or ``poses``); the graph itself is not modified.
+
+        ``solver``: a :class:`LinearSolver` already set up for this graph's 3x3 block
+        pattern (LAGO hands over its own, so the ordering and symbolic analysis are reused).
+        """
         t0, c0 = time.perf_counter(), time.process_time()
         graph.check_fixed()
         p = self.params
@@ -110,8 +114,9 @@ class SpaBackend(Backend):
                 wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0,
                 objective_before=obj, objective_after=obj, message="nothing to optimise",
             )
-        pattern = BlockPattern(ei, ej, n, int(graph.fixed))
-        solver = LinearSolver(p.linear_solver, pattern)
+        if solver is None or solver.pattern.d != 3 or solver.pattern.slots.shape[0] != ei.size:
+            solver = LinearSolver(p.linear_solver, BlockPattern(ei, ej, n, int(graph.fixed)))
+        pattern = solver.pattern
         data = np.zeros(pattern.nnz)
         g = np.zeros(pattern.size)
         kcode = KERNELS[kernel]

@@ -1,4 +1,13 @@
-"""Loop-closure precision against ground truth (Hess et al. 2016, Table IV: 0.2 m and 1 deg)."""
+"""Graph SLAM against ground truth: loop-closure precision, and what the sequential matcher can reach.
+
+* :func:`loop_closure_precision`: closures within 0.2 m and 1 deg of the truth
+  (Hess et al. 2016, Table IV).
+* :func:`sequential_bound`: each kept scan matched against the previous ones
+  placed at their *true* poses, from the odometry prediction. Chaining these
+  matches is what the front end would reach with a perfect local map and no
+  loop closure or near link; the matches whose x, y spread fills the window
+  (a corridor longer than the laser's range) are where that chain drifts.
+"""
 
 from __future__ import annotations
 
@@ -9,9 +18,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from slam2d.core import se2
+from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
 from slam2d.io.tum import interpolate_poses
 
-__all__ = ["loop_closure_precision"]
+__all__ = ["loop_closure_precision", "sequential_bound"]
 
 
 def loop_closure_precision(
@@ -56,4 +66,55 @@ def loop_closure_precision(
         "precision": correct / n if n else float("nan"),
         "translation_errors_m": trans,
         "rotation_errors_deg": rot,
+    }
+
+
+def sequential_bound(frontend: Any, node_truth: ArrayLike, *, window: int = 10) -> dict[str, Any]:
+    """Sequential matches of a finished front end's kept scans against a perfect local map.
+
+    ``frontend`` is a :class:`~slam2d.graph.frontend.GraphFrontend` after a run
+    (its kept scans and their odometry); ``node_truth`` (N, 3) the true pose of
+    each node's scan. Node j is matched (with the penalty, as the front end
+    does) against nodes ``j - window .. j - 1`` at their true poses, from the
+    true pose of node j - 1 plus the odometry step. Returns the per-step
+    translation errors of the match and of the odometry prediction (m), which
+    steps were degenerate (x, y variance at the window's size), and the
+    trajectory those matches chain into (first node at its true pose) with its
+    RMSE against the truth after the rigid alignment ATE uses.
+    """
+    truth = np.asarray(node_truth, dtype=np.float64).reshape(-1, 3)
+    n = frontend.num_nodes
+    if truth.shape[0] != n:
+        raise ValueError(f"node_truth has {truth.shape[0]} poses for {n} nodes")
+    odom = frontend.odometry_at_nodes()
+    m = frontend.sequential
+    pts = [frontend.node_points(i) for i in range(n)]
+    world = [se2.transform_points(truth[i], pts[i][0]) for i in range(n)]
+    match_err = np.zeros(max(n - 1, 0))
+    prior_err = np.zeros(max(n - 1, 0))
+    degenerate = np.zeros(max(n - 1, 0), dtype=bool)
+    chained = [truth[0]] if n else []
+    for j in range(1, n):  # one match per node: an evaluation, not a per-scan path
+        prior = se2.compose(truth[j - 1], se2.relative(odom[j - 1], odom[j]))
+        a = max(0, j - window)
+        ref = np.concatenate(world[a:j])
+        sig = np.concatenate([p[1] for p in pts[a:j]])
+        r = m.match(ref, sig, pts[j][0], prior, penalize=True, refine=True)
+        e = se2.relative(truth[j], r.pose)
+        match_err[j - 1] = float(np.hypot(e[0], e[1]))
+        e = se2.relative(truth[j], prior)
+        prior_err[j - 1] = float(np.hypot(e[0], e[1]))
+        degenerate[j - 1] = float(np.linalg.eigvalsh(r.covariance[:2, :2])[-1]) >= m.search_size**2 - 1e-9
+        chained.append(se2.compose(chained[-1], se2.relative(truth[j - 1], r.pose)))
+    chain = np.asarray(chained, dtype=np.float64).reshape(-1, 3)
+    rmse = float("nan")
+    if n > 2:  # aligned as ATE aligns a trajectory with its truth
+        times = frontend.node_times()
+        rmse = absolute_trajectory_error(associate(times, chain, times, truth))["translation_m"]["rmse"]
+    return {
+        "match_error_m": match_err,
+        "prediction_error_m": prior_err,
+        "degenerate": degenerate,
+        "chained": chain,
+        "chained_rmse_m": rmse,
     }

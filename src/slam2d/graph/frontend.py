@@ -15,12 +15,15 @@ For every scan (:meth:`GraphFrontend.process`):
    passes within ``link_scan_maximum_distance`` already connected to it in
    the graph, not penalised) and link those that respond above
    ``link_match_minimum_response_fine``. The node's pose is the
-   information-weighted mean of these matches.
+   information-weighted mean of these matches. With ``odometry_fusion``, a
+   sequential match whose coarse heading spread exceeds the odometry's is
+   first fused with the odometry prediction.
 5. *Loop closure* (``TryCloseLoop``): candidate chains are runs of
    consecutive older scans within ``loop_search_maximum_distance`` that are
    *not* reachable in the graph through scans within that distance, at least
    ``loop_match_minimum_chain_size`` long. Each is matched over the wide
-   loop window (coarse only, no penalty) and accepted if the response
+   loop window (no penalty; coarse, then refined on the same grid when
+   ``loop_coarse_refine``) and accepted if the response
    exceeds ``loop_match_minimum_response_coarse`` and the x and y variances
    are below ``loop_match_maximum_variance_coarse``; then refined with the
    sequential matcher (no penalty) and accepted if the response reaches
@@ -78,6 +81,13 @@ class GraphSlamParams(GridParams):
         help="a sequential match responding below this is not used: the odometry step is kept instead "
         "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
     )
+    odometry_fusion: bool = param(
+        True,
+        help="when the coarse angles responding within 0.1 of the best spread wider than the odometry's 3 deg, "
+        "fuse the odometry prediction (0.1 m, 3 deg per kept scan) into the sequential match, taking that spread "
+        "as the match's heading variance (not in Karto): a scan that fits about as well 20 deg off (clutter, "
+        "people) keeps the odometry heading",
+    )
     point_spacing: float = param(
         0.0, unit="m", low=0.0,
         help="keep one scan point per square of this side before matching (not in Karto): near clutter "
@@ -127,6 +137,12 @@ class GraphSlamParams(GridParams):
         help="the coarse loop threshold is relative to the best coarse response the new scan can reach against "
         "itself when the truth lies half a coarse step (cell and angle) from every sampled pose (not in Karto): "
         "the coarse grid's sampling alone costs long-range scans a tenth to a third of their response",
+    )
+    loop_coarse_refine: bool = param(
+        True,
+        help="score the coarse loop match after a fine angle and one-cell step on the loop grid (Karto's "
+        "refine step, which its loop closure skips): the 2 deg coarse angle sampling alone costs a long-range "
+        "scan much of its response, so a true closure can miss the coarse threshold (not in Karto)",
     )
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
@@ -311,6 +327,10 @@ class GraphFrontend:
     def node_times(self) -> NDArray[np.float64]:
         return np.asarray(self._times, dtype=np.float64)
 
+    def node_points(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Node i's matched scan points (base frame, (N, 2)) and their smear sigmas (m)."""
+        return self._points[i], self._sigmas[i]
+
     def _world_points(self, i: int) -> NDArray[np.float64]:
         w = self._world[i]
         if w is None:
@@ -423,6 +443,12 @@ class GraphFrontend:
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
+            if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+                c = cov.copy()
+                c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
+                odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+                pose = _weighted_mean([pose, predicted], [c, odo])
+                cov = np.linalg.inv(np.linalg.inv(c) + np.linalg.inv(odo))
             if result.response < p.minimum_match_response:
                 # The scan does not fit the running scans (clutter, people, a new room seen from
                 # its door): trust the odometry for this step, with an odometry-like uncertainty.
@@ -544,8 +570,11 @@ class GraphFrontend:
             matcher = self.loop
             if 2.0 * allowed < self.loop.search_size:
                 matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
-            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False, refine=False,
-                                 min_response=coarse_threshold)
+            # The refine step can lift a coarse pose by about the angle sampling's loss, so the
+            # branch and bound must keep scoring poses that far below the threshold.
+            floor = coarse_threshold - (_REFINE_GAIN if p.loop_coarse_refine else 0.0)
+            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False,
+                                 refine=p.loop_coarse_refine, min_response=floor)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
@@ -660,6 +689,8 @@ class GraphFrontend:
 
 
 MAX_COV = 500.0
+# How far below the coarse loop threshold a pose is still searched when the coarse match is refined.
+_REFINE_GAIN = 0.2
 # Uncertainty of an edge that holds the odometry step (scan matching off or failed).
 ODOMETRY_SIGMA_XY = 0.1  # m
 ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad

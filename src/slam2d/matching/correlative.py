@@ -22,7 +22,9 @@ Covariance, from the response surface as Karto computes it: x, y from the
 coarse surface (for each x, y the best response over angles), the
 response-weighted spread of every x, y within 0.1 of the best, floored at
 0.1 coarse-step^2 and divided by the best response; theta from the spread of
-the fine angles at the best x, y (floored at one fine step^2).
+the fine angles at the best x, y (floored at one fine step^2). The result also carries the
+*coarse heading variance*, the same spread over the coarse angles (best response per angle): the
+fine one cannot see an alternative heading beyond its +-1 deg window.
 
 Wide windows (loop closure: 8 m at 5 cm is 81 x 81 x 21 poses) are searched
 by *branch and bound* over blocks of translations: a max-pooled copy of the
@@ -69,49 +71,113 @@ class MatchResult:
     response: float  # in [0, 1], penalised when the match was
     raw_response: float  # the same pose without the penalty
     evaluated: int  # point lookups done (for diagnostics)
+    # Spread of the coarse angles whose best response is within 0.1 of the best (rad^2): wide
+    # when the scan fits about as well at headings many coarse steps apart.
+    heading_variance_coarse: float = 0.0
 
 
 # --------------------------------------------------------------------------- compiled kernels
 
 
 @njit(cache=True)
-def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma):
+def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
     """Max-combine a Gaussian of each point's sigma into ``grid`` (uint8, 0..255).
+
+    ``skip_drawn``: the caller knows every point ever drawn into ``grid`` had the
+    same sigma, so a point whose cell already holds the full value (only a kernel's
+    centre does) would draw the very same kernel again and is skipped. Overlapping
+    scans put many points into the same 1 cm cell (a third of them on fr079).
 
     As in Karto, the point is snapped to its cell (which gets the full value)
     and the kernel, reaching 2 sigma, is evaluated at whole-cell distances, so
     a query point in the same cell as a reference point scores 1 and the
-    response thresholds mean what they mean in Karto. The kernel is separable:
-    one short row of exp() per point and one product per cell.
+    response thresholds mean what they mean in Karto. The kernel is built
+    once per distinct sigma (a separable product of exp() rows), then one comparison per cell.
     """
     rows, cols = grid.shape
     if px.shape[0] == 0:
         return
     widest = int(math.ceil(2.0 * sigma.max() / resolution))
     ex = np.empty(2 * widest + 1)
+    # The kernel in 0..255 is rebuilt only when the sigma changes (once with no sensor model).
+    kern = np.empty((2 * widest + 1, 2 * widest + 1), np.uint8)
+    last = -1.0
+    half = 0
+    n = 1
     for k in range(px.shape[0]):
         s = sigma[k]
+        if s != last:
+            last = s
+            half = int(math.ceil(2.0 * s / resolution))
+            n = 2 * half + 1
+            inv = resolution / s
+            for i in range(n):
+                d = (i - half) * inv
+                ex[i] = math.exp(-0.5 * d * d) * _SCALE
+            for i in range(n):
+                wy = ex[i] / _SCALE
+                for j in range(n):
+                    kern[i, j] = np.uint8(wy * ex[j] + 0.5)
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
-        half = int(math.ceil(2.0 * s / resolution))
-        n = 2 * half + 1
-        inv = resolution / s
-        for i in range(n):
-            d = (i - half) * inv
-            ex[i] = math.exp(-0.5 * d * d) * _SCALE
+        if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
+            continue
         r0 = cv - half
         c0 = cu - half
         i_lo = max(0, -r0)
         i_hi = min(n, rows - r0)
         j_lo = max(0, -c0)
         j_hi = min(n, cols - c0)
+        m = j_hi - j_lo
         for i in range(i_lo, i_hi):
-            wy = ex[i] / _SCALE
-            row = grid[r0 + i]
-            for j in range(j_lo, j_hi):
-                q = np.uint8(wy * ex[j] + 0.5)
-                if q > row[c0 + j]:
-                    row[c0 + j] = q
+            # Slices from the first cell: no negative-index checks, so the loop vectorises.
+            row = grid[r0 + i, c0 + j_lo:]
+            kr = kern[i, j_lo:]
+            for j in range(m):
+                if kr[j] > row[j]:
+                    row[j] = kr[j]
+
+
+@njit(cache=True)
+def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
+    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+
+    Row order keeps the smear's writes in cache: many scans overlap in space,
+    not in memory.
+    """
+    n = px.shape[0]
+    rows = grid.shape[0]
+    key = np.empty(n, np.int64)
+    count = np.zeros(rows + 3, np.int64)
+    for k in range(n):
+        r = int(math.floor((py[k] - origin_y) / resolution)) + 1
+        r = min(max(r, 0), rows + 1)
+        key[k] = r
+        count[r + 1] += 1
+    for r in range(rows + 2):
+        count[r + 1] += count[r]
+    sx = np.empty(n)
+    sy = np.empty(n)
+    ss = np.empty(n)
+    for k in range(n):
+        d = count[key[k]]
+        count[key[k]] += 1
+        sx[d] = px[k]
+        sy[d] = py[k]
+        ss[d] = sigma[k]
+    smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
+
+
+@njit(cache=True)
+def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
+    """Indices of the points inside the box."""
+    out = np.empty(px.shape[0], np.int64)
+    m = 0
+    for k in range(px.shape[0]):
+        if px[k] >= lo_x and px[k] <= hi_x and py[k] >= lo_y and py[k] <= hi_y:
+            out[m] = k
+            m += 1
+    return out[:m]
 
 
 @njit(cache=True)
@@ -137,24 +203,46 @@ def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution,
     return rows, cols
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _add_rows(grid, out, r_base, c_base, ni, nj, step):
+    """out[i, j] += grid[r_base + i step, c_base + j step], every cell inside the grid.
+
+    The strides are literals in their own loops (1 and 2 are the fine and coarse
+    steps) so the compiler vectorises the strided byte loads into int32 sums.
+    """
+    # Row slices start at index 0, so the loads need no negative-index wraparound check.
+    if step == 2:
+        for i in range(ni):
+            row = grid[r_base + 2 * i, c_base:]
+            for j in range(nj):
+                out[i, j] += row[2 * j]
+    elif step == 1:
+        for i in range(ni):
+            row = grid[r_base + i, c_base:]
+            for j in range(nj):
+                out[i, j] += row[j]
+    else:
+        for i in range(ni):
+            row = grid[r_base + i * step, c_base:]
+            for j in range(nj):
+                out[i, j] += row[j * step]
+
+
+@njit(cache=True, inline="always")
 def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
-    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps."""
+    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
     g_rows, g_cols = grid.shape
     for i in range(ni):
         for j in range(nj):
-            out[i, j] = 0.0
+            out[i, j] = 0
     for k in range(rows.shape[1]):
         r_base = rows[a, k] + i0 * step
         c_base = cols[a, k] + j0 * step
         r_last = r_base + (ni - 1) * step
         c_last = c_base + (nj - 1) * step
         if r_base >= 0 and c_base >= 0 and r_last < g_rows and c_last < g_cols:
-            for i in range(ni):
-                r = r_base + i * step
-                for j in range(nj):
-                    out[i, j] += grid[r, c_base + j * step]
-        else:
+            _add_rows(grid, out, r_base, c_base, ni, nj, step)
+        elif r_last >= 0 and c_last >= 0 and r_base < g_rows and c_base < g_cols:
             for i in range(ni):
                 r = r_base + i * step
                 if r < 0 or r >= g_rows:
@@ -170,34 +258,56 @@ def _score_all(grid, rows, cols, n_steps, step):
     """Exhaustive: responses (sums) of every angle and translation, (angles, n, n)."""
     na = rows.shape[0]
     out = np.zeros((na, n_steps, n_steps))
-    buf = np.zeros((n_steps, n_steps))
+    buf = np.zeros((n_steps, n_steps), np.int32)
     for a in range(na):
         _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
-        out[a] = buf
+        for i in range(n_steps):
+            for j in range(n_steps):
+                out[a, i, j] = buf[i, j]
     return out
 
 
 @njit(cache=True)
 def _max_pool(grid, width):
-    """pooled[r, c] = max of grid[r:r + width, c:c + width] (clipped at the edges)."""
+    """pooled[r, c] = max of grid[r:r + width, c:c + width] (clipped at the edges).
+
+    By doubling, one axis at a time: after k passes each cell holds the max of the
+    next 2^k cells; a last pass combines two overlapping spans into ``width``. That
+    is about 2 log2(width) row-order passes instead of 2 width, each written to a
+    second buffer (no in-place reads ahead) so it vectorises.
+    """
     rows, cols = grid.shape
-    tmp = np.empty_like(grid)
-    for r in range(rows):
-        for c in range(cols):
-            m = grid[r, c]
-            for d in range(1, width):
-                if c + d < cols and grid[r, c + d] > m:
-                    m = grid[r, c + d]
-            tmp[r, c] = m
-    out = np.empty_like(grid)
-    for c in range(cols):
+    a = grid.copy()
+    b = grid.copy()
+    span = 1
+    while span < width:
+        step = min(span, width - span)  # the last pass only needs to reach width
         for r in range(rows):
-            m = tmp[r, c]
-            for d in range(1, width):
-                if r + d < rows and tmp[r + d, c] > m:
-                    m = tmp[r + d, c]
-            out[r, c] = m
-    return out
+            src = a[r]
+            dst = b[r]
+            ahead = src[step:]
+            for c in range(cols - step):
+                dst[c] = max(src[c], ahead[c])
+            for c in range(cols - step, cols):
+                dst[c] = src[c]
+        a, b = b, a
+        span += step
+    span = 1
+    while span < width:
+        step = min(span, width - span)
+        for r in range(rows):
+            dst = b[r]
+            src = a[r]
+            if r + step < rows:
+                ahead = a[r + step]
+                for c in range(cols):
+                    dst[c] = max(src[c], ahead[c])
+            else:
+                for c in range(cols):
+                    dst[c] = src[c]
+        a, b = b, a
+        span += step
+    return a
 
 
 @njit(cache=True)
@@ -236,7 +346,7 @@ def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps
     """
     na = rows.shape[0]
     out = np.full((na, n_steps, n_steps), -1.0)
-    buf = np.zeros((block, block))
+    buf = np.zeros((block, block), np.int32)
     best = floor
     lookups = 0
     nbb = n_blocks * n_blocks
@@ -383,25 +493,23 @@ class CorrelativeMatcher:
         lo = np.asarray(lo, dtype=np.float64).copy()
         hi = np.asarray(hi, dtype=np.float64).copy()
         if ref_points.shape[0]:
-            keep = np.all((ref_points >= lo - margin) & (ref_points <= hi + margin), axis=1)
-            ref_points = ref_points[keep]
-            ref_sigmas = ref_sigmas[keep]
-        if ref_points.shape[0] and clip:
-            lo = np.maximum(lo, ref_points.min(axis=0) - margin)
-            hi = np.minimum(hi, ref_points.max(axis=0) + margin)
+            px = np.ascontiguousarray(ref_points[:, 0])
+            py = np.ascontiguousarray(ref_points[:, 1])
+            keep = _inside(px, py, lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin)
+            if keep.size < px.size:
+                px, py, ref_sigmas = px[keep], py[keep], ref_sigmas[keep]
+        else:
+            px = py = np.zeros(0)
+        if px.size and clip:
+            lo = np.maximum(lo, np.array([px.min(), py.min()]) - margin)
+            hi = np.minimum(hi, np.array([px.max(), py.max()]) + margin)
         hi = np.maximum(hi, lo + res)
         origin = np.floor(lo / res) * res
         shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
         grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
-        if ref_points.shape[0]:
-            # Row order keeps the smear's writes in cache (scans overlap in space, not in memory).
-            order = np.argsort(np.floor((ref_points[:, 1] - origin[1]) / res), kind="stable")
-            pts = ref_points[order]
-            smear_points(
-                grid, float(origin[0]), float(origin[1]), res,
-                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
-                np.ascontiguousarray(ref_sigmas[order]),
-            )
+        if px.size:
+            smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
+                               np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
 
     def _penalty(self, dx, dy, dth):
@@ -537,6 +645,11 @@ class CorrelativeMatcher:
             offset += math.radians(20.0)
         cov = np.zeros((3, 3))
         cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, 2.0 * res)
+        a_curve = resp.max(axis=(1, 2))
+        w = np.where(a_curve >= best - _COVARIANCE_BAND, np.maximum(a_curve, 0.0), 0.0)
+        dth = angles - angles[int(np.argmax(a_curve))]
+        heading_var = float((w * dth * dth).sum() / w.sum()) if w.sum() > 1e-12 else MAX_VARIANCE
+        heading_var = max(heading_var, self.coarse_angle_resolution**2 / 12.0)
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
@@ -557,7 +670,14 @@ class CorrelativeMatcher:
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
-        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups))
+        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var)
+
+
+def _uniform(sigmas: NDArray[np.float64]) -> float | None:
+    """The one sigma every point has, or None when they differ (or there are none)."""
+    if sigmas.size == 0 or sigmas.min() != sigmas.max():
+        return None
+    return float(sigmas[0])
 
 
 class GridCache:
@@ -591,32 +711,38 @@ class GridCache:
         self.max_extra = int(max_extra)
         self.max_entries = int(max_entries)
         self._entries: list[dict] = []
-        self._bbox: dict[int, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
+        # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
+        self._box = np.zeros((0, 5))
+        self._known = np.zeros(0, dtype=bool)
         self.builds = 0
         self.extensions = 0
 
     def invalidate(self) -> None:
         self._entries.clear()
-        self._bbox.clear()
+        self._known[:] = False
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
-        lo = np.full(2, np.inf)
-        hi = np.full(2, -np.inf)
-        reach = 0.0
-        for n in nodes:
-            b = self._bbox.get(n)
-            if b is None:
-                pts, sig = self.points_of(n)
-                if pts.shape[0]:
-                    b = (pts.min(axis=0), pts.max(axis=0), 2.0 * float(sig.max()))
-                else:
-                    b = (np.full(2, np.inf), np.full(2, -np.inf), 0.0)
-                self._bbox[n] = b
-            lo = np.minimum(lo, b[0])
-            hi = np.maximum(hi, b[1])
-            reach = max(reach, b[2])
-        return lo, hi, reach + 2.0 * self.matcher.resolution
+        idx = np.asarray(nodes, dtype=np.int64)
+        if idx.size == 0:
+            return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
+        top = int(idx.max()) + 1
+        if top > self._known.size:
+            grow = max(top, 2 * self._known.size)
+            self._known = np.concatenate([self._known, np.zeros(grow - self._known.size, bool)])
+            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 5))])
+        # Each node's box is computed once (until the next invalidate), the rest is array work.
+        for n in idx[~self._known[idx]].tolist():
+            pts, sig = self.points_of(n)
+            if pts.shape[0]:
+                self._box[n, :2] = pts.min(axis=0)
+                self._box[n, 2:4] = pts.max(axis=0)
+                self._box[n, 4] = 2.0 * float(sig.max())
+            else:
+                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0)
+            self._known[n] = True
+        b = self._box[idx]
+        return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         wanted = set(int(n) for n in nodes)
@@ -638,10 +764,12 @@ class GridCache:
             if missing:
                 pts, sig = self._gather(missing)
                 grid, ox, oy = e["grid"]
-                order = np.argsort(np.floor((pts[:, 1] - oy) / self.matcher.resolution), kind="stable")
-                smear_points(grid, ox, oy, self.matcher.resolution,
-                             np.ascontiguousarray(pts[order, 0]), np.ascontiguousarray(pts[order, 1]),
-                             np.ascontiguousarray(sig[order]))
+                # Repeated cells are skipped only while every point drawn has had one sigma.
+                same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
+                if not same:
+                    e["sigma"] = None
+                smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
+                                   np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
@@ -661,7 +789,7 @@ class GridCache:
         res = self.matcher.resolution
         self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
                                  "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
-                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach})
+                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig)})
         del self._entries[self.max_entries:]
         self.builds += 1
         return grid
