@@ -12,9 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
 
-__all__ = ["WallStats", "wall_stats", "point_segment_distances", "longest_walls"]
+from slam2d.sim.world import segment_distances
+
+__all__ = ["WallStats", "wall_stats", "longest_walls"]
 
 
 @dataclass(frozen=True)
@@ -27,19 +30,6 @@ class WallStats:
     rms: float  # m, RMS distance of those cells from the wall (NaN without cells)
     spread: float  # m, standard deviation of their signed offsets across the wall: thickness and waviness
     coverage: float  # share of the wall's samples with a map obstacle within the tolerance
-
-
-def point_segment_distances(points: ArrayLike, segments: ArrayLike) -> NDArray[np.float64]:
-    """Distance of every point (N, 2) to every segment (M, 4: x0, y0, x1, y1), as an (N, M) array."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    s = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
-    a, b = s[:, :2], s[:, 2:]
-    ab = b - a
-    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
-    ap = p[:, None, :] - a[None, :, :]
-    t = np.clip(np.einsum("nmj,mj->nm", ap, ab) / denom, 0.0, 1.0)
-    closest = a[None, :, :] + t[..., None] * ab[None, :, :]
-    return np.hypot(*(p[:, None, :] - closest).transpose(2, 0, 1))
 
 
 def longest_walls(segments: ArrayLike, rel: float = 0.99) -> list[int]:
@@ -57,7 +47,7 @@ def wall_stats(
     s = np.asarray(segments, dtype=np.float64).reshape(-1, 4)
     out = []
     if p.shape[0]:
-        dist = point_segment_distances(p, s)
+        dist = segment_distances(s, p)
         nearest = np.argmin(dist, axis=1)
         near_d = dist[np.arange(p.shape[0]), nearest]
     for k, (x0, y0, x1, y1) in enumerate(s):
@@ -77,8 +67,6 @@ def wall_stats(
         offset = (p[mine] - np.array([x0, y0])) @ normal
         spread = float(np.std(offset)) if d.size > 1 else float("nan")
         if d.size:
-            from scipy.spatial import cKDTree
-
             gap, _ = cKDTree(p[mine]).query(samples, k=1)
             coverage = float(np.mean(gap <= tolerance))
         else:
