@@ -242,9 +242,11 @@ def _pose_difference(run: RunOutcome, base: RunOutcome) -> float:
 def _map_error(run: RunOutcome, sim: Any, transform: NDArray[np.float64]) -> dict[str, float]:
     """`slam2d evaluate`'s map columns: truth -> map (map error), map -> truth (ghost walls), F1."""
     from slam2d.eval.map_metrics import map_to_truth, visible_walls
+    from slam2d.sim.simulate import TRUTH_MAP_RESOLUTION
     from slam2d.sim.world import rasterize
 
-    truth = rasterize(sim.world, resolution=float(run.grid.resolution))
+    # the truth as `slam2d simulate` writes it, so the map is judged on its own cells as `evaluate` does
+    truth = rasterize(sim.world, resolution=TRUTH_MAP_RESOLUTION)
     scan = sim.scans[0]
     seen = visible_walls(truth, se2.compose(sim.scan_truth, scan.mount), angles=scan.angles,
                          max_range=float(sim.laser.range_max))
