@@ -13,7 +13,6 @@ such, in words: no table or figure is made up for it.
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
 import os
@@ -26,6 +25,7 @@ from slam2d.experiments.result import ExperimentResult, Figure, Table
 from slam2d.io.atomic import write_text_atomic
 from slam2d.report.comparison import _CSS as _BASE_CSS
 from slam2d.report.comparison import _SCRIPT as _BASE_SCRIPT
+from slam2d.report.comparison import _e, _m
 
 __all__ = ["SectionRun", "write_paper_report", "format_cell", "REPORT_HTML", "REPORT_MD"]
 
@@ -172,10 +172,6 @@ _SCRIPT = """
 """ + _BASE_SCRIPT
 
 
-def _e(text: Any) -> str:
-    return html.escape(str(text), quote=True)
-
-
 def _table_html(table: Table) -> str:
     head = "".join(f"<th>{_e(_header(table, c))}</th>" for c in table.columns)
     body = []
@@ -253,10 +249,6 @@ def _result_html(section: SectionRun, r: ExperimentResult) -> str:
 
 
 # --------------------------------------------------------------------------- Markdown
-
-
-def _m(text: Any) -> str:
-    return " ".join(str(text).split()).replace("|", "\\|")
 
 
 def _md_table(table: Table) -> list[str]:
