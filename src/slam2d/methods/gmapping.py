@@ -190,11 +190,8 @@ class GMapping(SlamMethod):
         odom = np.asarray(odom, dtype=np.float64)
         if self._maps is None:
             return self._initialise(frame, odom)
-        delta = se2.relative(self._odom, odom)
-        step = math.hypot(delta[0], delta[1])
-        if step > self.params.jump_warning:
-            self.diagnostics.count("odometry_jumps")
-            log.warning("gmapping: odometry jumps %.2f m at t=%.3f; continuing", step, frame.timestamp)
+        # a jump is warned and counted, and the particles follow it (as GMapping does)
+        delta, step, _ = self.odometry_step(self._odom, odom, self.params.jump_warning, frame.timestamp)
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
         p = self.params
