@@ -106,3 +106,15 @@ def test_preview_pixels_are_matplotlibs():
     want = matplotlib.colormaps["gray"](img, bytes=True)
     assert np.all(want[:, 0] == want[:, 1]) and np.all(want[:, 3] == 255)
     assert np.array_equal(gray_pixels(img), want[:, 0])
+
+
+def test_by_time_sorts_stably_and_leaves_a_sorted_trajectory_alone():
+    from slam2d.io.tum import by_time
+
+    t = np.array([0.0, 2.0, 1.0, 1.0, 3.0])
+    p = np.arange(15, dtype=np.float64).reshape(5, 3)
+    ts, ps = by_time(t, p)
+    assert np.array_equal(ts, [0.0, 1.0, 1.0, 2.0, 3.0])
+    assert np.array_equal(ps[:, 0], [0.0, 6.0, 9.0, 3.0, 12.0])  # the two poses at t=1 in file order
+    sorted_t = np.sort(t)
+    assert by_time(sorted_t, p)[0] is sorted_t

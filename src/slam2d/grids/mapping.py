@@ -17,7 +17,7 @@ from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.io.base import ProgressCallback
-from slam2d.io.tum import poses_at_scans
+from slam2d.io.tum import by_time, poses_at_scans
 
 __all__ = ["MappingStats", "map_from_poses"]
 
@@ -57,11 +57,9 @@ def _check_trajectory(
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))):
         raise InputError("the trajectory holds NaN or infinite values", field="poses")
     backwards = int(np.count_nonzero(np.diff(t) < 0.0)) if t.shape[0] > 1 else 0
-    if backwards:
-        # Real logs step back a little (the Intel reference does, 4 times, like
-        # its scans): sort stably so every scan still finds its own pose.
-        order = np.argsort(t, kind="stable")
-        t, p = t[order], p[order]
+    # Real logs step back a little (the Intel reference does, 4 times, like
+    # its scans): sorted stably, every scan still finds its own pose.
+    t, p = by_time(t, p)
     return t, p, backwards
 
 
