@@ -87,6 +87,13 @@ class GraphSlamParams(GridParams):
         "trajectory (not in Karto, whose poses between nodes are the odometry's: with noisy odometry "
         "they are degrees off); costs one sequential match per scan",
     )
+    predict_from_last_scan: bool = param(
+        False,
+        help="predict a scan's pose from the last scan's matched pose plus the odometry since it, not from the "
+        "last node's (needs match_between_nodes; not in Karto): a turn whose odometry heading is 20 deg off "
+        "between two nodes is then recovered scan by scan; off by default because along corridors longer than "
+        "the laser's reach the chained matches drift more than the odometry (see docs/methods/karto.md)",
+    )
     odometry_fusion: bool = param(
         True,
         help="when the coarse angles responding within 0.1 of the best spread wider than the odometry's 3 deg, "
@@ -465,6 +472,10 @@ class GraphFrontend:
             predicted = se2.compose(self.graph.poses[last], offset)
         else:
             last, offset, predicted = -1, np.zeros(3), odom.copy()
+        if (p.predict_from_last_scan and self._matches_between_nodes(last) and self._frame_pose is not None
+                and previous_odom is not None):
+            # The last scan was matched too: only the odometry since it enters the prediction.
+            predicted = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
         moved = self._moved_enough(odom, frame.timestamp)
         if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
