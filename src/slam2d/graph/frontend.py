@@ -88,11 +88,11 @@ class GraphSlamParams(GridParams):
         "they are degrees off); costs one sequential match per scan",
     )
     predict_from_last_scan: bool = param(
-        False,
-        help="predict a scan's pose from the last scan's matched pose plus the odometry since it, not from the "
-        "last node's (needs match_between_nodes; not in Karto): a turn whose odometry heading is 20 deg off "
-        "between two nodes is then recovered scan by scan; off by default because along corridors longer than "
-        "the laser's reach the chained matches drift more than the odometry (see docs/methods/karto.md)",
+        True,
+        help="when the last scan's matched pose plus the odometry since it gives a heading more than half "
+        "coarse_search_angle_offset from the last node's plus the odometry, predict from the last scan (its "
+        "heading only, after a match flat along a corridor); needs match_between_nodes; not in Karto: a turn "
+        "whose odometry heading goes 20 deg or more wrong between two nodes is then recovered scan by scan",
     )
     odometry_fusion: bool = param(
         True,
@@ -317,6 +317,7 @@ class GraphFrontend:
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
+        self._frame_degenerate = False  # whether its match was flat along a corridor
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
@@ -426,6 +427,10 @@ class GraphFrontend:
         p = self.params
         return last >= 0 and p.use_scan_matching and p.match_between_nodes
 
+    def _degenerate(self, cov: NDArray[np.float64]) -> bool:
+        """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
+        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * self.sequential.search_size**2)
+
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64]):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
@@ -474,8 +479,18 @@ class GraphFrontend:
             last, offset, predicted = -1, np.zeros(3), odom.copy()
         if (p.predict_from_last_scan and self._matches_between_nodes(last) and self._frame_pose is not None
                 and previous_odom is not None):
-            # The last scan was matched too: only the odometry since it enters the prediction.
-            predicted = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
+            # The last scan was matched too. Where its pose plus the odometry since it puts the
+            # heading more than half the angle window from the node-based prediction, the odometry
+            # turned wrong since the node, and the match could miss it: predict from that scan. Its
+            # position is taken only if its match was not flat along a corridor (chaining those
+            # drifts more than the odometry).
+            chained = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
+            if abs(float(se2.wrap_angle(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
+                self._count("predicted_from_last_scan")
+                if self._frame_degenerate:
+                    predicted = np.array([predicted[0], predicted[1], chained[2]])
+                else:
+                    predicted = chained
         moved = self._moved_enough(odom, frame.timestamp)
         if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
@@ -500,7 +515,8 @@ class GraphFrontend:
         if not moved:
             # A scan that adds no node is still matched against the running scans, for its own
             # pose in the trajectory: between nodes the odometry alone can be degrees off.
-            pose, _, _ = self._sequential_estimate(points, predicted)
+            pose, fcov, _ = self._sequential_estimate(points, predicted)
+            self._frame_degenerate = self._degenerate(fcov)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
@@ -547,6 +563,7 @@ class GraphFrontend:
         values["loop_closures"] = float(closed)
         self.anchor, self.offset = node, np.zeros(3)
         self._frame_pose = self.graph.poses[node].copy()
+        self._frame_degenerate = self._degenerate(cov)
         return values
 
     def _path_length(self, i: int, j: int) -> float:
