@@ -624,6 +624,34 @@ def karto_sim_bound(_: Path) -> tuple[None, str]:
         )
     return None, "; ".join(notes)
 
+
+def karto_sim_lasers(workdir: Path) -> tuple[None, str]:
+    """karto on office 120 s and corridor-loop (seeds 0-2) with the URG-04LX and the RPLidar A1.
+
+    Written and evaluated as `slam2d simulate`, `slam2d run karto` and `slam2d evaluate
+    --truth` do: ATE, heading RMSE, per-frame rotation error, map error (truth to map).
+    """
+    from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+    from slam2d.methods.runner import run_method
+    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+    notes = []
+    for laser in ("urg-04lx", "rplidar-a1"):
+        for world, duration in (("office", 120.0), ("corridor-loop", None)):
+            cells = []
+            for seed in (0, 1, 2):
+                sim_dir = workdir / f"{world}-{laser}-{seed}"
+                write_outputs(simulate(world, SimulationParams(duration=duration, seed=seed, laser=laser)), sim_dir)
+                run_dir = workdir / f"karto-{world}-{laser}-{seed}"
+                run_method("karto", sim_dir / "recording.log.gz", run_dir)
+                e = evaluate_run(load_run(run_dir), load_truth(sim_dir))
+                t = e["trajectory"]
+                cells.append(f"{t['ate']['translation_m']['rmse']:.3f} m / {t['ate']['rotation_deg']['rmse']:.2f} deg / "
+                             f"{t['rpe_per_frame']['rotation_deg']['rmse']:.2f} deg / "
+                             f"{e['map_truth']['truth_to_map_m']['mean']:.3f} m")
+            notes.append(f"{world} {laser} (ATE / rot / RPE rot per frame / map error, seeds 0-2): " + "; ".join(cells))
+    return None, " | ".join(notes)
+
 CASES: list[Case] = [
     Case("simulate-office", "10 min of youBot + URG-04LX at 10 Hz in `office`, with CARMEN, ROS 2 bag, truth",
          simulate_office, target="< 20 s, < 300 MB", max_seconds=20.0, max_peak_mb=300.0),
@@ -710,6 +738,9 @@ CASES: list[Case] = [
     Case("karto-sim-bound", "`karto` and `lago` on office-120s and corridor-loop (seed 0) vs the ATE of their "
          "sequential matches chained over a perfect local map", karto_sim_bound,
          target="ATE < 0.05 m (issue 7)", warmup=False, repeat=1),
+    Case("karto-sim-lasers", "`karto` on office 120 s and corridor-loop, seeds 0-2, URG-04LX and RPLidar A1: "
+         "ATE, heading, per-frame rotation and map error vs the truth", karto_sim_lasers,
+         target="ATE < 0.05 m, map error < 0.03 m (issue 7)", warmup=False, repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,
