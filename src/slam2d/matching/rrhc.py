@@ -35,7 +35,7 @@ from numba import njit
 
 from slam2d.matching.random_numbers import randint
 
-__all__ = ["rrhc_search", "HEADING_STEP"]
+__all__ = ["rrhc_search", "refine_offset", "near_known", "HEADING_STEP"]
 
 #: Heading lattice of the search, rad.
 HEADING_STEP = 1.0 / 180.0
@@ -107,7 +107,8 @@ def _restart_table(values, cells_r, cells_c, lo, width):
             if v != 127:
                 g[r - r0, c - c0] = 10 * (255 - v) + (1020 - np.int32(values[r - 1, c]) - np.int32(values[r + 1, c])
                                                       - np.int32(values[r, c - 1]) - np.int32(values[r, c + 1]))
-    table = np.zeros((nk, width, width), dtype=np.int64)
+    # int32 sums (at most 14 * 255 per ray) keep the inner loop vectorisable
+    table = np.zeros((nk, width, width), dtype=np.int32)
     for i in range(nk):
         t = table[i]
         for j in range(n):
@@ -115,9 +116,26 @@ def _restart_table(values, cells_r, cells_c, lo, width):
             bc = cells_c[i, j] + lo - c0
             for a in range(width):
                 row = g[br + a]
+                ta = t[a]
                 for b in range(width):
-                    t[a, b] += row[bc + b]
+                    ta[b] += row[bc + b]
     return table
+
+
+@njit(cache=True)
+def _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax):
+    """What a search around pose ``(x, y)`` needs: the pose and the rays in cells, and the per-heading cell caches.
+
+    Returns ``(bx, by, qx cells, qy cells, rows_k, cols_k, ready, tmp_r, tmp_c)``
+    for :func:`_cells_at` with headings ``|k| <= kmax`` cached.
+    """
+    n = qx.shape[0]
+    inv = 1.0 / resolution
+    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
+    return ((x - origin_x) * inv, (y - origin_y) * inv, qx * inv, qy * inv, rows_k, cols_k, ready,
+            np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
 
 
 @njit(cache=True)
@@ -129,17 +147,8 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
     Returns ``(dx cells, dy cells, dtheta steps, fitness, evaluations, restarts, improvements, refine steps)``.
     """
     n = qx.shape[0]
-    inv = 1.0 / resolution
-    bx = (x - origin_x) * inv
-    by = (y - origin_y) * inv
-    qxc = qx * inv
-    qyc = qy * inv
     kmax = 4 * disparity + 2 * disparity  # restarts reach 2d steps; climbs wander a few d further
-    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
-    tmp_r = np.empty(n, dtype=np.int64)
-    tmp_c = np.empty(n, dtype=np.int64)
+    bx, by, qxc, qyc, rows_k, cols_k, ready, tmp_r, tmp_c = _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax)
     # restarts: dx, dy = rand(d) // 2 - d // 4 in [lo, lo + width); k = 4 rand(d) - 2 d
     lo = -(disparity // 4)
     width = (disparity - 1) // 2 + 1
@@ -162,7 +171,7 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
     counter = 0
     while True:
         if restart_index >= 0:
-            f = table[restart_index, dy - lo, dx - lo]
+            f = np.int64(table[restart_index, dy - lo, dx - lo])
         else:
             r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
             f = _fitness(values, r_k, c_k, dx, dy)
@@ -233,20 +242,33 @@ def refine_offset(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, d
 
     Returns ``(dx, dy, k, fitness, rounds that moved)``, fitness normalised as :func:`rrhc_search`'s.
     """
-    n = qx.shape[0]
-    inv = 1.0 / resolution
-    bx = (x - origin_x) * inv
-    by = (y - origin_y) * inv
-    qxc = qx * inv
-    qyc = qy * inv
     kmax = abs(k) + rounds + 1
-    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
-    tmp_r = np.empty(n, dtype=np.int64)
-    tmp_c = np.empty(n, dtype=np.int64)
+    bx, by, qxc, qyc, rows_k, cols_k, ready, tmp_r, tmp_c = _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax)
     r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
     best = _fitness(values, r_k, c_k, dx, dy)
     dx, dy, k, best, moved, _ = _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c,
                                         dx, dy, k, best, rounds)
-    return dx, dy, k, best / (255.0 * 14.0 * max(n, 1)), moved
+    return dx, dy, k, best / (255.0 * 14.0 * max(qx.shape[0], 1)), moved
+
+
+@njit(cache=True)
+def near_known(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, margin):
+    """Whether each point ``(qx, qy)`` (robot frame, m), placed at pose ``(x, y, theta)``, has a known cell (not 127)
+    within ``margin`` cells: the rays that can be judged against the map from this pose."""
+    n = qx.shape[0]
+    rmax, cmax = values.shape
+    out = np.zeros(n, dtype=np.bool_)
+    c = math.cos(theta)
+    s = math.sin(theta)
+    inv = 1.0 / resolution
+    for j in range(n):
+        col = int(math.floor((x + c * qx[j] - s * qy[j] - origin_x) * inv))
+        row = int(math.floor((y + s * qx[j] + c * qy[j] - origin_y) * inv))
+        for r in range(max(row - margin, 0), min(row + margin + 1, rmax)):
+            for cc in range(max(col - margin, 0), min(col + margin + 1, cmax)):
+                if values[r, cc] != 127:
+                    out[j] = True
+                    break
+            if out[j]:
+                break
+    return out

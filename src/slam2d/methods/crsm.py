@@ -26,7 +26,7 @@ from slam2d.grids.crsm_map import CrsmMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rrhc import HEADING_STEP, refine_offset, rrhc_search
+from slam2d.matching.rrhc import HEADING_STEP, near_known, refine_offset, rrhc_search
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -106,6 +106,13 @@ class CrsmParams:
         "none", choices=("none", "constant_velocity"),
         help="search centre: the last pose (the original) or the last pose plus the last matched motion",
     )
+    unknown_rays: str = param(
+        "score", choices=("score", "drop"),
+        help="score: every ray counts, one on an unknown cell as a miss (the original); drop: rays that land on "
+        "unknown space at the predicted pose (no known cell within known_margin) are left out of this scan's "
+        "fitness, so new walls neither pull the fit back onto mapped ones nor push it",
+    )
+    known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
     )
@@ -138,7 +145,8 @@ class Crsm(SlamMethod):
         "improvements": "candidates that improved the best [-]",
         "refine_steps": "rounds of the final neighbour climbs (refine_rounds, dense_refine_rounds) that moved "
                         "the pose [-]",
-        "rays": "critical rays matched [-]",
+        "rays": "critical rays picked [-]",
+        "rays_on_unknown": "critical rays left out because they land on unknown space (unknown_rays=drop) [-]",
         "mean_density": "the scan's mean range jump between neighbouring beams, before clamping [m]",
         "cells_updated": "cells walked by the map update [cells]",
     }
@@ -188,6 +196,13 @@ class Crsm(SlamMethod):
                 # the map must hold the search window around a centre that may lie ahead of the old map
                 self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
             ox, oy = self._map.origin
+            if p.unknown_rays == "drop":
+                ahead = se2.compose(self._pose, self._step)
+                keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(pts[:, 0]),
+                                  np.ascontiguousarray(pts[:, 1]), *ahead, p.known_margin)
+                values["rays_on_unknown"] = float(keep.shape[0] - keep.sum())
+                if keep.sum() >= _MIN_RAYS:
+                    pts = pts[keep]
             dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
                 self._map.values, ox, oy, p.resolution,
                 np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
@@ -197,6 +212,11 @@ class Crsm(SlamMethod):
             if p.dense_refine_rounds > 0:
                 every = np.flatnonzero((d > 0) & (d < laser_max))
                 dense = ray_points(scan, d, every, p.resolution)
+                if p.unknown_rays == "drop":
+                    keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
+                                      np.ascontiguousarray(dense[:, 1]), *ahead, p.known_margin)
+                    if keep.sum() >= _MIN_RAYS:
+                        dense = dense[keep]
                 dx, dy, dk, _, moved_rounds = refine_offset(
                     self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
                     np.ascontiguousarray(dense[:, 1]), float(centre[0]), float(centre[1]), float(centre[2]),
