@@ -15,7 +15,9 @@ from slam2d.errors import InputError
 from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rrhc import HEADING_STEP, _cells_at, _fitness, _restart_table, refine_offset, rrhc_search
+from slam2d.matching.rrhc import (
+    HEADING_STEP, _cells_at, _fitness, _restart_table, near_known, refine_offset, rrhc_search,
+)
 from slam2d.methods import get_method
 from slam2d.methods.crsm import Crsm, CrsmParams, ray_points
 from slam2d.params import from_mapping
@@ -177,6 +179,34 @@ def test_the_dense_refinement_scores_every_beam_and_walks_to_the_fit():
     # from the fit itself it stays within a cell (the wall is two cells thick)
     ex, ey, ek = refine_offset(m.values, ox, oy, m.resolution, qx, qy, 0.0, 0.0, 0.0, 0, 0, 0, 50)[:3]
     assert max(abs(ex), abs(ey), abs(ek)) <= 1, (ex, ey, ek)
+
+
+def test_near_known_flags_points_beyond_the_mapped_area():
+    """A point is judged against the map only if a known cell lies within the margin of where it lands."""
+    m = CrsmMap(0.02)
+    m.ensure_contains(-2, -2, 2, 2, margin=0)
+    ox, oy = m.origin
+    m.values[:, : int((0.5 - ox) / 0.02)] = 200  # known (free) up to x = 0.5 m, unknown beyond
+    qx = np.array([0.3, 0.49, 0.53, 0.6, 1.5])
+    qy = np.zeros(5)
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 0).tolist() == [True, True, False, False, False]
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 2).tolist() == [True, True, True, False, False]
+    # the pose moves the points: shifted back by 1 m, all but the last land on the known part
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, -1.0, 0.0, 0.0, 0).tolist() == [True, True, True, True, False]
+
+
+def test_unknown_rays_drop_leaves_out_rays_on_new_space_and_still_tracks():
+    """unknown_rays=drop: driving on, rays beyond the mapped part are counted and left out; the drive is tracked."""
+    frames, truth = _drive()
+    m = Crsm(CrsmParams(unknown_rays="drop"), seed=3).run(frames)
+    dropped = m.diagnostics.array("rays_on_unknown")
+    assert np.nansum(dropped) > 0
+    pa = m.trajectory()[1]
+    aligned = se2.compose(align_se2(pa[:, :2], truth[:, :2]), pa)
+    err = np.hypot(*(aligned[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(err**2)) < 0.05, err
+    # the default scores every ray, as the original
+    assert "rays_on_unknown" not in Crsm(seed=3).run(frames[:5]).diagnostics.series
 
 
 def test_error_code_readings_are_no_return():

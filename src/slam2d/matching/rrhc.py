@@ -107,8 +107,7 @@ def _restart_table(values, cells_r, cells_c, lo, width):
             if v != 127:
                 g[r - r0, c - c0] = 10 * (255 - v) + (1020 - np.int32(values[r - 1, c]) - np.int32(values[r + 1, c])
                                                       - np.int32(values[r, c - 1]) - np.int32(values[r, c + 1]))
-    # int32 sums (at most 14 * 255 per ray) keep the inner loop vectorisable
-    table = np.zeros((nk, width, width), dtype=np.int32)
+    table = np.zeros((nk, width, width), dtype=np.int64)
     for i in range(nk):
         t = table[i]
         for j in range(n):
@@ -116,9 +115,8 @@ def _restart_table(values, cells_r, cells_c, lo, width):
             bc = cells_c[i, j] + lo - c0
             for a in range(width):
                 row = g[br + a]
-                ta = t[a]
                 for b in range(width):
-                    ta[b] += row[bc + b]
+                    t[a, b] += row[bc + b]
     return table
 
 
@@ -171,7 +169,7 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
     counter = 0
     while True:
         if restart_index >= 0:
-            f = np.int64(table[restart_index, dy - lo, dx - lo])
+            f = table[restart_index, dy - lo, dx - lo]
         else:
             r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
             f = _fitness(values, r_k, c_k, dx, dy)
