@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/), and
-crsm-mines.png when ../shared/datasets is there.
+crsm-mines.png and crsm-mines-unknown.png when ../shared/datasets is there
+(``docs/plot_lightweight.py mines-unknown`` draws only the last).
 
 Each arena picture: the method's map of the simulated paper-arena (no odometry
 used), its trajectory against the true one, and the per-scan match score and
@@ -13,6 +14,7 @@ The pictures depend only on the code and the fixed seeds.
 
 from __future__ import annotations
 
+import sys
 import tempfile
 from pathlib import Path
 
@@ -110,7 +112,55 @@ def draw_mines() -> None:
     print(f"wrote {out}")
 
 
+def draw_mines_unknown() -> None:
+    """crsm-mines-unknown.png: hector, crsm's defaults, unknown_rays=drop, and drop with 160 rays on mines-exp1 (seed
+    2) and mines-exp2 (seed 0), each trajectory turned onto hector's (a rigid move: the map's shape is its own)."""
+    from slam2d.eval import scan_consistency
+    from slam2d.grids.mapping import map_from_poses
+    from slam2d.grids.occupancy import GridParams
+    from slam2d.methods.runner import build_method
+
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+    if not (data / "mines-exp2").is_dir():
+        print(f"no {data}: crsm-mines-unknown.png not drawn")
+        return
+    runs = (("hector", {}, "hector"), ("crsm", {}, "crsm, defaults"),
+            ("crsm", {"unknown_rays": "drop"}, "crsm, unknown_rays=drop"),
+            ("crsm", {"unknown_rays": "drop", "desired_number_of_picked_rays": "160"}, "drop, 160 rays"))
+    fig, axes = plt.subplots(2, 4, figsize=(17, 9))
+    for row, (ds, seed) in enumerate((("mines-exp1", 2), ("mines-exp2", 0))):
+        frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
+        reference = None
+        for col, (name, settings, title) in enumerate(runs):
+            slam = build_method(name, settings=settings, seed=seed)
+            slam.run(frames)
+            t, p = slam.trajectory()
+            score = scan_consistency(frames, t, p)["mean"]
+            if reference is None:
+                reference = p
+            else:
+                p = se2.compose(align_se2(p[:, :2], reference[:, :2]), p)
+            grid, _ = map_from_poses(frames, t, p, params=GridParams(resolution=0.05))
+            grid = grid.crop_to_observed(margin=10)
+            x0, y0, x1, y1 = grid.extent()
+            ax = axes[row, col]
+            ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
+            ax.set_title(f"{ds}: {title}{'' if name == 'hector' else f' (seed {seed})'}\n"
+                         f"scan_consistency {score:.3f}", fontsize=10)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.tight_layout()
+    out = IMAGES / "crsm-mines-unknown.png"
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=60, format="png")
+    plt.close(fig)
+    print(f"wrote {out}")
+
+
 def main() -> None:
+    if sys.argv[1:] == ["mines-unknown"]:
+        draw_mines_unknown()
+        return
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate("paper-arena", SimulationParams(seed=1))
         write_outputs(sim, Path(tmp))
@@ -119,6 +169,7 @@ def main() -> None:
     for name in ("coreslam", "crsm"):
         draw(name, frames, t_truth, p_truth)
     draw_mines()
+    draw_mines_unknown()
 
 
 if __name__ == "__main__":
