@@ -381,6 +381,10 @@ def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
                    "(consistency 0.58-0.63 over seeds 0-2 against hector's 0.66; docs/methods/crsm.md)")
 def test_crsm_mines_exp2_is_as_consistent_as_hector(hector_mines_exp2):
     """The target: scan_consistency within 5 % of hector's (0.66; coreslam reaches 0.69, crsm's maps with a
-    room turned by a few degrees ~0.6) for every one of three seeds."""
+    room turned by a few degrees ~0.6) for every one of three seeds.
+
+    Necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees pass it too
+    (docs/methods/crsm.md, "Unknown space and the lag"); a setting that passes must be looked at on both logs.
+    """
     consistency = [_mines_run("crsm", seed)[0] for seed in (0, 1, 2)]
     assert min(consistency) >= 0.95 * hector_mines_exp2[0], consistency
