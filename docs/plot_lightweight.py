@@ -84,9 +84,10 @@ def draw_mines() -> None:
     if not (data / "mines-exp2").is_dir():
         print(f"no {data}: crsm-mines.png not drawn")
         return
-    runs = (("hector", {}), ("crsm", {"desired_number_of_picked_rays": "40", "dense_refine_rounds": "0"}),
+    runs = (("hector", {}), ("crsm", {"desired_number_of_picked_rays": "40", "dense_refine_rounds": "0",
+                                      "unknown_rays": "score"}),
             ("crsm", {}))
-    titles = ("hector", "crsm, the original's 40 rays", "crsm, defaults")
+    titles = ("hector", "crsm, the original's 40 rays and scoring", "crsm, defaults")
     fig, axes = plt.subplots(2, 3, figsize=(13, 9))
     for row, ds in enumerate(("mines-exp1", "mines-exp2")):
         frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
@@ -113,7 +114,7 @@ def draw_mines() -> None:
 
 
 def draw_mines_unknown() -> None:
-    """crsm-mines-unknown.png: hector, crsm's defaults, unknown_rays=drop, and drop with 160 rays on mines-exp1 (seed
+    """crsm-mines-unknown.png: hector, crsm scoring unknown cells as misses, unknown_rays=drop, and drop with 160 rays on mines-exp1 (seed
     2) and mines-exp2 (seed 0), each trajectory turned onto hector's (a rigid move: the map's shape is its own)."""
     from slam2d.eval import scan_consistency
     from slam2d.grids.mapping import map_from_poses
@@ -124,8 +125,8 @@ def draw_mines_unknown() -> None:
     if not (data / "mines-exp2").is_dir():
         print(f"no {data}: crsm-mines-unknown.png not drawn")
         return
-    runs = (("hector", {}, "hector"), ("crsm", {}, "crsm, defaults"),
-            ("crsm", {"unknown_rays": "drop"}, "crsm, unknown_rays=drop"),
+    runs = (("hector", {}, "hector"), ("crsm", {"unknown_rays": "score"}, "crsm, unknown_rays=score"),
+            ("crsm", {"unknown_rays": "drop"}, "crsm, unknown_rays=drop (default)"),
             ("crsm", {"unknown_rays": "drop", "desired_number_of_picked_rays": "160"}, "drop, 160 rays"))
     fig, axes = plt.subplots(2, 4, figsize=(17, 9))
     for row, (ds, seed) in enumerate((("mines-exp1", 2), ("mines-exp2", 0))):

@@ -107,10 +107,10 @@ class CrsmParams:
         help="search centre: the last pose (the original) or the last pose plus the last matched motion",
     )
     unknown_rays: str = param(
-        "score", choices=("score", "drop"),
-        help="score: every ray counts, one on an unknown cell as a miss (the original); drop: rays that land on "
-        "unknown space at the predicted pose (no known cell within known_margin) are left out of this scan's "
-        "fitness, so new walls neither pull the fit back onto mapped ones nor push it",
+        "drop", choices=("score", "drop"),
+        help="drop: rays that land on unknown space at the predicted pose (no known cell within known_margin) are "
+        "left out of this scan's fitness, so new walls neither pull the fit back onto mapped ones nor push it; "
+        "score: every ray counts, one on an unknown cell as a miss (the original)",
     )
     known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
     max_extent: float = param(
