@@ -73,11 +73,34 @@ def draw(name: str, frames, t_truth, p_truth) -> None:
     print(f"wrote {out} (ATE {ate:.3f} m)")
 
 
+def _map_panel(ax, frames, t, p, title: str, *, path: bool) -> None:
+    """The scans mapped along trajectory ``(t, p)`` (5 cm log-odds), optionally with the path, titled."""
+    from slam2d.grids.mapping import map_from_poses
+    from slam2d.grids.occupancy import GridParams
+
+    grid, _ = map_from_poses(frames, t, p, params=GridParams(resolution=0.05))
+    grid = grid.crop_to_observed(margin=10)
+    x0, y0, x1, y1 = grid.extent()
+    ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
+    if path:
+        ax.plot(p[:, 0], p[:, 1], color="tab:red", lw=0.6)
+    ax.set_title(title, fontsize=10)
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
+def _save(fig, name: str, dpi: int) -> None:
+    fig.tight_layout()
+    out = IMAGES / name
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    print(f"wrote {out}")
+
+
 def draw_mines() -> None:
     """hector, crsm with the original's 40 rays and crsm with its defaults on mines-exp1/2 (seed 0, no odometry)."""
     from slam2d.eval import scan_consistency
-    from slam2d.grids.mapping import map_from_poses
-    from slam2d.grids.occupancy import GridParams
     from slam2d.methods.runner import build_method
 
     data = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
@@ -95,30 +118,16 @@ def draw_mines() -> None:
             slam = build_method(name, settings=settings, seed=0)
             slam.run(frames)
             t, p = slam.trajectory()
-            grid, _ = map_from_poses(frames, t, p, params=GridParams(resolution=0.05))
-            grid = grid.crop_to_observed(margin=10)
             score = scan_consistency(frames, t, p)["mean"]
-            x0, y0, x1, y1 = grid.extent()
-            ax = axes[row, col]
-            ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
-            ax.plot(p[:, 0], p[:, 1], color="tab:red", lw=0.6)
-            ax.set_title(f"{ds}: {title}\nscan_consistency {score:.3f}", fontsize=10)
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.tight_layout()
-    out = IMAGES / "crsm-mines.png"
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=70, format="png")
-    plt.close(fig)
-    print(f"wrote {out}")
+            _map_panel(axes[row, col], frames, t, p, f"{ds}: {title}\nscan_consistency {score:.3f}", path=True)
+    _save(fig, "crsm-mines.png", 70)
 
 
 def draw_mines_unknown() -> None:
-    """crsm-mines-unknown.png: hector, crsm scoring unknown cells as misses, unknown_rays=drop, and drop with 160 rays on mines-exp1 (seed
-    2) and mines-exp2 (seed 0), each trajectory turned onto hector's (a rigid move: the map's shape is its own)."""
+    """crsm-mines-unknown.png: hector, crsm scoring unknown cells as misses, unknown_rays=drop, and drop with 160
+    rays on mines-exp1 (seed 2) and mines-exp2 (seed 0), each trajectory turned onto hector's (a rigid move: the
+    map's shape is its own)."""
     from slam2d.eval import scan_consistency
-    from slam2d.grids.mapping import map_from_poses
-    from slam2d.grids.occupancy import GridParams
     from slam2d.methods.runner import build_method
 
     data = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
@@ -141,21 +150,10 @@ def draw_mines_unknown() -> None:
                 reference = p
             else:
                 p = se2.compose(align_se2(p[:, :2], reference[:, :2]), p)
-            grid, _ = map_from_poses(frames, t, p, params=GridParams(resolution=0.05))
-            grid = grid.crop_to_observed(margin=10)
-            x0, y0, x1, y1 = grid.extent()
-            ax = axes[row, col]
-            ax.imshow(1.0 - grid.probability(), cmap="gray", origin="lower", extent=(x0, x1, y0, y1), vmin=0, vmax=1)
-            ax.set_title(f"{ds}: {title}{'' if name == 'hector' else f' (seed {seed})'}\n"
-                         f"scan_consistency {score:.3f}", fontsize=10)
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.tight_layout()
-    out = IMAGES / "crsm-mines-unknown.png"
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=60, format="png")
-    plt.close(fig)
-    print(f"wrote {out}")
+            seeded = "" if name == "hector" else f" (seed {seed})"
+            _map_panel(axes[row, col], frames, t, p, f"{ds}: {title}{seeded}\nscan_consistency {score:.3f}",
+                       path=False)
+    _save(fig, "crsm-mines-unknown.png", 60)
 
 
 def main() -> None:
