@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/), and
-crsm-mines.png and crsm-mines-unknown.png when ../shared/datasets is there
-(``docs/plot_lightweight.py mines-unknown`` draws only the last).
+crsm-mines.png, crsm-mines-unknown.png and crsm-mines-turn.png when ../shared/datasets is there
+(``docs/plot_lightweight.py mines-unknown`` or ``mines-turn`` draws only that one).
 
 Each arena picture: the method's map of the simulated paper-arena (no odometry
 used), its trajectory against the true one, and the per-scan match score and
@@ -108,7 +108,7 @@ def draw_mines() -> None:
         print(f"no {data}: crsm-mines.png not drawn")
         return
     runs = (("hector", {}), ("crsm", {"desired_number_of_picked_rays": "40", "dense_refine_rounds": "0",
-                                      "unknown_rays": "score"}),
+                                      "unknown_rays": "score", "turn_sigma": "0"}),
             ("crsm", {}))
     titles = ("hector", "crsm, the original's 40 rays and scoring", "crsm, defaults")
     fig, axes = plt.subplots(2, 3, figsize=(13, 9))
@@ -134,9 +134,12 @@ def draw_mines_unknown() -> None:
     if not (data / "mines-exp2").is_dir():
         print(f"no {data}: crsm-mines-unknown.png not drawn")
         return
-    runs = (("hector", {}, "hector"), ("crsm", {"unknown_rays": "score"}, "crsm, unknown_rays=score"),
-            ("crsm", {"unknown_rays": "drop"}, "crsm, unknown_rays=drop (default)"),
-            ("crsm", {"unknown_rays": "drop", "desired_number_of_picked_rays": "160"}, "drop, 160 rays"))
+    # drawn without the turn test (turn_sigma=0), as measured in the section it illustrates
+    runs = (("hector", {}, "hector"),
+            ("crsm", {"unknown_rays": "score", "turn_sigma": "0"}, "crsm, unknown_rays=score"),
+            ("crsm", {"unknown_rays": "drop", "turn_sigma": "0"}, "crsm, unknown_rays=drop (default)"),
+            ("crsm", {"unknown_rays": "drop", "desired_number_of_picked_rays": "160", "turn_sigma": "0"},
+             "drop, 160 rays"))
     fig, axes = plt.subplots(2, 4, figsize=(17, 9))
     for row, (ds, seed) in enumerate((("mines-exp1", 2), ("mines-exp2", 0))):
         frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
@@ -156,9 +159,45 @@ def draw_mines_unknown() -> None:
     _save(fig, "crsm-mines-unknown.png", 60)
 
 
+def draw_mines_turn() -> None:
+    """crsm-mines-turn.png: hector, crsm without the turn test (turn_sigma=0) and with it (the default) for seeds 0-2
+    on both mines logs, each trajectory turned onto hector's, with scan_consistency and the heading agreement."""
+    from slam2d.eval import scan_consistency
+    from slam2d.eval.trajectory_metrics import heading_agreement
+    from slam2d.methods.runner import build_method
+
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+    if not (data / "mines-exp2").is_dir():
+        print(f"no {data}: crsm-mines-turn.png not drawn")
+        return
+    runs = [("hector", {}, 0, "hector")] + [("crsm", {"turn_sigma": "0"}, 2, "crsm, turn_sigma=0, seed 2")] + [
+        ("crsm", {}, seed, f"crsm, default (turn_sigma=0.07), seed {seed}") for seed in (0, 1, 2)]
+    fig, axes = plt.subplots(2, len(runs), figsize=(4.2 * len(runs), 9))
+    for row, ds in enumerate(("mines-exp1", "mines-exp2")):
+        frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
+        reference = None
+        for col, (name, settings, seed, title) in enumerate(runs):
+            slam = build_method(name, settings=settings, seed=seed)
+            slam.run(frames)
+            t, p = slam.trajectory()
+            score = scan_consistency(frames, t, p)["mean"]
+            if reference is None:
+                reference = (t, p)
+                label = f"scan_consistency {score:.3f}"
+            else:
+                h = heading_agreement(t, p, *reference)["heading_p95_deg"]
+                label = f"scan_consistency {score:.3f}, heading p95 {h:.1f} deg"
+                p = se2.compose(align_se2(p[:, :2], reference[1][:, :2]), p)
+            _map_panel(axes[row, col], frames, t, p, f"{ds}: {title}\n{label}", path=False)
+    _save(fig, "crsm-mines-turn.png", 60)
+
+
 def main() -> None:
     if sys.argv[1:] == ["mines-unknown"]:
         draw_mines_unknown()
+        return
+    if sys.argv[1:] == ["mines-turn"]:
+        draw_mines_turn()
         return
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate("paper-arena", SimulationParams(seed=1))
@@ -169,6 +208,7 @@ def main() -> None:
         draw(name, frames, t_truth, p_truth)
     draw_mines()
     draw_mines_unknown()
+    draw_mines_turn()
 
 
 if __name__ == "__main__":
