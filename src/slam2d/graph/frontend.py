@@ -93,6 +93,23 @@ class GraphSlamParams(GridParams):
         help="keep one scan point per square of this side before matching (not in Karto): near clutter "
         "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
     )
+    sequential_recovery_window: float = param(
+        1.6, unit="m", low=0.0,
+        help="when the sequential match's best pose lies on the edge of its window (the odometry is off by "
+        "more than the window: a slipping wheel, reversing logged as forward), search again over this "
+        "x, y window without the penalty and keep that match if it responds better by "
+        "sequential_recovery_margin (not in Karto); 0 turns it off",
+    )
+    sequential_recovery_response: float = param(
+        0.5, low=0.0, high=1.0,
+        help="a sequential match whose unpenalised response is below this is also searched again over "
+        "sequential_recovery_window (not in Karto)",
+    )
+    sequential_recovery_margin: float = param(
+        0.1, low=0.0, high=1.0,
+        help="how much better (unpenalised response) the wide recovery search must fit than the first "
+        "match's pose to replace it (not in Karto)",
+    )
     use_scan_barycenter: bool = param(
         True, help="measure distances between scans from the centroid of their points, not the robot [UseScanBarycenter]"
     )
@@ -440,6 +457,7 @@ class GraphFrontend:
         if last >= 0 and p.use_scan_matching:
             result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
                                  penalize=True, refine=True)
+            result = self._recover_sequential(result, points, predicted, values)
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
@@ -484,6 +502,31 @@ class GraphFrontend:
         values["loop_closures"] = float(closed)
         self.anchor, self.offset = node, np.zeros(3)
         return values
+
+    def _recover_sequential(self, result, points, predicted, values):
+        """A sequential match stuck on its window's edge, searched again over the wide recovery window."""
+        p = self.params
+        m = self.sequential
+        if p.sequential_recovery_window <= m.search_size:
+            return result
+        reach = m._coarse_half * 2 * m.resolution
+        d = np.abs(result.pose[:2] - predicted[:2])
+        edge = float(d.max()) >= reach - 1.5 * m.resolution
+        if not edge and result.raw_response >= p.sequential_recovery_response:
+            return result
+        self._count("sequential_edge_hits" if edge else "sequential_weak_matches")
+        wide = m.with_window(p.sequential_recovery_window)
+        floor = result.raw_response + p.sequential_recovery_margin
+        alt = self._match(wide, self._seq_cache, self._running, points, predicted, penalize=False, refine=True,
+                          min_response=floor)
+        values["recovery_response"] = alt.response
+        values["edge_raw_response"] = result.raw_response
+        values["recovery_dx"] = float(alt.pose[0] - predicted[0])
+        values["recovery_dy"] = float(alt.pose[1] - predicted[1])
+        if alt.response < floor:
+            return result
+        self._count("sequential_recoveries")
+        return alt
 
     def _path_length(self, i: int, j: int) -> float:
         """Distance the robot travelled from node i to node j along the graph's current poses."""
