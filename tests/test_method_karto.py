@@ -203,3 +203,30 @@ def test_sequential_recovery_leaves_a_corridor_alone():
     off = _run("karto", frames, sequential_recovery_window=0.0)
     assert on.diagnostics.counters["sequential_recoveries"] == 0
     assert np.array_equal(on.trajectory()[1], off.trajectory()[1])
+
+
+def test_sequential_recovery_needs_a_clear_and_good_fit():
+    """From 0.64 m off, a scan that still fits is found again; one that fits poorly (< 0.5) is not moved."""
+    from slam2d.matching.correlative import MatchResult
+
+    sim = simulate("paper-arena", SimulationParams(duration=10.0, seed=5))
+    fe = _run("karto", sim.frames()).frontend
+    last = fe.num_nodes - 1
+    truth = fe.graph.poses[last].copy()
+    points, _ = fe.node_points(last)
+    rng = np.random.default_rng(0)
+    off = truth + np.array([0.5, -0.4, 0.0])
+    got = {}
+    for scattered in (0.3, 0.7):
+        q = points.copy()
+        idx = rng.choice(len(q), int(scattered * len(q)), replace=False)
+        q[idx] += rng.normal(0.0, 0.5, (idx.size, 2))  # clutter: points that fit nothing
+        first = MatchResult(off.copy(), np.eye(3) * 0.01, 0.05, 0.05, 0)
+        values: dict = {}
+        got[scattered] = (fe._recover_sequential(first, q, off, values), first, values)
+    out, first, values = got[0.3]
+    assert out is not first and np.allclose(out.pose, truth, atol=0.02), out.pose - truth
+    assert values["recovery_m"] > 0.6
+    out, first, values = got[0.7]
+    # better than the first match by far more than the margin, but itself weak: not trusted
+    assert 0.05 + 0.1 < values["recovery_response"] < 0.5 and out is first

@@ -104,7 +104,7 @@ class GraphSlamParams(GridParams):
     sequential_recovery_response: float = param(
         0.5, low=0.0, high=1.0,
         help="a sequential match whose unpenalised response is below this is searched again over "
-        "sequential_recovery_window (not in Karto)",
+        "sequential_recovery_window, and a recovery must respond at least this (not in Karto)",
     )
     sequential_recovery_margin: float = param(
         0.1, low=0.0, high=1.0,
@@ -530,7 +530,9 @@ class GraphFrontend:
         grid = wide.correlation_grid(ref, sig, *wide.search_box(points, predicted))
         coarse = wide.match(None, None, points, predicted, penalize=False, refine=True, grid=grid)
         alt = self._match(m, self._seq_cache, self._running, points, coarse.pose, penalize=False, refine=True)
-        floor = result.raw_response + p.sequential_recovery_margin
+        # It must fit clearly better, and not be a weak match itself (a 0.4 match 1 m away
+        # on intel was a wrong one).
+        floor = max(result.raw_response + p.sequential_recovery_margin, p.sequential_recovery_response)
         values["recovery_response"] = alt.response
         if alt.response < floor:
             return result
