@@ -230,3 +230,28 @@ def test_sequential_recovery_needs_a_clear_and_good_fit():
     out, first, values = got[0.7]
     # better than the first match by far more than the margin, but itself weak: not trusted
     assert 0.05 + 0.1 < values["recovery_response"] < 0.5 and out is first
+
+
+def test_sequential_recovery_refuses_an_ambiguous_fit():
+    """Simulated office, seed 2, t = 21 s: the wide search fits a corridor perfectly (response 1.0) 0.6 m from the
+    truth; its covariance says so, and the recovery is refused. Without that gate the step is 0.6 m wrong."""
+    sim = simulate("office", SimulationParams(duration=25.0, seed=2))
+    step_errors = {}
+    for gate in (0.01, float("inf")):
+        slam = _run("karto", sim.frames(), sequential_recovery_maximum_variance=gate)
+        fe, d = slam.frontend, slam.diagnostics
+        nt = fe.node_times()
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, nt)]
+        ts = d.array("timestamp")
+        moved = np.asarray(d.series.get("recovery_m", [np.nan] * len(ts)))
+        errs = []
+        for k in np.nonzero(~np.isnan(moved))[0]:
+            i = int(np.searchsorted(nt, ts[k]))
+            z_true = se2.relative(truth[i - 1], truth[i])
+            z_est = se2.relative(fe.graph.poses[i - 1], fe.graph.poses[i])
+            errs.append(float(np.hypot(*(z_est[:2] - z_true[:2]))))
+        step_errors[gate] = (errs, d.counters["sequential_recoveries_ambiguous"])
+    errs, refused = step_errors[0.01]
+    assert refused >= 1 and all(e < 0.05 for e in errs), step_errors
+    errs, refused = step_errors[float("inf")]
+    assert refused == 0 and max(errs) > 0.3, step_errors
