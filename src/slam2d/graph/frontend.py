@@ -42,6 +42,7 @@ special.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -111,10 +112,16 @@ class GraphSlamParams(GridParams):
         help="how much higher the recovery's response must be than the first match's unpenalised response "
         "to replace it (not in Karto)",
     )
+    sequential_recovery_angle: float = param(
+        45.0 * _DEG, unit="rad", low=0.0,
+        help="half-width of the recovery search's angle window (at least coarse_search_angle_offset; "
+        "not in Karto)",
+    )
     sequential_recovery_maximum_variance: float = param(
         0.01, unit="m^2", low=0.0,
-        help="a recovery is taken only when its x, y covariance (the 1 cm match's) is below this in every "
-        "direction: along a corridor a better fit does not say where the scan is (not in Karto)",
+        help="a recovery whose x, y covariance (the 1 cm match's) exceeds this in some direction (a corridor) "
+        "has the odometry prediction's position fused in (0.1 m; its heading is not), so the odometry decides "
+        "along the corridor and the scan across it and the heading (not in Karto); inf takes every recovery as it is",
     )
     use_scan_barycenter: bool = param(
         True, help="measure distances between scans from the centroid of their points, not the robot [UseScanBarycenter]"
@@ -463,11 +470,12 @@ class GraphFrontend:
         if last >= 0 and p.use_scan_matching:
             result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
                                  penalize=True, refine=True)
-            result = self._recover_sequential(result, points, predicted, values)
+            result, recovered = self._recover_sequential(result, points, predicted, values)
             pose, cov = result.pose, result.covariance
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
-            if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+            # A recovered match has just shown the odometry wrong: its heading is not fused back in.
+            if p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
                 c = cov.copy()
                 c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
                 odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
@@ -516,20 +524,22 @@ class GraphFrontend:
         reversing as driving forward (0.6 m wrong per kept scan) and slips 0.2-0.4 m in
         turns: the match then sits on the window's edge or responds poorly, and the error
         stays in the graph. The wide search is not penalised (any place in the window is as
-        likely); it replaces the first match only when it fits clearly better.
+        likely); it replaces the first match only when it fits clearly better. Returns the
+        match to use and whether it is a recovery.
         """
         p = self.params
         m = self.sequential
         if p.sequential_recovery_window <= m.search_size:
-            return result
+            return result, False
         shift = float(np.abs(result.pose[:2] - predicted[:2]).max())
         edge = shift >= 0.5 * m.search_size - 2.5 * m.resolution  # within a coarse step of the edge
         if not edge and result.raw_response >= p.sequential_recovery_response:
-            return result
+            return result, False
         self._count("sequential_edge_hits" if edge else "sequential_weak_matches")
         # Coarse over the wide window on a fresh grid at the loop matcher's cell (5 cm: cheap to
         # build, and the cached 1 cm grids stay as they were), then the usual 1 cm match there.
         wide = self.loop.with_window(p.sequential_recovery_window)
+        wide.coarse_angle_offset = max(wide.coarse_angle_offset, p.sequential_recovery_angle)
         parts = [self._node_reference(n) for n in self._running]
         ref, sig = np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
         grid = wide.correlation_grid(ref, sig, *wide.search_box(points, predicted))
@@ -540,15 +550,23 @@ class GraphFrontend:
         floor = max(result.raw_response + p.sequential_recovery_margin, p.sequential_recovery_response)
         values["recovery_response"] = alt.response
         if alt.response < floor:
-            return result
-        # Along a corridor or a row of look-alike doors the better fit says nothing about where
-        # along it the scan is (in the simulated office such a fit, response 1.0, was 0.63 m off).
-        if float(np.linalg.eigvalsh(alt.covariance[:2, :2]).max()) > p.sequential_recovery_maximum_variance:
-            self._count("sequential_recoveries_ambiguous")
-            return result
-        self._count("sequential_recoveries")
+            return result, False
         values["recovery_m"] = float(np.hypot(*(alt.pose[:2] - result.pose[:2])))
-        return alt
+        if float(np.linalg.eigvalsh(alt.covariance[:2, :2]).max()) > p.sequential_recovery_maximum_variance:
+            # Along a corridor the better fit holds the heading and the position across it, not
+            # where along it the scan is (in the simulated office one such fit, response 1.0, lay
+            # 0.63 m along the corridor from the truth): the odometry prediction is fused in, so
+            # along the corridor it decides.
+            self._count("sequential_recoveries_fused")
+            odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            odo[2, 2] = MAX_COV  # the odometry's heading is what went wrong
+            pose = _weighted_mean([alt.pose, predicted], [alt.covariance, odo])
+            cov = np.linalg.inv(np.linalg.inv(alt.covariance) + np.linalg.inv(odo))
+            alt = dataclasses.replace(alt, pose=pose, covariance=cov)
+            values["recovery_m"] = float(np.hypot(*(pose[:2] - result.pose[:2])))
+        else:
+            self._count("sequential_recoveries")
+        return alt, True
 
     def _path_length(self, i: int, j: int) -> float:
         """Distance the robot travelled from node i to node j along the graph's current poses."""
