@@ -9,7 +9,9 @@ For every scan (:meth:`GraphFrontend.process`):
    scans get the predicted pose and no node.
 3. *Sequential match* against the *running scans* (the last
    ``scan_buffer_size`` kept scans within ``scan_buffer_maximum_scan_distance``),
-   with the distance and angle penalty.
+   with the distance and angle penalty. A match stuck on its window's edge or
+   responding poorly is searched again over ``sequential_recovery_window``
+   (the odometry may be wrong by more than the window).
 4. *Add the node*; link it to the previous node and to the closest running
    scan (``LinkChainToScan``); match it against each *near chain* (older
    passes within ``link_scan_maximum_distance`` already connected to it in
