@@ -113,12 +113,14 @@ def test_prediction_from_the_last_scan_recovers_a_bad_turn():
 
     From the last node plus the odometry the prediction lies outside the +-20 deg window and
     the map breaks; from the last matched scan plus the odometry since it, it does not.
+    The sequential recovery (a +-45 deg search of a stuck or weak match) catches this turn
+    too, so the comparison run turns both off.
     """
     sim = simulate("office", SimulationParams(duration=70.0, seed=2, laser="rplidar-a1"))
     chained = _run("karto", sim.frames())
     assert chained.params.predict_from_last_scan
     assert chained.diagnostics.counters["predicted_from_last_scan"] >= 1
-    from_node = _run("karto", sim.frames(), predict_from_last_scan=False)
+    from_node = _run("karto", sim.frames(), predict_from_last_scan=False, sequential_recovery_window=0.0)
     after = {}
     for name, slam in (("chained", chained), ("from_node", from_node)):
         heading = _heading_errors(slam, sim)[0]
@@ -218,3 +220,91 @@ def test_intel_against_the_reference():
     t, p = slam.trajectory()
     ate = absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
     assert ate < 0.10, ate
+
+
+def _reversed_odometry(frames, a, b):
+    """The frames with the odometry's forward motion negated between frames a and b (reversing logged as forward)."""
+    odo = np.array([f.odometry for f in frames])
+    step = se2.relative(odo[:-1], odo[1:])
+    step[a:b, 0] *= -1.0
+    poses = [odo[0]]
+    for d in step:
+        poses.append(se2.compose(poses[-1], d))
+    return [Frame(f.index, f.scan, p) for f, p in zip(frames, poses, strict=True)]
+
+
+def test_sequential_recovery_finds_the_scan_when_the_odometry_is_wrong():
+    """Odometry 0.4 m wrong per kept scan (fr079 logs reversing as forward): the wide search recovers the pose."""
+    sim = simulate("paper-arena", SimulationParams(duration=30.0, seed=5))
+    frames = _reversed_odometry(sim.frames(), 40, 60)
+    on = _run("karto", frames)
+    off = _run("karto", frames, sequential_recovery_window=0.0)
+    assert on.diagnostics.counters["sequential_recoveries"] >= 1
+    assert off.diagnostics.counters["sequential_recoveries"] == 0
+    ate_on, ate_off = _ate(on, sim), _ate(off, sim)
+    assert ate_on < 0.06 and ate_off > 0.3, (ate_on, ate_off)
+    moved = on.diagnostics.array("recovery_m")
+    assert np.nanmax(moved) > 0.15  # a recovery moved the match beyond the +-0.15 m window
+
+
+def test_sequential_recovery_leaves_a_corridor_alone():
+    """Along a featureless corridor the wide search fits no better: wrong odometry stays wrong, nothing jumps."""
+    sim = simulate("corridor-loop", SimulationParams(duration=30.0, seed=5))
+    frames = _reversed_odometry(sim.frames(), 40, 60)
+    on = _run("karto", frames)
+    off = _run("karto", frames, sequential_recovery_window=0.0)
+    assert on.diagnostics.counters["sequential_recoveries"] == 0
+    assert np.array_equal(on.trajectory()[1], off.trajectory()[1])
+
+
+def test_sequential_recovery_needs_a_clear_and_good_fit():
+    """From 0.64 m off, a scan that still fits is found again; one that fits poorly (< 0.5) is not moved."""
+    from slam2d.matching.correlative import MatchResult
+
+    sim = simulate("paper-arena", SimulationParams(duration=10.0, seed=5))
+    fe = _run("karto", sim.frames()).frontend
+    last = fe.num_nodes - 1
+    truth = fe.graph.poses[last].copy()
+    points, _ = fe.node_points(last)
+    rng = np.random.default_rng(0)
+    off = truth + np.array([0.5, -0.4, 0.0])
+    got = {}
+    for scattered in (0.3, 0.7):
+        q = points.copy()
+        idx = rng.choice(len(q), int(scattered * len(q)), replace=False)
+        q[idx] += rng.normal(0.0, 0.5, (idx.size, 2))  # clutter: points that fit nothing
+        first = MatchResult(off.copy(), np.eye(3) * 0.01, 0.05, 0.05, 0)
+        values: dict = {}
+        got[scattered] = (*fe._recover_sequential(first, q, off, values), first, values)
+    out, recovered, first, values = got[0.3]
+    assert recovered and np.allclose(out.pose, truth, atol=0.02), out.pose - truth
+    assert values["recovery_m"] > 0.6
+    out, recovered, first, values = got[0.7]
+    # better than the first match by far more than the margin, but itself weak: not trusted
+    assert 0.05 + 0.1 < values["recovery_response"] < 0.5 and out is first and not recovered
+
+
+def test_sequential_recovery_along_a_corridor_keeps_the_odometry_there():
+    """Simulated office, seed 2, t = 21 s: the wide search fits a corridor perfectly (response 1.0) 0.6 m along it
+    from the truth. Its covariance says so, and the odometry decides along the corridor: the step is 9 cm off
+    instead of 0.6 m (taken as it is) or 0.2 m (the first, failed match)."""
+    sim = simulate("office", SimulationParams(duration=25.0, seed=2))
+    step_errors = {}
+    for gate in (0.01, float("inf")):
+        slam = _run("karto", sim.frames(), sequential_recovery_maximum_variance=gate)
+        fe, d = slam.frontend, slam.diagnostics
+        nt = fe.node_times()
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, nt)]
+        ts = d.array("timestamp")
+        moved = np.asarray(d.series.get("recovery_m", [np.nan] * len(ts)))
+        errs = []
+        for k in np.nonzero(~np.isnan(moved))[0]:
+            i = int(np.searchsorted(nt, ts[k]))
+            z_true = se2.relative(truth[i - 1], truth[i])
+            z_est = se2.relative(fe.graph.poses[i - 1], fe.graph.poses[i])
+            errs.append(float(np.hypot(*(z_est[:2] - z_true[:2]))))
+        step_errors[gate] = (errs, d.counters["sequential_recoveries_fused"])
+    errs, fused = step_errors[0.01]
+    assert fused >= 1 and errs and max(errs) < 0.15, step_errors
+    errs, fused = step_errors[float("inf")]
+    assert fused == 0 and max(errs) > 0.3, step_errors

@@ -9,7 +9,9 @@ For every scan (:meth:`GraphFrontend.process`):
    scans get the predicted pose and no node.
 3. *Sequential match* against the *running scans* (the last
    ``scan_buffer_size`` kept scans within ``scan_buffer_maximum_scan_distance``),
-   with the distance and angle penalty.
+   with the distance and angle penalty. A match stuck on its window's edge or
+   responding poorly is searched again over ``sequential_recovery_window``
+   (the odometry may be wrong by more than the window).
 4. *Add the node*; link it to the previous node and to the closest running
    scan (``LinkChainToScan``); match it against each *near chain* (older
    passes within ``link_scan_maximum_distance`` already connected to it in
@@ -42,6 +44,7 @@ special.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -105,6 +108,35 @@ class GraphSlamParams(GridParams):
         0.0, unit="m", low=0.0,
         help="keep one scan point per square of this side before matching (not in Karto): near clutter "
         "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
+    )
+    sequential_recovery_window: float = param(
+        1.6, unit="m", low=0.0,
+        help="when the sequential match's best pose lies within a coarse step of its window's edge, or its "
+        "unpenalised response is below sequential_recovery_response, search again without the penalty over "
+        "this x, y window (on the loop grid's 5 cm cells, then the 1 cm match there) and keep that match if its "
+        "response is higher by sequential_recovery_margin (not in Karto: fr079's odometry logs reversing as "
+        "forward); 0 turns it off",
+    )
+    sequential_recovery_response: float = param(
+        0.5, low=0.0, high=1.0,
+        help="a sequential match whose unpenalised response is below this is searched again over "
+        "sequential_recovery_window, and a recovery must respond at least this (not in Karto)",
+    )
+    sequential_recovery_margin: float = param(
+        0.1, low=0.0, high=1.0,
+        help="how much higher the recovery's response must be than the first match's unpenalised response "
+        "to replace it (not in Karto)",
+    )
+    sequential_recovery_angle: float = param(
+        45.0 * _DEG, unit="rad", low=0.0,
+        help="half-width of the recovery search's angle window (at least coarse_search_angle_offset; "
+        "not in Karto)",
+    )
+    sequential_recovery_maximum_variance: float = param(
+        0.01, unit="m^2", low=0.0,
+        help="a recovery whose x, y covariance (the 1 cm match's) exceeds this in some direction (a corridor) "
+        "has the odometry prediction's position fused in (0.1 m; its heading is not), so the odometry decides "
+        "along the corridor and the scan across it and the heading (not in Karto); inf takes every recovery as it is",
     )
     use_scan_barycenter: bool = param(
         True, help="measure distances between scans from the centroid of their points, not the robot [UseScanBarycenter]"
@@ -431,17 +463,23 @@ class GraphFrontend:
         """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
         return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * self.sequential.search_size**2)
 
-    def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64]):
+    def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
+                             values: dict[str, float] | None = None):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
-        With ``odometry_fusion`` a match whose coarse heading is ambiguous is fused with the
-        prediction; a match below ``minimum_match_response`` is replaced by the prediction.
+        With ``values`` (a new node's log) a stuck or weak match is searched again over the
+        recovery window first. With ``odometry_fusion`` a match whose coarse heading is
+        ambiguous is fused with the prediction, unless it is a recovery (which has just shown
+        the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
         """
         p = self.params
         result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
                              penalize=True, refine=True)
+        recovered = False
+        if values is not None:
+            result, recovered = self._recover_sequential(result, points, predicted, values)
         pose, cov = result.pose, result.covariance
-        if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+        if p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
             c = cov.copy()
             c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
             odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
@@ -525,7 +563,7 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            pose, cov, result = self._sequential_estimate(points, predicted)
+            pose, cov, result = self._sequential_estimate(points, predicted, values)
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
@@ -565,6 +603,57 @@ class GraphFrontend:
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
         return values
+
+    def _recover_sequential(self, result, points, predicted, values):
+        """Search a sequential match again over the wide recovery window when it is stuck or weak.
+
+        Karto trusts the odometry to within its +-0.15 m window. On fr079 the odometry logs
+        reversing as driving forward (0.6 m wrong per kept scan) and slips 0.2-0.4 m in
+        turns: the match then sits on the window's edge or responds poorly, and the error
+        stays in the graph. The wide search is not penalised (any place in the window is as
+        likely); it replaces the first match only when it fits clearly better. Returns the
+        match to use and whether it is a recovery.
+        """
+        p = self.params
+        m = self.sequential
+        if p.sequential_recovery_window <= m.search_size:
+            return result, False
+        shift = float(np.abs(result.pose[:2] - predicted[:2]).max())
+        edge = shift >= 0.5 * m.search_size - 2.5 * m.resolution  # within a coarse step of the edge
+        if not edge and result.raw_response >= p.sequential_recovery_response:
+            return result, False
+        self._count("sequential_edge_hits" if edge else "sequential_weak_matches")
+        # Coarse over the wide window on a fresh grid at the loop matcher's cell (5 cm: cheap to
+        # build, and the cached 1 cm grids stay as they were), then the usual 1 cm match there.
+        wide = self.loop.with_window(p.sequential_recovery_window)
+        wide.coarse_angle_offset = max(wide.coarse_angle_offset, p.sequential_recovery_angle)
+        parts = [self._node_reference(n) for n in self._running]
+        ref, sig = np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
+        grid = wide.correlation_grid(ref, sig, *wide.search_box(points, predicted))
+        coarse = wide.match(None, None, points, predicted, penalize=False, refine=True, grid=grid)
+        alt = self._match(m, self._seq_cache, self._running, points, coarse.pose, penalize=False, refine=True)
+        # It must fit clearly better, and not be a weak match itself (a 0.4 match 1 m away
+        # on intel was a wrong one).
+        floor = max(result.raw_response + p.sequential_recovery_margin, p.sequential_recovery_response)
+        values["recovery_response"] = alt.response
+        if alt.response < floor:
+            return result, False
+        values["recovery_m"] = float(np.hypot(*(alt.pose[:2] - result.pose[:2])))
+        if float(np.linalg.eigvalsh(alt.covariance[:2, :2]).max()) > p.sequential_recovery_maximum_variance:
+            # Along a corridor the better fit holds the heading and the position across it, not
+            # where along it the scan is (in the simulated office one such fit, response 1.0, lay
+            # 0.63 m along the corridor from the truth): the odometry prediction is fused in, so
+            # along the corridor it decides.
+            self._count("sequential_recoveries_fused")
+            odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            odo[2, 2] = MAX_COV  # the odometry's heading is what went wrong
+            pose = _weighted_mean([alt.pose, predicted], [alt.covariance, odo])
+            cov = np.linalg.inv(np.linalg.inv(alt.covariance) + np.linalg.inv(odo))
+            alt = dataclasses.replace(alt, pose=pose, covariance=cov)
+            values["recovery_m"] = float(np.hypot(*(pose[:2] - result.pose[:2])))
+        else:
+            self._count("sequential_recoveries")
+        return alt, True
 
     def _path_length(self, i: int, j: int) -> float:
         """Distance the robot travelled from node i to node j along the graph's current poses."""

@@ -35,6 +35,9 @@ class GraphSlam(SlamMethod):
         "near_links": "near chains linked to the kept scan [count]",
         "loop_closures": "loop closures accepted at the kept scan [count]",
         "nodes": "nodes in the pose graph [count]",
+        "recovery_response": "response of the wide recovery search, when the sequential match was stuck on its "
+        "window's edge or weak [0-1]",
+        "recovery_m": "how far an accepted recovery moved the sequential match [m]",
     }
 
     def __init__(self, params: Any = None, **kwargs: Any) -> None:
