@@ -521,7 +521,19 @@ class GraphFrontend:
                 self._count("near_skipped_retry")
                 continue
             chain = list(range(a, b))
-            result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
+            # The cache's book-keeping is done whatever happens, so later matches read the grids
+            # they would have; a chain whose response bound (no 1 cm grid needed) is below the
+            # failure mark cannot link and is recorded as failed without drawing or searching.
+            lo, hi = self.sequential.search_box(points, pose)
+            entry = self._seq_cache.reserve(chain, lo, hi)
+            fail = 0.5 * p.link_match_minimum_response_fine
+            if self._seq_cache.bound(entry, points, pose, stop=fail) < fail:
+                self._count("near_skipped_bound")
+                self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
+                del self._near_failed[:-100]
+                continue
+            result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
+                                           grid=self._seq_cache.materialize(entry))
             if result.response <= p.link_match_minimum_response_fine:
                 # Only a chain far from linking (out of view, behind a wall) is skipped next
                 # time: one that nearly linked may link from the next pose.

@@ -58,6 +58,8 @@ _COVARIANCE_BAND = 0.1
 _BLOCK = 8
 # Windows with fewer translations than this are searched exhaustively.
 _BNB_MIN_STEPS = 31
+# Response bound: correlation cells per side of a block of the max-pooled bound grid.
+_BOUND_BLOCK = 8
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -77,6 +79,22 @@ class MatchResult:
 
 
 # --------------------------------------------------------------------------- compiled kernels
+
+
+@njit(cache=True, inline="always")
+def _kernel(s, resolution, ex, kern):
+    """Fill ``kern`` with the smear of sigma ``s`` in 0..255 (``ex`` is scratch); returns its half-width in cells."""
+    half = int(math.ceil(2.0 * s / resolution))
+    n = 2 * half + 1
+    inv = resolution / s
+    for i in range(n):
+        d = (i - half) * inv
+        ex[i] = math.exp(-0.5 * d * d) * _SCALE
+    for i in range(n):
+        wy = ex[i] / _SCALE
+        for j in range(n):
+            kern[i, j] = np.uint8(wy * ex[j] + 0.5)
+    return half
 
 
 @njit(cache=True)
@@ -108,16 +126,8 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
         s = sigma[k]
         if s != last:
             last = s
-            half = int(math.ceil(2.0 * s / resolution))
+            half = _kernel(s, resolution, ex, kern)
             n = 2 * half + 1
-            inv = resolution / s
-            for i in range(n):
-                d = (i - half) * inv
-                ex[i] = math.exp(-0.5 * d * d) * _SCALE
-            for i in range(n):
-                wy = ex[i] / _SCALE
-                for j in range(n):
-                    kern[i, j] = np.uint8(wy * ex[j] + 0.5)
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
         if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
@@ -373,6 +383,82 @@ def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps
     return out, lookups
 
 
+@njit(cache=True)
+def _pooled_smear(out, px, py, sigma_max, origin_x, origin_y, resolution, block):
+    """Per block of ``block`` x ``block`` correlation cells, the largest value :func:`smear_points` can draw in it.
+
+    Max-combines into ``out``: block (R, C) covers cells [R block, R block + block) x
+    [C block, C block + block) of a grid with the given origin. The smear is a max over points of kernels that fall off in each axis, so
+    a block's largest value from one point is the kernel at the block cell nearest to it: one
+    write per block a kernel touches (a few) instead of one per cell. Every point is drawn with
+    the widest sigma, which bounds the narrower ones.
+    """
+    rows, cols = out.shape
+    if px.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * sigma_max / resolution))
+    ex = np.empty(2 * widest + 1)
+    kern = np.empty((2 * widest + 1, 2 * widest + 1), np.uint8)
+    half = _kernel(sigma_max, resolution, ex, kern)
+    for k in range(px.shape[0]):
+        cu = int(math.floor((px[k] - origin_x) / resolution))
+        cv = int(math.floor((py[k] - origin_y) / resolution))
+        r_lo = max((cv - half) // block, 0)
+        r_hi = min((cv + half) // block, rows - 1)
+        c_lo = max((cu - half) // block, 0)
+        c_hi = min((cu + half) // block, cols - 1)
+        for br in range(r_lo, r_hi + 1):
+            lo = br * block - cv
+            hi = lo + block - 1
+            di = 0 if lo <= 0 <= hi else min(abs(lo), abs(hi))
+            for bc in range(c_lo, c_hi + 1):
+                lo = bc * block - cu
+                hi = lo + block - 1
+                dj = 0 if lo <= 0 <= hi else min(abs(lo), abs(hi))
+                v = kern[half + di, half + dj]
+                if v > out[br, bc]:
+                    out[br, bc] = v
+
+
+@njit(cache=True)
+def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0, angles,
+                           reach, delta, stop):
+    """Upper bound (sum, 0..255 per point) of the score of every pose within ``reach`` (m) in x and y of
+    (x0, y0) and within ``delta`` (rad) of a heading theta0 + angles[a].
+
+    A point at range r turned by at most delta moves at most r delta, so at each listed heading
+    it lands in a square of half-side reach + r delta around its place; its value is at most the
+    largest pooled block that square touches. Returns early, with a sum of at least ``stop``, once
+    one heading's bound reaches it (the caller only asks whether the bound stays below it).
+    """
+    rows, cols = pooled.shape
+    best = 0
+    for a in range(angles.shape[0]):
+        th = theta0 + angles[a]
+        c = math.cos(th)
+        s = math.sin(th)
+        total = 0
+        for k in range(qx.shape[0]):
+            wx = x0 + c * qx[k] - s * qy[k]
+            wy = y0 + s * qx[k] + c * qy[k]
+            h = reach + math.sqrt(qx[k] * qx[k] + qy[k] * qy[k]) * delta
+            c_lo = max(int(math.floor((wx - h - origin_x) / resolution)) // block, 0)
+            c_hi = min(int(math.floor((wx + h - origin_x) / resolution)) // block, cols - 1)
+            r_lo = max(int(math.floor((wy - h - origin_y) / resolution)) // block, 0)
+            r_hi = min(int(math.floor((wy + h - origin_y) / resolution)) // block, rows - 1)
+            m = 0
+            for br in range(r_lo, r_hi + 1):
+                for bc in range(c_lo, c_hi + 1):
+                    if pooled[br, bc] > m:
+                        m = pooled[br, bc]
+            total += m
+            if total >= stop:
+                return total
+        if total > best:
+            best = total
+    return best
+
+
 # --------------------------------------------------------------------------- the matcher
 
 
@@ -503,14 +589,86 @@ class CorrelativeMatcher:
         if px.size and clip:
             lo = np.maximum(lo, np.array([px.min(), py.min()]) - margin)
             hi = np.minimum(hi, np.array([px.max(), py.max()]) + margin)
-        hi = np.maximum(hi, lo + res)
-        origin = np.floor(lo / res) * res
-        shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
-        grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
+        ox, oy, rows, cols = self._geometry(lo, hi)
+        grid = np.zeros((rows, cols), dtype=np.uint8)
+        origin = (ox, oy)
         if px.size:
             smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
                                np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
+
+    def _geometry(self, lo, hi) -> tuple[float, float, int, int]:
+        res = self.resolution
+        hi = np.maximum(hi, lo + res)
+        origin = np.floor(lo / res) * res
+        shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
+        return float(origin[0]), float(origin[1]), int(shape[1]), int(shape[0])
+
+    def grid_geometry(self, ref_sigmas, lo, hi) -> tuple[float, float, int, int]:
+        """(origin x, origin y, rows, cols) of ``correlation_grid(..., lo, hi, clip=False)``, without drawing it."""
+        return self._geometry(np.asarray(lo, dtype=np.float64).copy(), np.asarray(hi, dtype=np.float64).copy())
+
+    def response_bound(self, ref_points, ref_sigmas, query_points, prior, *, stop: float = 2.0) -> float:
+        """An upper bound of :meth:`match`'s response on any grid drawn from at most these reference points.
+
+        Exact (never below the response), with or without penalty and refinement: it covers
+        every translation the coarse and fine searches can try (the window plus one fine
+        step) and every heading within the larger of half a coarse step and the fine window
+        of a coarse angle, on a grid max-pooled over ``_BOUND_BLOCK`` cells a side
+        (:func:`_pooled_smear`, drawn without drawing the correlation grid). A caller that only
+        needs to know that a match cannot reach a threshold (a near chain out of view) can skip
+        the grid and the search. ``stop``: return as soon as the bound is known to reach it
+        (some value >= ``stop``). With response expansion (angles beyond the window) it returns 1.
+        """
+        ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        lo, hi = self.query_box(query_points, prior, self.coarse_angle_offset + self._bound_angles()[1])
+        reach = self._bound_reach()
+        ox, oy, rows, cols = self._geometry(lo - reach - 1.0, hi + reach + 1.0)
+        pooled = self.pooled_grid(ref, self._sig(ref, ref_sigmas), ox, oy, rows, cols)
+        return self.pooled_bound(pooled, ox, oy, query_points, prior, stop=stop)
+
+    def pooled_grid(self, ref_points, ref_sigmas, origin_x, origin_y, rows, cols, out=None):
+        """The bound grid of :meth:`pooled_bound` for the correlation grid (origin, rows x cols) of these points.
+
+        ``out`` (a bound grid of the same geometry) is extended instead of a new one drawn.
+        """
+        b = _BOUND_BLOCK
+        if out is None:
+            out = np.zeros((rows // b + 1, cols // b + 1), np.uint8)
+        ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        if ref.shape[0]:
+            _pooled_smear(out, np.ascontiguousarray(ref[:, 0]), np.ascontiguousarray(ref[:, 1]),
+                          float(np.max(ref_sigmas)), origin_x, origin_y, self.resolution, b)
+        return out
+
+    def _bound_angles(self):
+        """The coarse angles and the largest heading any search tries away from the nearest one."""
+        n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
+        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        n_fine = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
+        return angles, max(0.5 * self.coarse_angle_resolution, n_fine * self.fine_angle_step) + 1e-9
+
+    def _bound_reach(self) -> float:
+        # Coarse offsets reach half * 2 cells, the fine search one cell beyond; three more for the
+        # cell rounding of the lookup table and of a grid whose origin is another multiple of the cell.
+        return (2 * self._coarse_half + 4) * self.resolution
+
+    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
+        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        if self.response_expansion:
+            return 1.0
+        if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
+            return 0.0
+        angles, delta = self._bound_angles()
+        n = q.shape[0] * _SCALE
+        total = _pooled_response_bound(pooled, _BOUND_BLOCK, origin_x, origin_y, self.resolution,
+                                       np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
+                                       float(prior[0]), float(prior[1]), float(prior[2]), angles,
+                                       self._bound_reach(), delta, int(math.ceil(stop * n)))
+        return float(total) / n
 
     def _penalty(self, dx, dy, dth):
         d2 = dx * dx + dy * dy
@@ -714,8 +872,9 @@ class GridCache:
         # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
         self._box = np.zeros((0, 5))
         self._known = np.zeros(0, dtype=bool)
-        self.builds = 0
+        self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
+        self.draws = 0  # grids actually drawn
 
     def invalidate(self) -> None:
         self._entries.clear()
@@ -745,6 +904,19 @@ class GridCache:
         return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
+        """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
+        return self.materialize(self.reserve(nodes, lo, hi))
+
+    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> dict:
+        """The entry :meth:`get` would return, with its book-keeping done but its smearing deferred.
+
+        Which entry serves a request, and which nodes it then holds, depend only on
+        earlier requests, never on whether their grids were drawn: a caller that can
+        tell from :meth:`entry_points` alone that it need not match (a response bound)
+        leaves the cache exactly as :meth:`get` would, so later matches read the same
+        grids. :meth:`materialize` draws what is pending (max-combining is
+        order-free, so the grid equals the one drawn at once).
+        """
         wanted = set(int(n) for n in nodes)
         for k, e in enumerate(self._entries):
             have = e["nodes"]
@@ -762,38 +934,83 @@ class GridCache:
             if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
                 continue
             if missing:
-                pts, sig = self._gather(missing)
-                grid, ox, oy = e["grid"]
+                parts = [self.points_of(n) for n in missing]
+                sig = np.concatenate([q[1] for q in parts])
                 # Repeated cells are skipped only while every point drawn has had one sigma.
                 same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
                 if not same:
                     e["sigma"] = None
-                smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
-                                   np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
+                e["pending"].append((parts, same))
+                e["parts"].extend(parts)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
             self._entries.insert(0, self._entries.pop(k))
-            return e["grid"]
+            return e
         order_nodes = sorted(wanted)
         xlo, xhi, reach = self._extent(order_nodes)
-        pts, sig = self._gather(order_nodes)
+        parts = [self.points_of(n) for n in order_nodes]
+        sig = np.concatenate([q[1] for q in parts])
         # Room to grow by ``margin`` around the points (the next scans extend them), but never
         # far beyond the query's reach (a long buffer in open space would make a huge grid).
         blo = np.maximum(lo - self.query_margin, xlo - reach - self.margin)
         bhi = np.minimum(hi + self.query_margin, xhi + reach + self.margin)
-        grid = self.matcher.correlation_grid(pts, sig, blo, bhi, clip=False)
-        # The grid's true extent (whole cells) bounds what later requests may ask for.
-        ox, oy = grid[1], grid[2]
-        rows, cols = grid[0].shape
+        ox, oy, rows, cols = self.matcher.grid_geometry(sig, blo, bhi)
         res = self.matcher.resolution
-        self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
-                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
-                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig)})
+        e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
+             "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
+             "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig),
+             "pending": [], "parts": list(parts)}
+        self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
-        return grid
+        return e
 
-    def _gather(self, nodes: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        parts = [self.points_of(n) for n in nodes]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    def materialize(self, e: dict) -> tuple[NDArray[np.uint8], float, float]:
+        """The entry's grid, drawn (first use) or extended by the scans added since."""
+        if e["grid"] is None:
+            # Drawn as :meth:`get` would have on the entry's first request, then extended.
+            first = len(e["parts"]) - sum(len(parts) for parts, _ in e["pending"])
+            pts, sig = _concat(e["parts"][:first])
+            e["grid"] = self.matcher.correlation_grid(pts, sig, *e["box"], clip=False)
+            self.draws += 1
+        grid, ox, oy = e["grid"]
+        for parts, same in e["pending"]:
+            pts, sig = _concat(parts)
+            smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
+                               np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
+        e["pending"].clear()
+        return e["grid"]
+
+    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
+        """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
+
+        The entry keeps its bound grid (in its correlation grid's lattice) and extends it as
+        scans are added, as it does the correlation grid.
+        """
+        m = self.matcher
+        res = m.resolution
+        ox, oy = float(e["lo"][0]), float(e["lo"][1])
+        if e.get("pooled") is None:
+            rows = int(round((e["hi"][1] - oy) / res)) + 1
+            cols = int(round((e["hi"][0] - ox) / res)) + 1
+            e["pooled"] = m.pooled_grid(np.zeros((0, 2)), np.zeros(0), ox, oy, rows, cols)
+            e["pooled_parts"] = 0
+        if e["pooled_parts"] < len(e["parts"]):
+            pts, sig = _concat(e["parts"][e["pooled_parts"]:])
+            m.pooled_grid(pts, sig, ox, oy, 0, 0, out=e["pooled"])
+            e["pooled_parts"] = len(e["parts"])
+        return m.pooled_bound(e["pooled"], ox, oy, query_points, prior, stop=stop)
+
+    @staticmethod
+    def entry_points(e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every reference point (world) and sigma the entry's grid holds or will hold."""
+        return _concat(e["parts"])
+
+
+
+def _concat(parts) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(points, sigmas) of a list of per-node (points, sigmas)."""
+    if not parts:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
