@@ -533,7 +533,7 @@ class GraphFrontend:
                 del self._near_failed[:-100]
                 continue
             result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
-                                           grid=self._seq_cache.materialize(entry))
+                                           grid=self._seq_cache.materialize(entry, lo, hi))
             if result.response <= p.link_match_minimum_response_fine:
                 # Only a chain far from linking (out of view, behind a wall) is skipped next
                 # time: one that nearly linked may link from the next pose.

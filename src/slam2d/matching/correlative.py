@@ -191,6 +191,22 @@ def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
 
 
 @njit(cache=True)
+def _inside_not(px, py, lo_x, lo_y, hi_x, hi_y, old_lo_x, old_lo_y, old_hi_x, old_hi_y):
+    """Indices of the points inside the first box and not inside the second."""
+    out = np.empty(px.shape[0], np.int64)
+    m = 0
+    for k in range(px.shape[0]):
+        x = px[k]
+        y = py[k]
+        if x >= lo_x and x <= hi_x and y >= lo_y and y <= hi_y and not (
+            x >= old_lo_x and x <= old_hi_x and y >= old_lo_y and y <= old_hi_y
+        ):
+            out[m] = k
+            m += 1
+    return out[:m]
+
+
+@njit(cache=True)
 def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution, first):
     """Cells (row, col) of the query points at every angle, for the translation index 0 corner.
 
@@ -384,14 +400,15 @@ def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps
 
 
 @njit(cache=True)
-def _pooled_smear(out, px, py, sigma_max, origin_x, origin_y, resolution, block):
+def _pooled_smear(out, px, py, sigma_max, origin_x, origin_y, resolution, block, row0, col0):
     """Per block of ``block`` x ``block`` correlation cells, the largest value :func:`smear_points` can draw in it.
 
-    Max-combines into ``out``: block (R, C) covers cells [R block, R block + block) x
-    [C block, C block + block) of a grid with the given origin. The smear is a max over points of kernels that fall off in each axis, so
-    a block's largest value from one point is the kernel at the block cell nearest to it: one
-    write per block a kernel touches (a few) instead of one per cell. Every point is drawn with
-    the widest sigma, which bounds the narrower ones.
+    Max-combines into ``out``: ``out[R - row0, C - col0]`` bounds the cells [R block, R block + block)
+    x [C block, C block + block) of a grid with the given origin. The smear is a max over points
+    of kernels that fall off in each axis, so a block's largest value from one point is the
+    kernel at the block cell nearest to it: one write per block a kernel touches (a few)
+    instead of one per cell. Every point is drawn with the widest sigma, which bounds the
+    narrower ones.
     """
     rows, cols = out.shape
     if px.shape[0] == 0:
@@ -400,24 +417,147 @@ def _pooled_smear(out, px, py, sigma_max, origin_x, origin_y, resolution, block)
     ex = np.empty(2 * widest + 1)
     kern = np.empty((2 * widest + 1, 2 * widest + 1), np.uint8)
     half = _kernel(sigma_max, resolution, ex, kern)
+    # Per offset of a cell in its block: the blocks its kernel touches (relative) and the
+    # nearest kernel cell in each.
+    most = (2 * half + block - 1) // block + 1
+    n_touch = np.zeros(block, np.int64)
+    rel = np.zeros((block, most), np.int64)
+    near = np.zeros((block, most), np.int64)
+    for o in range(block):
+        first = (o - half) // block
+        last = (o + half) // block
+        for t in range(last - first + 1):
+            b = first + t
+            lo = b * block - o
+            hi = lo + block - 1
+            rel[o, t] = b
+            near[o, t] = half + (0 if lo <= 0 <= hi else min(abs(lo), abs(hi)))
+        n_touch[o] = last - first + 1
+    last_u = -(1 << 62)
+    last_v = -(1 << 62)
     for k in range(px.shape[0]):
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
-        r_lo = max((cv - half) // block, 0)
-        r_hi = min((cv + half) // block, rows - 1)
-        c_lo = max((cu - half) // block, 0)
-        c_hi = min((cu + half) // block, cols - 1)
-        for br in range(r_lo, r_hi + 1):
-            lo = br * block - cv
-            hi = lo + block - 1
-            di = 0 if lo <= 0 <= hi else min(abs(lo), abs(hi))
-            for bc in range(c_lo, c_hi + 1):
-                lo = bc * block - cu
-                hi = lo + block - 1
-                dj = 0 if lo <= 0 <= hi else min(abs(lo), abs(hi))
-                v = kern[half + di, half + dj]
+        if cu == last_u and cv == last_v:  # neighbouring beams often share a cell
+            continue
+        last_u = cu
+        last_v = cv
+        ov = cv % block
+        ou = cu % block
+        bv = cv // block - row0
+        bu = cu // block - col0
+        for t in range(n_touch[ov]):
+            br = bv + rel[ov, t]
+            if br < 0 or br >= rows:
+                continue
+            ki = near[ov, t]
+            for t2 in range(n_touch[ou]):
+                bc = bu + rel[ou, t2]
+                if bc < 0 or bc >= cols:
+                    continue
+                v = kern[ki, near[ou, t2]]
                 if v > out[br, bc]:
                     out[br, bc] = v
+
+
+@njit(cache=True)
+def _node_blocks(px, py, sigma_max, resolution, block):
+    """One scan's :func:`_pooled_smear` in the lattice of origin 0, as its non-empty blocks: (rows, cols, values)."""
+    if px.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8)
+    pad = int(math.ceil(2.0 * sigma_max / resolution)) + 1
+    c_lo = (int(math.floor(px.min() / resolution)) - pad) // block
+    c_hi = (int(math.floor(px.max() / resolution)) + pad) // block
+    r_lo = (int(math.floor(py.min() / resolution)) - pad) // block
+    r_hi = (int(math.floor(py.max() / resolution)) + pad) // block
+    local = np.zeros((r_hi - r_lo + 1, c_hi - c_lo + 1), np.uint8)
+    _pooled_smear(local, px, py, sigma_max, 0.0, 0.0, resolution, block, r_lo, c_lo)
+    n = 0
+    for v in local.ravel():
+        if v:
+            n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    vals = np.empty(n, np.uint8)
+    n = 0
+    for i in range(local.shape[0]):
+        for j in range(local.shape[1]):
+            if local[i, j]:
+                rows[n] = i + r_lo
+                cols[n] = j + c_lo
+                vals[n] = local[i, j]
+                n += 1
+    return rows, cols, vals
+
+
+@njit(cache=True)
+def _scatter_max(out, rows, cols, vals, row0, col0):
+    """out[rows - row0, cols - col0] = max(out there, vals), skipping what falls outside."""
+    n_r, n_c = out.shape
+    for k in range(rows.shape[0]):
+        r = rows[k] - row0
+        c = cols[k] - col0
+        if r >= 0 and r < n_r and c >= 0 and c < n_c and vals[k] > out[r, c]:
+            out[r, c] = vals[k]
+
+
+@njit(cache=True)
+def _range_max_levels(pooled, levels):
+    """levels[k][r, c] = max of pooled[r:r + 2^k, c:c + 2^k] (clipped at the edges): a sparse table."""
+    rows, cols = pooled.shape
+    out = np.empty((levels, rows, cols), np.uint8)
+    out[0] = pooled
+    tmp = np.empty((rows, cols), np.uint8)
+    for k in range(1, levels):
+        s = 1 << (k - 1)
+        prev = out[k - 1]
+        cur = out[k]
+        for r in range(rows):
+            src = prev[r]
+            dst = tmp[r]
+            ahead = src[s:]
+            for c in range(cols - s):
+                dst[c] = max(src[c], ahead[c])
+            for c in range(max(cols - s, 0), cols):
+                dst[c] = src[c]
+        for r in range(rows):
+            dst = cur[r]
+            src = tmp[r]
+            if r + s < rows:
+                ahead = tmp[r + s]
+                for c in range(cols):
+                    dst[c] = max(src[c], ahead[c])
+            else:
+                for c in range(cols):
+                    dst[c] = src[c]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _range_max(table, r_lo, r_hi, c_lo, c_hi):
+    """Max of the pooled grid over blocks [r_lo, r_hi] x [c_lo, c_hi] (inclusive, inside the grid)."""
+    size = min(r_hi - r_lo, c_hi - c_lo) + 1
+    k = 0
+    while (2 << k) <= size and k + 1 < table.shape[0]:
+        k += 1
+    s = 1 << k
+    m = 0
+    r = r_lo
+    while True:
+        rr = min(r, r_hi - s + 1)
+        c = c_lo
+        while True:
+            cc = min(c, c_hi - s + 1)
+            v = table[k, rr, cc]
+            if v > m:
+                m = v
+            if cc + s > c_hi:
+                break
+            c += s
+        if rr + s > r_hi:
+            break
+        r += s
+    return m
 
 
 @njit(cache=True)
@@ -428,17 +568,27 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
 
     A point at range r turned by at most delta moves at most r delta, so at each listed heading
     it lands in a square of half-side reach + r delta around its place; its value is at most the
-    largest pooled block that square touches. Returns early, with a sum of at least ``stop``, once
-    one heading's bound reaches it (the caller only asks whether the bound stays below it).
+    largest pooled block that square touches (a range maximum, from a sparse table: a few
+    lookups per point). Returns early, with a sum of at least ``stop``, once one heading's
+    bound reaches it (the caller only asks whether the bound stays below it).
     """
     rows, cols = pooled.shape
+    n = qx.shape[0]
+    r_max = 0.0
+    for k in range(n):
+        r_max = max(r_max, math.sqrt(qx[k] * qx[k] + qy[k] * qy[k]))
+    widest = int(2.0 * (reach + r_max * delta) / (resolution * block)) + 2
+    levels = 1
+    while (1 << levels) <= widest:
+        levels += 1
+    table = _range_max_levels(pooled, levels)
     best = 0
     for a in range(angles.shape[0]):
         th = theta0 + angles[a]
         c = math.cos(th)
         s = math.sin(th)
         total = 0
-        for k in range(qx.shape[0]):
+        for k in range(n):
             wx = x0 + c * qx[k] - s * qy[k]
             wy = y0 + s * qx[k] + c * qy[k]
             h = reach + math.sqrt(qx[k] * qx[k] + qy[k] * qy[k]) * delta
@@ -446,12 +596,8 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
             c_hi = min(int(math.floor((wx + h - origin_x) / resolution)) // block, cols - 1)
             r_lo = max(int(math.floor((wy - h - origin_y) / resolution)) // block, 0)
             r_hi = min(int(math.floor((wy + h - origin_y) / resolution)) // block, rows - 1)
-            m = 0
-            for br in range(r_lo, r_hi + 1):
-                for bc in range(c_lo, c_hi + 1):
-                    if pooled[br, bc] > m:
-                        m = pooled[br, bc]
-            total += m
+            if c_lo <= c_hi and r_lo <= r_hi:
+                total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
             if total >= stop:
                 return total
         if total > best:
@@ -639,7 +785,7 @@ class CorrelativeMatcher:
         ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
         if ref.shape[0]:
             _pooled_smear(out, np.ascontiguousarray(ref[:, 0]), np.ascontiguousarray(ref[:, 1]),
-                          float(np.max(ref_sigmas)), origin_x, origin_y, self.resolution, b)
+                          float(np.max(ref_sigmas)), origin_x, origin_y, self.resolution, b, 0, 0)
         return out
 
     def _bound_angles(self):
@@ -650,9 +796,10 @@ class CorrelativeMatcher:
         return angles, max(0.5 * self.coarse_angle_resolution, n_fine * self.fine_angle_step) + 1e-9
 
     def _bound_reach(self) -> float:
-        # Coarse offsets reach half * 2 cells, the fine search one cell beyond; three more for the
-        # cell rounding of the lookup table and of a grid whose origin is another multiple of the cell.
-        return (2 * self._coarse_half + 4) * self.resolution
+        # Coarse offsets reach half * 2 cells, the fine search one cell beyond; four more for the
+        # cell rounding of the lookup table (its centre may be a mean of offsets) and of a grid
+        # whose origin is another multiple of the cell (query and reference points, one each).
+        return (2 * self._coarse_half + 5) * self.resolution
 
     def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
         """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
@@ -868,10 +1015,12 @@ class GridCache:
         self.query_margin = float(query_margin)
         self.max_extra = int(max_extra)
         self.max_entries = int(max_entries)
+        self.draw_margin = 1.0  # m drawn beyond a request's box (see materialize)
         self._entries: list[dict] = []
         # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
         self._box = np.zeros((0, 5))
         self._known = np.zeros(0, dtype=bool)
+        self._blocks: dict = {}  # node -> its share of a bound grid (see bound())
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
         self.draws = 0  # grids actually drawn
@@ -879,6 +1028,7 @@ class GridCache:
     def invalidate(self) -> None:
         self._entries.clear()
         self._known[:] = False
+        self._blocks.clear()
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
@@ -905,7 +1055,7 @@ class GridCache:
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
-        return self.materialize(self.reserve(nodes, lo, hi))
+        return self.materialize(self.reserve(nodes, lo, hi), lo, hi)
 
     def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> dict:
         """The entry :meth:`get` would return, with its book-keeping done but its smearing deferred.
@@ -940,8 +1090,8 @@ class GridCache:
                 same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
                 if not same:
                     e["sigma"] = None
-                e["pending"].append((parts, same))
                 e["parts"].extend(parts)
+                e["order"].extend(missing)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
@@ -960,47 +1110,97 @@ class GridCache:
         e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
              "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
              "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig),
-             "pending": [], "parts": list(parts)}
+             "parts": list(parts), "order": list(order_nodes)}
         self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
         return e
 
-    def materialize(self, e: dict) -> tuple[NDArray[np.uint8], float, float]:
-        """The entry's grid, drawn (first use) or extended by the scans added since."""
-        if e["grid"] is None:
-            # Drawn as :meth:`get` would have on the entry's first request, then extended.
-            first = len(e["parts"]) - sum(len(parts) for parts, _ in e["pending"])
-            pts, sig = _concat(e["parts"][:first])
-            e["grid"] = self.matcher.correlation_grid(pts, sig, *e["box"], clip=False)
+    def materialize(self, e: dict, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
+        """The entry's grid, drawn where a query inside (lo, hi) can read it.
+
+        A cell holds its final value once every point whose smear reaches it is drawn. The
+        entry keeps the box where that holds (``drawn``) and grows it to each request plus
+        ``draw_margin`` (which also covers the fine search's degree beyond the coarse angles,
+        0.2 m at 12 m), drawing only the points near the part that is new, and new scans only
+        inside it: a chain's grid is drawn where its matches look, not over all its scans.
+        Max-combining is order-free, so every cell a match reads equals the grid drawn at once.
+        """
+        res = self.matcher.resolution
+        grid = e["grid"]
+        if grid is None:
+            blo, bhi = e["box"]
+            ox, oy, rows, cols = self.matcher.grid_geometry(None, blo, bhi)
+            grid = e["grid"] = (np.zeros((rows, cols), np.uint8), ox, oy)
+            e["drawn"] = None
+            e["n_drawn"] = 0
             self.draws += 1
-        grid, ox, oy = e["grid"]
-        for parts, same in e["pending"]:
-            pts, sig = _concat(parts)
-            smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
-                               np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
-        e["pending"].clear()
-        return e["grid"]
+        old = e["drawn"]
+        parts = e["parts"]
+        inside = old is not None and bool(np.all(lo >= old[0]) and np.all(hi <= old[1]))
+        if inside and e["n_drawn"] == len(parts):
+            return grid
+        new = old if inside else (lo - self.draw_margin, hi + self.draw_margin)
+        if old is not None and not inside:
+            new = (np.minimum(new[0], old[0]), np.maximum(new[1], old[1]))
+        # A point further than its smear's reach (plus a cell's rounding) from a box draws nothing in it.
+        m = e["reach"] + 2.0 * res
+        same = e["sigma"] is not None  # one sigma for every point: repeated cells can be skipped
+        g, ox, oy = grid
+        if old is not None and not inside and e["n_drawn"]:
+            pts, sig = _concat(parts[: e["n_drawn"]])
+            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
+                               old[0][0] - m, old[0][1] - m, old[1][0] + m, old[1][1] + m)
+            if keep.size:
+                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+        if e["n_drawn"] < len(parts):
+            pts, sig = _concat(parts[e["n_drawn"]:])
+            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
+            if keep.size:
+                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+        e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
+        e["n_drawn"] = len(parts)
+        return grid
 
     def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
         """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
 
-        The entry keeps its bound grid (in its correlation grid's lattice) and extends it as
-        scans are added, as it does the correlation grid.
+        The entry keeps its bound grid and extends it as scans are added, as it does the
+        correlation grid. Each scan's share (its blocks in a lattice of origin 0, a few hundred)
+        is computed once per scan until :meth:`invalidate`, so a new entry costs a scatter of
+        those, not a smear of every point. The lattice differs from the correlation grid's by at
+        most a cell's rounding, which the bound's reach allows for.
         """
         m = self.matcher
         res = m.resolution
-        ox, oy = float(e["lo"][0]), float(e["lo"][1])
+        b = _BOUND_BLOCK
         if e.get("pooled") is None:
-            rows = int(round((e["hi"][1] - oy) / res)) + 1
-            cols = int(round((e["hi"][0] - ox) / res)) + 1
-            e["pooled"] = m.pooled_grid(np.zeros((0, 2)), np.zeros(0), ox, oy, rows, cols)
-            e["pooled_parts"] = 0
-        if e["pooled_parts"] < len(e["parts"]):
-            pts, sig = _concat(e["parts"][e["pooled_parts"]:])
-            m.pooled_grid(pts, sig, ox, oy, 0, 0, out=e["pooled"])
-            e["pooled_parts"] = len(e["parts"])
-        return m.pooled_bound(e["pooled"], ox, oy, query_points, prior, stop=stop)
+            row0 = int(math.floor(float(e["lo"][1]) / res)) // b - 1
+            col0 = int(math.floor(float(e["lo"][0]) / res)) // b - 1
+            rows = int(math.floor(float(e["hi"][1]) / res)) // b + 2 - row0
+            cols = int(math.floor(float(e["hi"][0]) / res)) // b + 2 - col0
+            e["pooled"] = (np.zeros((rows, cols), np.uint8), row0, col0)
+            e["pooled_nodes"] = 0
+        pooled, row0, col0 = e["pooled"]
+        order = e["order"]
+        if e["pooled_nodes"] < len(order):
+            parts = [self._node_blocks(n) for n in order[e["pooled_nodes"]:]]
+            _scatter_max(pooled, np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]),
+                         np.concatenate([q[2] for q in parts]), row0, col0)
+            e["pooled_nodes"] = len(order)
+        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop)
+
+    def _node_blocks(self, n: int):
+        got = self._blocks.get(n)
+        if got is None:
+            pts, sig = self.points_of(n)
+            sigma_max = float(sig.max()) if sig.size else self.matcher.smear_deviation
+            got = _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sigma_max,
+                               self.matcher.resolution, _BOUND_BLOCK)
+            self._blocks[n] = got
+        return got
 
     @staticmethod
     def entry_points(e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
