@@ -303,6 +303,7 @@ class GraphFrontend:
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
+        self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
 
@@ -350,6 +351,16 @@ class GraphFrontend:
 
     def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Where each node is for distance tests: barycentre of its points, or the robot position."""
+        if poses is None and self.params.use_scan_barycenter:
+            # Asked several times per kept scan while the poses rarely change: the last answer is
+            # reused while the poses are the same (compared by value, so in-place edits count).
+            cached = self._ref_cache
+            if cached is not None and np.array_equal(cached[0], self.graph.poses):
+                return cached[1]
+            out = se2.transform_points(self.graph.poses, self._bary_base[:, None, :])[:, 0, :]
+            out.flags.writeable = False
+            self._ref_cache = (self.graph.poses.copy(), out)
+            return out
         poses = self.graph.poses if poses is None else poses
         if not self.params.use_scan_barycenter:
             return poses[:, :2].copy()

@@ -1067,10 +1067,11 @@ class GridCache:
         grids. :meth:`materialize` draws what is pending (max-combining is
         order-free, so the grid equals the one drawn at once).
         """
-        wanted = set(int(n) for n in nodes)
+        wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         for k, e in enumerate(self._entries):
             have = e["nodes"]
-            if not (have & wanted) or len(have - wanted) > self.max_extra:
+            common = len(have & wanted)
+            if not common or len(have) - common > self.max_extra:
                 continue
             missing = sorted(wanted - have)
             xlo, xhi, reach = self._extent(missing)
