@@ -605,6 +605,52 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     return best
 
 
+@njit(cache=True)
+def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penalize, dvp, avp, min_dp, min_ap):
+    """Raw and (with ``penalize``) penalised responses of a search, its best, how many poses tie
+    with it (within 1e-12) and the first of them (angle, y, x).
+
+    Element by element the arithmetic of :meth:`CorrelativeMatcher._penalty` in numpy, in the
+    same order, so the values are the same bits; unscored poses (sum < 0) stay at -1.
+    """
+    na, ny, nx = sums.shape
+    raw = np.empty((na, ny, nx))
+    resp = np.empty((na, ny, nx))
+    two_pi = 2 * np.pi
+    best = -np.inf
+    for a in range(na):
+        pa = 1.0
+        if penalize:
+            dth = (ctheta + angles[a]) - ptheta
+            dth = (dth + np.pi) % two_pi - np.pi
+            pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
+        for i in range(ny):
+            dy = (cy + offs[i]) - py
+            for j in range(nx):
+                r = sums[a, i, j] / norm
+                raw[a, i, j] = r
+                if penalize:
+                    dx = (cx + offs[j]) - px
+                    d2 = dx * dx + dy * dy
+                    pd = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
+                    v = r * (pd * pa) if r >= 0 else -1.0
+                else:
+                    v = r
+                resp[a, i, j] = v
+                if v > best:
+                    best = v
+    ties = 0
+    first = (0, 0, 0)
+    for a in range(na):
+        for i in range(ny):
+            for j in range(nx):
+                if resp[a, i, j] >= best - 1e-12:
+                    if ties == 0:
+                        first = (a, i, j)
+                    ties += 1
+    return raw, resp, best, ties, first
+
+
 # --------------------------------------------------------------------------- the matcher
 
 
@@ -850,26 +896,25 @@ class CorrelativeMatcher:
                 grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
             )
             lookups += flat.size * n_points
-        raw = sums / (n_points * _SCALE)
         offs = (np.arange(n_steps) - half) * (step * res)
-        xs = center[0] + offs[None, None, :]
-        ys = center[1] + offs[None, :, None]
-        ths = center[2] + angles[:, None, None]
-        if penalize:
-            dth = np.asarray(ths - prior[2])
-            dth = (dth + np.pi) % (2 * np.pi) - np.pi
-            resp = np.where(raw >= 0, raw * self._penalty(xs - prior[0], ys - prior[1], dth), -1.0)
+        # Responses, penalties and the best in one compiled pass (the same arithmetic as numpy's).
+        raw, resp, best, ties, first = _responses(
+            sums, float(n_points * _SCALE), offs, angles, float(center[0]), float(center[1]), float(center[2]),
+            float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
+            self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty,
+        )
+        a0, y0, x0 = first
+        if ties == 1:
+            pose = np.array([center[0] + offs[x0], center[1] + offs[y0], center[2] + angles[a0]])
         else:
-            resp = raw
-        best = float(resp.max())
-        # Karto averages every pose with the best response.
-        a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
-        pose = np.array([
-            center[0] + offs[x_i].mean(),
-            center[1] + offs[y_i].mean(),
-            center[2] + angles[a_i].mean(),
-        ])
-        raw_best = float(raw[a_i[0], y_i[0], x_i[0]])
+            # Karto averages every pose with the best response.
+            a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
+            pose = np.array([
+                center[0] + offs[x_i].mean(),
+                center[1] + offs[y_i].mean(),
+                center[2] + angles[a_i].mean(),
+            ])
+        raw_best = float(raw[a0, y0, x0])
         return pose, best, raw_best, resp, offs, lookups
 
     def _positional_covariance(self, resp, offs, center, pose, best, step_m):
