@@ -1063,7 +1063,7 @@ class GridCache:
         self.draw_margin = 1.0  # m drawn beyond a request's box (see materialize)
         self._entries: list[dict] = []
         # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
-        self._box = np.zeros((0, 5))
+        self._box = np.zeros((0, 6))
         self._known = np.zeros(0, dtype=bool)
         self._blocks: dict = {}  # node -> its share of a bound grid (see bound())
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
@@ -1084,7 +1084,7 @@ class GridCache:
         if top > self._known.size:
             grow = max(top, 2 * self._known.size)
             self._known = np.concatenate([self._known, np.zeros(grow - self._known.size, bool)])
-            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 5))])
+            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 6))])
         # Each node's box is computed once (until the next invalidate), the rest is array work.
         for n in idx[~self._known[idx]].tolist():
             pts, sig = self.points_of(n)
@@ -1092,11 +1092,21 @@ class GridCache:
                 self._box[n, :2] = pts.min(axis=0)
                 self._box[n, 2:4] = pts.max(axis=0)
                 self._box[n, 4] = 2.0 * float(sig.max())
+                u = _uniform(sig)
+                self._box[n, 5] = np.nan if u is None else u
             else:
-                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0)
+                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0, np.inf)
             self._known[n] = True
         b = self._box[idx]
         return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
+
+    def _sigma_of(self, nodes) -> float | None:
+        """The one sigma of every point of these nodes (as :func:`_uniform` of their sigmas; after :meth:`_extent`)."""
+        u = self._box[np.asarray(nodes, dtype=np.int64), 5]
+        u = u[u != np.inf]  # nodes without points add no sigma
+        if u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0]):
+            return None
+        return float(u[0])
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
@@ -1107,7 +1117,7 @@ class GridCache:
 
         Which entry serves a request, and which nodes it then holds, depend only on
         earlier requests, never on whether their grids were drawn: a caller that can
-        tell from :meth:`entry_points` alone that it need not match (a response bound)
+        tell from the entry's points alone that it need not match (:meth:`bound`)
         leaves the cache exactly as :meth:`get` would, so later matches read the same
         grids. :meth:`materialize` draws what is pending (max-combining is
         order-free, so the grid equals the one drawn at once).
@@ -1130,13 +1140,10 @@ class GridCache:
             if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
                 continue
             if missing:
-                parts = [self.points_of(n) for n in missing]
-                sig = np.concatenate([q[1] for q in parts])
                 # Repeated cells are skipped only while every point drawn has had one sigma.
-                same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
+                same = e["sigma"] is not None and self._sigma_of(missing) == e["sigma"]
                 if not same:
                     e["sigma"] = None
-                e["parts"].extend(parts)
                 e["order"].extend(missing)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
@@ -1145,18 +1152,16 @@ class GridCache:
             return e
         order_nodes = sorted(wanted)
         xlo, xhi, reach = self._extent(order_nodes)
-        parts = [self.points_of(n) for n in order_nodes]
-        sig = np.concatenate([q[1] for q in parts])
         # Room to grow by ``margin`` around the points (the next scans extend them), but never
         # far beyond the query's reach (a long buffer in open space would make a huge grid).
         blo = np.maximum(lo - self.query_margin, xlo - reach - self.margin)
         bhi = np.minimum(hi + self.query_margin, xhi + reach + self.margin)
-        ox, oy, rows, cols = self.matcher.grid_geometry(sig, blo, bhi)
+        ox, oy, rows, cols = self.matcher.grid_geometry(None, blo, bhi)
         res = self.matcher.resolution
         e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
              "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
-             "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig),
-             "parts": list(parts), "order": list(order_nodes)}
+             "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": self._sigma_of(order_nodes),
+             "parts": [], "order": list(order_nodes)}
         self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
@@ -1182,7 +1187,7 @@ class GridCache:
             e["n_drawn"] = 0
             self.draws += 1
         old = e["drawn"]
-        parts = e["parts"]
+        parts = self._parts(e)
         inside = old is not None and bool(np.all(lo >= old[0]) and np.all(hi <= old[1]))
         if inside and e["n_drawn"] == len(parts):
             return grid
@@ -1248,10 +1253,16 @@ class GridCache:
             self._blocks[n] = got
         return got
 
-    @staticmethod
-    def entry_points(e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _parts(self, e: dict) -> list:
+        """Per node of the entry, its (world points, sigmas), fetched when first needed."""
+        parts, order = e["parts"], e["order"]
+        if len(parts) < len(order):
+            parts.extend(self.points_of(n) for n in order[len(parts):])
+        return parts
+
+    def entry_points(self, e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Every reference point (world) and sigma the entry's grid holds or will hold."""
-        return _concat(e["parts"])
+        return _concat(self._parts(e))
 
 
 
