@@ -491,6 +491,34 @@ def _node_blocks(px, py, sigma_max, resolution, block):
 
 
 @njit(cache=True)
+def _node_stats(pts, sig, out):
+    """out = (min x, min y, max x, max y, 2 max sigma, the one sigma or NaN); a scan without points:
+    (inf, inf, -inf, -inf, 0, inf)."""
+    n = pts.shape[0]
+    if n == 0:
+        out[0] = out[1] = out[5] = np.inf
+        out[2] = out[3] = -np.inf
+        out[4] = 0.0
+        return
+    lo_x = hi_x = pts[0, 0]
+    lo_y = hi_y = pts[0, 1]
+    s_lo = s_hi = sig[0]
+    for k in range(1, n):
+        lo_x = min(lo_x, pts[k, 0])
+        hi_x = max(hi_x, pts[k, 0])
+        lo_y = min(lo_y, pts[k, 1])
+        hi_y = max(hi_y, pts[k, 1])
+        s_lo = min(s_lo, sig[k])
+        s_hi = max(s_hi, sig[k])
+    out[0] = lo_x
+    out[1] = lo_y
+    out[2] = hi_x
+    out[3] = hi_y
+    out[4] = 2.0 * s_hi
+    out[5] = s_lo if s_lo == s_hi else np.nan
+
+
+@njit(cache=True)
 def _scatter_max(out, rows, cols, vals, row0, col0):
     """out[rows - row0, cols - col0] = max(out there, vals), skipping what falls outside."""
     n_r, n_c = out.shape
@@ -1088,14 +1116,7 @@ class GridCache:
         # Each node's box is computed once (until the next invalidate), the rest is array work.
         for n in idx[~self._known[idx]].tolist():
             pts, sig = self.points_of(n)
-            if pts.shape[0]:
-                self._box[n, :2] = pts.min(axis=0)
-                self._box[n, 2:4] = pts.max(axis=0)
-                self._box[n, 4] = 2.0 * float(sig.max())
-                u = _uniform(sig)
-                self._box[n, 5] = np.nan if u is None else u
-            else:
-                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0, np.inf)
+            _node_stats(pts, sig, self._box[n])
             self._known[n] = True
         b = self._box[idx]
         return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
