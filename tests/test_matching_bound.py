@@ -174,3 +174,12 @@ def test_karto_with_and_without_the_bound_gives_the_same_trajectory(monkeypatch)
     ta, pa = pruned.trajectory()
     tb, pb = full.trajectory()
     assert np.array_equal(ta, tb) and np.array_equal(pa, pb)
+
+
+def test_bound_of_nothing_is_zero():
+    m = CorrelativeMatcher()
+    world, q, prior = _scene(2)
+    sig = np.full(world.shape[0], 0.03)
+    assert m.response_bound(world, sig, np.zeros((0, 2)), prior) == 0.0
+    assert m.response_bound(np.zeros((0, 2)), np.zeros(0), q, prior) == 0.0
+    assert m.response_bound(world, sig, q, np.array([np.nan, 0.0, 0.0])) == 0.0

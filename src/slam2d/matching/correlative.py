@@ -207,6 +207,25 @@ def _inside_not(px, py, lo_x, lo_y, hi_x, hi_y, old_lo_x, old_lo_y, old_hi_x, ol
 
 
 @njit(cache=True)
+def _rotated_extent(c, s, q):
+    """Bounding box of the points q rotated by every (cos, sin) pair, and their largest range."""
+    x_lo = y_lo = np.inf
+    x_hi = y_hi = -np.inf
+    for a in range(c.shape[0]):
+        for k in range(q.shape[0]):
+            x = c[a] * q[k, 0] - s[a] * q[k, 1]
+            y = s[a] * q[k, 0] + c[a] * q[k, 1]
+            x_lo = min(x_lo, x)
+            x_hi = max(x_hi, x)
+            y_lo = min(y_lo, y)
+            y_hi = max(y_hi, y)
+    reach = 0.0
+    for k in range(q.shape[0]):
+        reach = max(reach, math.sqrt(q[k, 0] * q[k, 0] + q[k, 1] * q[k, 1]))
+    return x_lo, y_lo, x_hi, y_hi, reach
+
+
+@njit(cache=True)
 def _query_cells(qx, qy, angles, x0, y0, theta0, origin_x, origin_y, resolution, first):
     """Cells (row, col) of the query points at every angle, for the translation index 0 corner.
 
@@ -760,14 +779,11 @@ class CorrelativeMatcher:
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
         angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
-        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        x = c * q[None, :, 0] - s * q[None, :, 1]
-        y = s * q[None, :, 0] + c * q[None, :, 1]
-        reach = float(np.sqrt((q * q).sum(axis=1)).max(initial=0.0))
+        x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), np.ascontiguousarray(q))
         # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
         pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
-        lo = np.array([x.min(), y.min()]) + prior[:2] - pad
-        hi = np.array([x.max(), y.max()]) + prior[:2] + pad
+        lo = np.array([x_lo, y_lo]) + prior[:2] - pad
+        hi = np.array([x_hi, y_hi]) + prior[:2] + pad
         return lo, hi
 
     def search_box(self, query_points: NDArray[np.float64], prior: NDArray[np.float64]):
@@ -842,6 +858,10 @@ class CorrelativeMatcher:
         """
         ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        if self.response_expansion:
+            return 1.0
+        if np.asarray(query_points).size == 0 or ref.shape[0] == 0 or not np.all(np.isfinite(prior)):
+            return 0.0
         lo, hi = self.query_box(query_points, prior, self.coarse_angle_offset + self._bound_angles()[1])
         reach = self._bound_reach()
         ox, oy, rows, cols = self._geometry(lo - reach - 1.0, hi + reach + 1.0)
