@@ -708,6 +708,8 @@ class GraphFrontend:
             "optimizations": list(self.optimizations),
             "grid_builds": {"sequential": self._seq_cache.builds, "loop": self._loop_cache.builds},
             "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
+            # Grids actually drawn (a build whose near chain the response bound skipped may never be).
+            "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
         }
 
 
