@@ -60,6 +60,8 @@ _BLOCK = 8
 _BNB_MIN_STEPS = 31
 # Response bound: correlation cells per side of a block of the max-pooled bound grid.
 _BOUND_BLOCK = 8
+# Response bound: how many times a heading's translation window is quartered where the bound passes.
+_BOUND_SPLITS = 3
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -607,48 +609,90 @@ def _range_max(table, r_lo, r_hi, c_lo, c_hi):
     return m
 
 
+@njit(cache=True, inline="always")
+def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop):
+    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``."""
+    rows, cols = table.shape[1], table.shape[2]
+    total = 0
+    for k in range(qx.shape[0]):
+        h = half + rng[k] * delta
+        c_lo = max(int(math.floor((wx0[k] - h - origin_x) / resolution)) // block, 0)
+        c_hi = min(int(math.floor((wx0[k] + h - origin_x) / resolution)) // block, cols - 1)
+        r_lo = max(int(math.floor((wy0[k] - h - origin_y) / resolution)) // block, 0)
+        r_hi = min(int(math.floor((wy0[k] + h - origin_y) / resolution)) // block, rows - 1)
+        if c_lo <= c_hi and r_lo <= r_hi:
+            total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
+        if total >= stop:
+            break
+    return total
+
+
 @njit(cache=True)
 def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0, angles,
-                           reach, delta, stop):
-    """Upper bound (sum, 0..255 per point) of the score of every pose within ``reach`` (m) in x and y of
-    (x0, y0) and within ``delta`` (rad) of a heading theta0 + angles[a].
+                           trans, slack, delta, stop, splits):
+    """Upper bound (sum, 0..255 per point) of the score of every pose within ``trans`` (m) in x and y
+    of (x0, y0) and within ``delta`` (rad) of a heading theta0 + angles[a] (``slack`` m more for
+    rounding).
 
     A point at range r turned by at most delta moves at most r delta, so at each listed heading
-    it lands in a square of half-side reach + r delta around its place; its value is at most the
-    largest pooled block that square touches (a range maximum, from a sparse table: a few
-    lookups per point). Returns early, with a sum of at least ``stop``, once one heading's
-    bound reaches it (the caller only asks whether the bound stays below it).
+    it lands in a square of half-side trans + slack + r delta around its place; its value is at
+    most the largest pooled block that square touches (a range maximum, from a sparse table: a
+    few lookups per point). A heading whose bound reaches ``stop`` is split into the four
+    quarters of its translation window, ``splits`` times deep (a branch and bound on the bound).
+    Returns early, with a sum of at least ``stop``, once a finest square reaches it (the caller
+    only asks whether the bound stays below it); otherwise the bound.
     """
-    rows, cols = pooled.shape
     n = qx.shape[0]
+    rng = np.empty(n)
     r_max = 0.0
     for k in range(n):
-        r_max = max(r_max, math.sqrt(qx[k] * qx[k] + qy[k] * qy[k]))
-    widest = int(2.0 * (reach + r_max * delta) / (resolution * block)) + 2
+        rng[k] = math.sqrt(qx[k] * qx[k] + qy[k] * qy[k])
+        r_max = max(r_max, rng[k])
+    widest = int(2.0 * (trans + slack + r_max * delta) / (resolution * block)) + 2
     levels = 1
     while (1 << levels) <= widest:
         levels += 1
     table = _range_max_levels(pooled, levels)
+    wx0 = np.empty(n)
+    wy0 = np.empty(n)
+    sx = np.empty(n)
+    sy = np.empty(n)
+    # Squares to examine: (x offset, y offset, half-width of the translations, depth).
+    stack = np.empty((4 * splits + 1, 4))
     best = 0
     for a in range(angles.shape[0]):
         th = theta0 + angles[a]
         c = math.cos(th)
         s = math.sin(th)
-        total = 0
         for k in range(n):
-            wx = x0 + c * qx[k] - s * qy[k]
-            wy = y0 + s * qx[k] + c * qy[k]
-            h = reach + math.sqrt(qx[k] * qx[k] + qy[k] * qy[k]) * delta
-            c_lo = max(int(math.floor((wx - h - origin_x) / resolution)) // block, 0)
-            c_hi = min(int(math.floor((wx + h - origin_x) / resolution)) // block, cols - 1)
-            r_lo = max(int(math.floor((wy - h - origin_y) / resolution)) // block, 0)
-            r_hi = min(int(math.floor((wy + h - origin_y) / resolution)) // block, rows - 1)
-            if c_lo <= c_hi and r_lo <= r_hi:
-                total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
-            if total >= stop:
+            wx0[k] = x0 + c * qx[k] - s * qy[k]
+            wy0[k] = y0 + s * qx[k] + c * qy[k]
+        stack[0, 0] = 0.0
+        stack[0, 1] = 0.0
+        stack[0, 2] = trans
+        stack[0, 3] = 0.0
+        top = 1
+        while top > 0:
+            top -= 1
+            dx, dy, t, depth = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+            for k in range(n):
+                sx[k] = wx0[k] + dx
+                sy[k] = wy0[k] + dy
+            total = _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, sx, sy,
+                                  t + slack, delta, stop)
+            if total < stop:
+                if total > best:
+                    best = total
+            elif depth >= splits:
                 return total
-        if total > best:
-            best = total
+            else:
+                q = 0.5 * t
+                for i in range(4):
+                    stack[top, 0] = dx + (q if i & 1 else -q)
+                    stack[top, 1] = dy + (q if i & 2 else -q)
+                    stack[top, 2] = q
+                    stack[top, 3] = depth + 1
+                    top += 1
     return best
 
 
@@ -863,7 +907,7 @@ class CorrelativeMatcher:
         if np.asarray(query_points).size == 0 or ref.shape[0] == 0 or not np.all(np.isfinite(prior)):
             return 0.0
         lo, hi = self.query_box(query_points, prior, self.coarse_angle_offset + self._bound_angles()[1])
-        reach = self._bound_reach()
+        reach = sum(self._bound_window())
         ox, oy, rows, cols = self._geometry(lo - reach - 1.0, hi + reach + 1.0)
         pooled = self.pooled_grid(ref, self._sig(ref, ref_sigmas), ox, oy, rows, cols)
         return self.pooled_bound(pooled, ox, oy, query_points, prior, stop=stop)
@@ -889,11 +933,11 @@ class CorrelativeMatcher:
         n_fine = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
         return angles, max(0.5 * self.coarse_angle_resolution, n_fine * self.fine_angle_step) + 1e-9
 
-    def _bound_reach(self) -> float:
-        # Coarse offsets reach half * 2 cells, the fine search one cell beyond; four more for the
-        # cell rounding of the lookup table (its centre may be a mean of offsets) and of a grid
-        # whose origin is another multiple of the cell (query and reference points, one each).
-        return (2 * self._coarse_half + 5) * self.resolution
+    def _bound_window(self) -> tuple[float, float]:
+        """(translations a search tries each way: the coarse window plus one fine step; slack for
+        the cell rounding of the lookup table, its centre possibly a mean of offsets, and of a grid
+        whose origin is another multiple of the cell), m."""
+        return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
 
     def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
         """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
@@ -908,7 +952,7 @@ class CorrelativeMatcher:
         total = _pooled_response_bound(pooled, _BOUND_BLOCK, origin_x, origin_y, self.resolution,
                                        np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
                                        float(prior[0]), float(prior[1]), float(prior[2]), angles,
-                                       self._bound_reach(), delta, int(math.ceil(stop * n)))
+                                       *self._bound_window(), delta, int(math.ceil(stop * n)), _BOUND_SPLITS)
         return float(total) / n
 
     def _penalty(self, dx, dy, dth):
