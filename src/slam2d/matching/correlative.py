@@ -323,38 +323,51 @@ def _max_pool(grid, width):
     is about 2 log2(width) row-order passes instead of 2 width, each written to a
     second buffer (no in-place reads ahead) so it vectorises.
     """
-    rows, cols = grid.shape
     a = grid.copy()
     b = grid.copy()
     span = 1
     while span < width:
         step = min(span, width - span)  # the last pass only needs to reach width
-        for r in range(rows):
-            src = a[r]
-            dst = b[r]
-            ahead = src[step:]
-            for c in range(cols - step):
-                dst[c] = max(src[c], ahead[c])
-            for c in range(cols - step, cols):
-                dst[c] = src[c]
+        _max_ahead_cols(a, b, step)
         a, b = b, a
         span += step
     span = 1
     while span < width:
         step = min(span, width - span)
-        for r in range(rows):
-            dst = b[r]
-            src = a[r]
-            if r + step < rows:
-                ahead = a[r + step]
-                for c in range(cols):
-                    dst[c] = max(src[c], ahead[c])
-            else:
-                for c in range(cols):
-                    dst[c] = src[c]
+        _max_ahead_rows(a, b, step)
         a, b = b, a
         span += step
     return a
+
+
+@njit(cache=True, inline="always")
+def _max_ahead_cols(src, dst, s):
+    """dst[r, c] = max(src[r, c], src[r, c + s]) (src[r, c] where c + s is outside)."""
+    rows, cols = src.shape
+    for r in range(rows):
+        a = src[r]
+        d = dst[r]
+        ahead = a[s:]
+        for c in range(cols - s):
+            d[c] = max(a[c], ahead[c])
+        for c in range(max(cols - s, 0), cols):
+            d[c] = a[c]
+
+
+@njit(cache=True, inline="always")
+def _max_ahead_rows(src, dst, s):
+    """dst[r, c] = max(src[r, c], src[r + s, c]) (src[r, c] where r + s is outside)."""
+    rows, cols = src.shape
+    for r in range(rows):
+        d = dst[r]
+        a = src[r]
+        if r + s < rows:
+            ahead = src[r + s]
+            for c in range(cols):
+                d[c] = max(a[c], ahead[c])
+        else:
+            for c in range(cols):
+                d[c] = a[c]
 
 
 @njit(cache=True)
@@ -559,26 +572,8 @@ def _range_max_levels(pooled, levels):
     tmp = np.empty((rows, cols), np.uint8)
     for k in range(1, levels):
         s = 1 << (k - 1)
-        prev = out[k - 1]
-        cur = out[k]
-        for r in range(rows):
-            src = prev[r]
-            dst = tmp[r]
-            ahead = src[s:]
-            for c in range(cols - s):
-                dst[c] = max(src[c], ahead[c])
-            for c in range(max(cols - s, 0), cols):
-                dst[c] = src[c]
-        for r in range(rows):
-            dst = cur[r]
-            src = tmp[r]
-            if r + s < rows:
-                ahead = tmp[r + s]
-                for c in range(cols):
-                    dst[c] = max(src[c], ahead[c])
-            else:
-                for c in range(cols):
-                    dst[c] = src[c]
+        _max_ahead_cols(out[k - 1], tmp, s)
+        _max_ahead_rows(tmp, out[k], s)
     return out
 
 
