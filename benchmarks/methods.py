@@ -33,6 +33,7 @@ class Dataset:
     kind: str  # "shared" (a real log) or "sim" (a built-in world, simulated here)
     source: str  # path under ../shared/datasets, or the world name
     duration: float | None = None  # simulated seconds (sim only; None = one pass of the world's path)
+    laser: str = "urg-04lx"  # the simulated laser preset (sim only; see slam2d.sim.laser)
 
 
 DATASETS: tuple[Dataset, ...] = (
@@ -40,6 +41,10 @@ DATASETS: tuple[Dataset, ...] = (
     Dataset("office-120s", "sim", "office", 120.0),
     Dataset("corridor-loop", "sim", "corridor-loop"),
     Dataset("long-corridor", "sim", "long-corridor"),
+    # The URG-04LX (5.6 m) cannot see along most corridors of these floors; the RPLidar A1
+    # (12 m, 360 deg) is the laser most robots built today carry.
+    Dataset("office-120s-rplidar", "sim", "office", 120.0, "rplidar-a1"),
+    Dataset("corridor-loop-rplidar", "sim", "corridor-loop", None, "rplidar-a1"),
     Dataset("fr079", "shared", "fr079/fr079.clf.gz"),
     Dataset("intel", "shared", "intel/intel.clf.gz"),
     Dataset("aces", "shared", "aces/aces.clf.gz"),
@@ -63,6 +68,19 @@ COLUMNS = (
 )
 
 
+def describe_simulated(datasets: tuple[Dataset, ...] | list[Dataset] = DATASETS) -> str:
+    """The simulated rows in words, for the text above the table: world, duration and laser of each."""
+    parts = []
+    for d in datasets:
+        if d.kind != "sim":
+            continue
+        what = [f"{d.duration:g} s of `{d.source}`" if d.duration is not None else f"`{d.source}`"]
+        if what[0] == f"`{d.name}`":
+            what = []
+        parts.append(f"`{d.name}` ({', '.join([*what, d.laser])})")
+    return ", ".join(parts)
+
+
 def prepare(ds: Dataset, workdir: Path) -> tuple[Path, object] | None:
     """The recording and the truth for a dataset (None when the shared data is missing)."""
     from slam2d.eval.evaluate import load_reference, load_truth
@@ -72,7 +90,7 @@ def prepare(ds: Dataset, workdir: Path) -> tuple[Path, object] | None:
 
         out = workdir / ds.name
         if not (out / "truth.tum").is_file():
-            write_outputs(simulate(ds.source, SimulationParams(duration=ds.duration, seed=0)), out)
+            write_outputs(simulate(ds.source, SimulationParams(duration=ds.duration, seed=0, laser=ds.laser)), out)
         return out / "recording.log.gz", load_truth(out)
     data = SHARED / ds.source
     if not data.is_file():

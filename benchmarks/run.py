@@ -149,7 +149,8 @@ def main() -> int:
         "",
         "Every registered method on every dataset through `slam2d compare` with `--jobs 1` (each method "
         "alone in its own process; peak memory is that process's max RSS). Simulated worlds "
-        "(`paper-arena`, 120 s of `office`, `corridor-loop`, `long-corridor`; seed 0, one pass of each world's path unless a duration is given) are judged against their exact truth, trajectory and "
+        f"({method_matrix.describe_simulated()}; the lasers are slam2d.sim's presets; seed 0, one pass of each "
+        "world's path unless a duration is given) are judged against their exact truth, trajectory and "
         "map; the real logs against their `reference.tum`, a GMapping result and not independent ground "
         "truth (so `known-poses` scores 0 there by construction, and no map error is computed); the "
         "Mines logs have no reference. Metrics are defined in [docs/evaluation.md](docs/evaluation.md).",

@@ -376,3 +376,19 @@ def test_intel_reference_against_itself_moved_and_its_own_relations(tmp_path):
     scored = relations_error(times, noisy, rel)
     # difference of two N(0, 0.05^2 I) points: mean distance 0.05 * sqrt(pi) ~ 0.089
     assert scored["translation_abs_m"]["mean"] == pytest.approx(0.05 * math.sqrt(math.pi), rel=0.1)
+
+
+def test_heading_agreement_ignores_a_rigid_move_and_sees_a_turned_part():
+    """heading_agreement: a copy moved rigidly agrees exactly; a copy whose second half turns 20 degrees further
+    (a part of the map turned against the rest) shows it in the 95th percentile."""
+    from slam2d.eval.trajectory_metrics import heading_agreement
+
+    t = np.arange(200) * 0.1
+    ref = np.stack([np.cos(t / 4) * 5, np.sin(t / 4) * 3, t / 4 + 0.3], axis=-1)
+    moved = se2.compose(np.array([1.0, -2.0, 0.7]), ref)
+    same = heading_agreement(t, moved, t, ref)
+    assert same["heading_p95_deg"] < 1e-6 and same["relative_p95_deg"] < 1e-6
+    turned = ref.copy()
+    turned[100:, 2] += np.radians(20)
+    h = heading_agreement(t, turned, t, ref)
+    assert 8 < h["heading_p95_deg"] <= 20.001 and h["relative_p95_deg"] == pytest.approx(20, abs=1e-6)

@@ -15,7 +15,9 @@ from slam2d.errors import InputError
 from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rrhc import HEADING_STEP, _cells_at, _fitness, _restart_table, refine_offset, rrhc_search
+from slam2d.matching.rrhc import (
+    HEADING_STEP, _cells_at, _fitness, _restart_table, near_known, paired_gain, refine_offset, rrhc_search,
+)
 from slam2d.methods import get_method
 from slam2d.methods.crsm import Crsm, CrsmParams, ray_points
 from slam2d.params import from_mapping
@@ -105,6 +107,47 @@ def test_fitness_of_rays_on_walls_is_higher_than_off():
     assert on > 1.3 * off > 0
 
 
+def test_paired_gain_needs_more_evidence_from_fewer_beams():
+    """The paired z over the beams: positive for the true pose against a turned one, 0 against itself, and with the
+    same beams thinned out the same mean gain is less significant."""
+    m, scan = _room_map()
+    d = np.nan_to_num(scan.ranges)
+    every = np.flatnonzero(d > 0)
+    pts = ray_points(scan, d, every, 0.02)
+    qx, qy = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+    ox, oy = m.origin
+    turn = math.radians(4)
+    gain, z, n = paired_gain(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 0.0, 0.0, turn)
+    assert n == every.shape[0] and gain > 0 and z > 5
+    back, z_back, _ = paired_gain(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, turn, 0.0, 0.0, 0.0)
+    assert back == pytest.approx(-gain) and z_back < 0
+    assert paired_gain(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)[:2] == (0.0, 0.0)
+    few = slice(None, None, 16)
+    z_few = paired_gain(m.values, ox, oy, 0.02, np.ascontiguousarray(qx[few]), np.ascontiguousarray(qy[few]),
+                        0.0, 0.0, 0.0, 0.0, 0.0, turn)[1]
+    assert 0 < z_few < z
+
+
+def test_the_turn_test_rejects_an_unsupported_turn_and_keeps_a_supported_one():
+    """turn_sigma: a match turned 15 degrees with no better fit is replaced by the prediction's fit (counted); the
+    true pose, turned away from a wrong prediction, is kept because every beam bears it out."""
+    m = Crsm(seed=0)
+    m._map, scan = _room_map()
+    d = np.nan_to_num(scan.ranges)
+    pts = ray_points(scan, d, np.flatnonzero(d > 0), 0.02)
+    qx, qy = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+    values: dict = {}
+    wrong = np.array([0.0, 0.0, math.radians(15)])
+    kept = m._check_turn(wrong, qx, qy, values)
+    assert abs(kept[2]) < math.radians(1) and values["turn_rejected"] == 1.0
+    assert m.diagnostics.counters["turns_rejected"] == 1
+    # the robot was believed turned by 6 degrees; the true pose (0) must win against that prediction's fit
+    m._pose = np.array([0.0, 0.0, math.radians(6)])
+    values = {}
+    kept = m._check_turn(np.zeros(3), qx, qy, values)
+    assert np.array_equal(kept, np.zeros(3)) and values["turn_rejected"] == 0.0 and values["turn_z"] > 5
+
+
 def test_the_restart_table_equals_the_direct_fitness():
     """The per-scan table of restart fitnesses holds exactly what scoring each candidate directly gives."""
     m, scan = _room_map()
@@ -177,6 +220,34 @@ def test_the_dense_refinement_scores_every_beam_and_walks_to_the_fit():
     # from the fit itself it stays within a cell (the wall is two cells thick)
     ex, ey, ek = refine_offset(m.values, ox, oy, m.resolution, qx, qy, 0.0, 0.0, 0.0, 0, 0, 0, 50)[:3]
     assert max(abs(ex), abs(ey), abs(ek)) <= 1, (ex, ey, ek)
+
+
+def test_near_known_flags_points_beyond_the_mapped_area():
+    """A point is judged against the map only if a known cell lies within the margin of where it lands."""
+    m = CrsmMap(0.02)
+    m.ensure_contains(-2, -2, 2, 2, margin=0)
+    ox, oy = m.origin
+    m.values[:, : int((0.5 - ox) / 0.02)] = 200  # known (free) up to x = 0.5 m, unknown beyond
+    qx = np.array([0.3, 0.49, 0.53, 0.6, 1.5])
+    qy = np.zeros(5)
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 0).tolist() == [True, True, False, False, False]
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, 0.0, 0.0, 0.0, 2).tolist() == [True, True, True, False, False]
+    # the pose moves the points: shifted back by 1 m, all but the last land on the known part
+    assert near_known(m.values, ox, oy, 0.02, qx, qy, -1.0, 0.0, 0.0, 0).tolist() == [True, True, True, True, False]
+
+
+def test_unknown_rays_drop_leaves_out_rays_on_new_space_and_still_tracks():
+    """unknown_rays=drop (the default): driving on, rays beyond the mapped part are counted and left out; the drive is tracked."""
+    frames, truth = _drive()
+    m = Crsm(seed=3).run(frames)  # the default
+    dropped = m.diagnostics.array("rays_on_unknown")
+    assert np.nansum(dropped) > 0
+    pa = m.trajectory()[1]
+    aligned = se2.compose(align_se2(pa[:, :2], truth[:, :2]), pa)
+    err = np.hypot(*(aligned[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(err**2)) < 0.05, err
+    # score (the original) counts every ray
+    assert "rays_on_unknown" not in Crsm(CrsmParams(unknown_rays="score"), seed=3).run(frames[:5]).diagnostics.series
 
 
 def test_error_code_readings_are_no_return():
@@ -314,14 +385,14 @@ def test_crsm_on_mines_exp1_beats_the_odometry_map(tmp_path):
     assert diag["counters"]["short_readings"] > 10_000
 
 
-def _mines_run(name: str, seed: int = 0, settings: dict | None = None):
-    """``name`` on mines-exp2 (the SLAM methods use no odometry): ``(scan_consistency mean, times, poses)``."""
+def _mines_run(name: str, seed: int = 0, settings: dict | None = None, log: str = "mines-exp2"):
+    """``name`` on a mines log (the SLAM methods use no odometry): ``(scan_consistency mean, times, poses)``."""
     from slam2d.eval import scan_consistency
     from slam2d.io import open_recording
     from slam2d.methods.runner import build_method
     from tests.conftest import dataset_file
 
-    frames = list(open_recording(dataset_file("mines-exp2/mines-exp2.clf.gz")).frames())
+    frames = list(open_recording(dataset_file(f"{log}/{log}.clf.gz")).frames())
     slam = build_method(name, settings=settings or {}, seed=seed)
     slam.run(frames)
     times, poses = slam.trajectory()
@@ -331,6 +402,11 @@ def _mines_run(name: str, seed: int = 0, settings: dict | None = None):
 @pytest.fixture(scope="module")
 def hector_mines_exp2():
     return _mines_run("hector")
+
+
+@pytest.fixture(scope="module")
+def hector_mines_exp1():
+    return _mines_run("hector", log="mines-exp1")
 
 
 @pytest.mark.slow
@@ -345,12 +421,35 @@ def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
     assert odometry < hector_mines_exp2[0] - 0.05
 
 
+# How far (95th percentile over scans, degrees, after a rigid alignment) the headings of the other methods whose
+# maps of the log look consistent (coreslam, gmapping, karto; scan_consistency 0.64-0.74) stray from hector's:
+# at most 11.9 on mines-exp1 and 22.8 on mines-exp2 (hector turns 20 degrees more than all of them at scan 236).
+# crsm must stay as close to hector as they do (docs/methods/crsm.md).
+HEADING_BOUND_DEG = {"mines-exp1": 12.0, "mines-exp2": 23.0}
+
+
 @pytest.mark.slow
 @pytest.mark.datasets
-@pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: crsm stalls and turns parts of mines-exp2 "
-                   "(consistency 0.58-0.63 over seeds 0-2 against hector's 0.66; docs/methods/crsm.md)")
-def test_crsm_mines_exp2_is_as_consistent_as_hector(hector_mines_exp2):
-    """The target: scan_consistency within 5 % of hector's (0.66; coreslam reaches 0.69, crsm's maps with a
-    room turned by a few degrees ~0.6) for every one of three seeds."""
-    consistency = [_mines_run("crsm", seed)[0] for seed in (0, 1, 2)]
-    assert min(consistency) >= 0.95 * hector_mines_exp2[0], consistency
+@pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: with turn_sigma (the default) crsm's "
+                   "scan_consistency passes on mines-exp2 for seeds 0-2 (0.674 / 0.683 / 0.660, bar 0.624) and on "
+                   "mines-exp1 (0.713 / 0.735 / 0.716, bar 0.650), but its headings stray from hector's by "
+                   "17.0 / 19.5 / 12.4 degrees (p95, bound 12) on mines-exp1 and 14.5 / 24.4 / 26.5 (bound 23) on "
+                   "mines-exp2; docs/methods/crsm.md")
+def test_crsm_mines_maps_are_as_consistent_as_hector(hector_mines_exp1, hector_mines_exp2):
+    """The target, for seeds 0-2 on both logs: scan_consistency within 5 % of hector's, and the headings (aligned as
+    ATE aligns) no further from hector's than the other consistent methods' are (``HEADING_BOUND_DEG``).
+
+    The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
+    pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
+    headings for the rest of the run.
+    """
+    from slam2d.eval.trajectory_metrics import heading_agreement
+
+    failures = []
+    for log, hector in (("mines-exp1", hector_mines_exp1), ("mines-exp2", hector_mines_exp2)):
+        for seed in (0, 1, 2):
+            consistency, times, poses = _mines_run("crsm", seed, log=log)
+            heading = heading_agreement(times, poses, hector[1], hector[2])["heading_p95_deg"]
+            if consistency < 0.95 * hector[0] or heading > HEADING_BOUND_DEG[log]:
+                failures.append((log, seed, round(consistency, 3), round(heading, 1)))
+    assert not failures, failures

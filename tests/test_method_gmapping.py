@@ -357,6 +357,32 @@ def test_degenerate_input_is_counted_not_fatal():
     assert slam.map().occupied().sum() > 0
 
 
+@pytest.mark.parametrize("mode", ["matched", "guided", "odometry"])
+def test_scans_without_a_valid_beam_are_counted_once_and_their_beams_built_once(mode):
+    """Every scan's beam set is built at most once, and a scan with no valid beam is counted once.
+
+    The no-return scans come between updates (0.05 m steps, updates every 1 m): ``matched`` and
+    ``guided`` look at them and count them; ``odometry`` does not look at scans between updates.
+    """
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    room = np.where(np.abs(angles) < 1.0, 4.0, 2.5)
+    frames = []
+    for k in range(60):
+        ranges = np.full(181, np.nan) if k % 7 == 3 else room
+        frames.append(Frame(k, make_scan(0.1 * k, ranges, angles[0], angles[1] - angles[0], 0.02, 30.0),
+                            np.array([0.05 * k, 0.0, 0.0])))
+    empty = sum(1 for k in range(1, 60) if k % 7 == 3)
+    slam = GMapping(GMappingParams(particles=4, between_updates=mode), seed=0)
+    built = []
+    inner = slam._beams
+    slam._beams = lambda scan: built.append(scan) or inner(scan)
+    slam.run(frames)
+    updates = sum(1 for v in slam.diagnostics.series["updated"] if v == 1) - 1  # the first scan is no update
+    assert len(built) == len({id(s) for s in built})  # no scan twice
+    assert len(built) == (59 if mode != "odometry" else updates)
+    assert slam.diagnostics.counters.get("scans_without_valid_beam", 0) == (empty if mode != "odometry" else 0)
+
+
 def test_match_failure_falls_back_to_odometry_and_is_counted():
     """Scans that match nothing (a different room every update) keep the odometry pose."""
     angles = np.linspace(-np.pi / 2, np.pi / 2, 91)

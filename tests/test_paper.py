@@ -80,6 +80,15 @@ def test_rules_without_a_method_say_not_tested() -> None:
 # --------------------------------------------------------------------------- walls
 
 
+def test_section3_turn_rate_is_the_speed_cap_on_the_youbots_wheels() -> None:
+    from slam2d.experiments.section3 import SPEED_LIMIT, TURN_RATE_LIMIT
+    from slam2d.sim.robot import ROBOT_PRESETS
+
+    youbot = ROBOT_PRESETS["youbot"]
+    assert TURN_RATE_LIMIT == pytest.approx(SPEED_LIMIT * youbot.max_turn_rate / youbot.max_speed, abs=5e-4)
+    assert TURN_RATE_LIMIT < youbot.max_turn_rate
+
+
 def test_wall_stats_noise_and_gaps() -> None:
     segs = np.array([[0.0, 0.0, 5.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
     assert longest_walls(segs) == [0]

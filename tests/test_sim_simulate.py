@@ -136,6 +136,25 @@ def test_distortion_moves_the_endpoints():
     assert np.nanmax(np.abs(a[ok] - b[ok])) > 1e-3
 
 
+def test_turn_rate_cap():
+    """--max-turn-rate caps the robot's turning as --max-speed caps its speed; the rest of the path is kept."""
+    def rates(sim):
+        dt = np.diff(sim.times)
+        return np.abs(se2.wrap_angle(np.diff(sim.truth[:, 2]))) / dt, np.hypot(*np.diff(sim.truth[:, :2], axis=0).T) / dt
+
+    free = simulate("paper-arena", SimulationParams(duration=30.0, max_speed=0.3))
+    capped = simulate("paper-arena", SimulationParams(duration=30.0, max_speed=0.3, max_turn_rate=0.5))
+    assert capped.robot.max_turn_rate == 0.5 and capped.robot.max_speed == free.robot.max_speed == 0.3
+    turn_free, speed_free = rates(free)
+    turn_capped, speed_capped = rates(capped)
+    assert turn_free.max() > 0.6  # the preset turns faster than the cap ...
+    assert turn_capped.max() <= 0.5 * (1 + 1e-6)  # ... and capped it does not
+    assert speed_capped.max() <= 0.3 * (1 + 1e-6)
+    # a cap above the preset's rate leaves the robot as it was
+    assert simulate("paper-arena", SimulationParams(duration=1.0, max_turn_rate=99.0)).robot.max_turn_rate == \
+        free.robot.max_turn_rate
+
+
 # ---------------------------------------------------------------- bad input
 
 

@@ -38,9 +38,11 @@ def _console(stderr: bool = False):
 @contextmanager
 def progress_bar(description: str) -> Iterator[ProgressCallback]:
     """A rich progress bar on a terminal; silent when stderr is not one (logs, CI)."""
+    if not sys.stderr.isatty():
+        yield lambda done, total: None  # (rich's progress module is not even imported)
+        return
     from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
 
-    enabled = sys.stderr.isatty()
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -48,7 +50,6 @@ def progress_bar(description: str) -> Iterator[ProgressCallback]:
         TimeRemainingColumn(),
         console=_console(stderr=True),
         transient=True,
-        disable=not enabled,
     ) as bar:
         task = bar.add_task(description, total=None)
 
@@ -170,6 +171,37 @@ def _add_map(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_map)
 
 
+class _FrameCache:
+    """A recording's frames, read once and replayed from memory while they fit in ``max_beams``.
+
+    ``slam2d map`` passes over the frames two or three times (odometry, mapping, agreement);
+    reading fr079 again costs as much as mapping it. A recording larger than the budget (about
+    160 MB of ranges) is read again on each pass instead.
+    """
+
+    def __init__(self, recording: Any, max_beams: int = 20_000_000) -> None:
+        self.recording = recording
+        self.max_beams = max_beams
+        self._frames: list[Any] | None = None  # every frame, once a pass kept them all
+
+    def frames(self, progress: ProgressCallback | None = None) -> Iterator[Any]:
+        if self._frames is not None:
+            yield from self._frames
+            return
+        kept: list[Any] | None = []
+        beams = 0
+        for frame in self.recording.frames(progress):
+            if kept is not None:
+                beams += frame.scan.num_beams
+                if beams > self.max_beams:
+                    kept = None
+                else:
+                    kept.append(frame)
+            yield frame
+        if kept is not None:
+            self._frames = kept
+
+
 def cmd_map(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -180,23 +212,24 @@ def cmd_map(args: argparse.Namespace) -> int:
 
     grid_params = from_arguments(GridParams, args)
     recording = open_recording(args.data, _read_options(args))
-    if args.poses is not None:
-        from slam2d.io.tum import read_tum
-
-        times, poses = read_tum(args.poses)
-        source = str(args.poses)
-    else:
-        # One cheap pass for the odometry trajectory, so that mapping and the
-        # agreement check below place every scan the same way.
-        stamped = [(f.timestamp, f.odometry) for f in recording.frames() if f.odometry is not None]
-        times = np.array([t for t, _ in stamped], dtype=np.float64)
-        poses = np.array([p for _, p in stamped], dtype=np.float64).reshape(-1, 3)
-        source = f"odometry ({recording.odometry_source})"
-    if len(times) == 0:
-        raise InputError(f"no poses to place scans at: {source} is empty", path=args.poses or args.data)
+    cache = _FrameCache(recording)
     with progress_bar(f"mapping {args.data.name}") as progress:
+        if args.poses is not None:
+            from slam2d.io.tum import read_tum
+
+            times, poses = read_tum(args.poses)
+            source = str(args.poses)
+        else:
+            # The odometry trajectory first, so that mapping and the agreement check below
+            # place every scan the same way.
+            stamped = [(f.timestamp, f.odometry) for f in cache.frames(progress) if f.odometry is not None]
+            times = np.array([t for t, _ in stamped], dtype=np.float64)
+            poses = np.array([p for _, p in stamped], dtype=np.float64).reshape(-1, 3)
+            source = f"odometry ({recording.odometry_source})"
+        if len(times) == 0:
+            raise InputError(f"no poses to place scans at: {source} is empty", path=args.poses or args.data)
         grid, stats = map_from_poses(
-            recording.frames(progress), times, poses, params=grid_params,
+            cache.frames(progress), times, poses, params=grid_params,
             max_pose_gap=args.max_pose_gap,
         )
     if stats.scans_used == 0:
@@ -204,7 +237,7 @@ def cmd_map(args: argparse.Namespace) -> int:
             f"no scan could be placed: none lies within {args.max_pose_gap} s of a pose from {source}",
             path=args.data,
         )
-    agreement = scan_agreement(grid, recording.frames(), times, poses, max_pose_gap=args.max_pose_gap)
+    agreement = scan_agreement(grid, cache.frames(), times, poses, max_pose_gap=args.max_pose_gap)
     from slam2d.report.map_outputs import write_map_outputs
 
     written = write_map_outputs(
@@ -1028,14 +1061,21 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line; with ``command`` (a command's name) only that command's parser.
+
+    Each command's options come from parameter classes whose modules take time to import (the
+    experiments, the simulator): ``slam2d map`` should not pay for ``slam2d experiment``'s. A name
+    that is not a command gets the whole parser, so argparse lists the valid ones.
+    """
     parser = argparse.ArgumentParser(
         prog="slam2d",
         description="2D laser SLAM methods behind one interface: read recordings, build and compare maps.",
     )
     parser.add_argument("--version", action="version", version=f"slam2d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for add in _COMMANDS:
+    by_name = {add.__name__.removeprefix("_add_"): add for add in _COMMANDS}
+    for add in [by_name[command]] if command in by_name else _COMMANDS:
         add(sub)
     return parser
 
@@ -1056,6 +1096,7 @@ def main_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     return main_args(args)

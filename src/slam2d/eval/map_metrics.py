@@ -37,19 +37,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
 from numba import njit
-from scipy.spatial import cKDTree
 
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.raycast import cast_rays
-from slam2d.io.tum import interpolate_poses
+from slam2d.io.tum import poses_at_scans
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
+# scipy.ndimage and scipy.spatial are imported where they are used: `slam2d map` needs neither,
+# and importing them costs it about 0.3 s.
 
 __all__ = [
     "run_lengths",
@@ -165,18 +169,12 @@ def _hits_per_scan(
     max_pose_gap: float,
 ) -> NDArray[np.int64]:
     """``(scans, 2)``: endpoints on occupied cells and endpoints with a return, per placed scan."""
-    t = np.asarray(pose_times, dtype=np.float64).reshape(-1)
-    p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    if t.shape[0] > 1 and np.any(np.diff(t) < 0.0):
-        order = np.argsort(t, kind="stable")
-        t, p = t[order], p[order]
     occupied = grid.occupied(occupied_threshold)
     rows = []
-    for frame in frames:
-        pose, valid = interpolate_poses(t, p, frame.scan.timestamp, max_pose_gap)
-        if not valid[0]:
+    for frame, pose in poses_at_scans(frames, pose_times, poses, max_pose_gap):
+        if pose is None:
             continue
-        points = se2.transform_points(se2.compose(pose[0], frame.scan.mount), frame.scan.points())
+        points = se2.transform_points(se2.compose(pose, frame.scan.mount), frame.scan.points())
         cells = grid.world_to_cell(points)
         inside = grid.in_bounds(cells)
         rows.append((int(occupied[cells[inside, 0], cells[inside, 1]].sum()), int(points.shape[0])))
@@ -421,6 +419,8 @@ def map_to_truth(
             "truth_cells": n_truth,
             "truth_cells_total": n_truth_total,
         }
+    from scipy.spatial import cKDTree
+
     truth_to_map = cKDTree(map_pts).query(truth_pts, k=1)[0]
     # A map wall on a true wall is no ghost, seen or not: the reverse direction uses every true cell.
     map_to_truth_d = cKDTree(all_truth_pts).query(map_pts, k=1)[0]
@@ -582,6 +582,8 @@ def align_maps(
             f"the map has {source.shape[0]} occupied cells; aligning needs at least 3",
             field="grid",
         )
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(target)
     normals = _wall_normals(target, tree) if method == "point-to-plane" else None
     min_gate = 2.0 * max(float(grid.resolution), float(truth.resolution))
@@ -636,6 +638,8 @@ def _count_corners(occupied: NDArray[np.bool_]) -> int:
     image = np.pad(crop.astype(np.float32), pad)
     # Without smoothing, the staircase of a rasterised slanted wall is a row of
     # tiny corners (a room rotated by 10 degrees scored 30 corners instead of 4).
+    from scipy import ndimage
+
     image = ndimage.gaussian_filter(image, _HARRIS_SMOOTHING, mode="constant")
     grad_x = ndimage.sobel(image, axis=1, mode="constant")
     grad_y = ndimage.sobel(image, axis=0, mode="constant")
@@ -724,6 +728,8 @@ def map_quality(
     n_free = int(free.sum())
     n_uncertain = n_observed - n_occupied - n_free
     nan = float("nan")
+    from scipy import ndimage
+
     labels, n_regions = ndimage.label(free)  # default structure: 4-connected
     if n_regions:
         sizes = np.bincount(labels.ravel())[1:]

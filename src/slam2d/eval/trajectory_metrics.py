@@ -41,6 +41,7 @@ __all__ = [
     "absolute_trajectory_error",
     "relative_pose_error",
     "relations_error",
+    "heading_agreement",
 ]
 
 @dataclass(frozen=True)
@@ -317,4 +318,33 @@ def relations_error(
         "rotation_abs_deg": _mean_std(rotation_deg),
         "rotation_sq_deg2": _mean_std(rotation_deg**2),
         "translation_max_m": float(np.max(translation)),
+    }
+
+
+def heading_agreement(
+    times: ArrayLike, poses: ArrayLike, ref_times: ArrayLike, ref_poses: ArrayLike, *, delta: int = 50,
+    max_gap: float = 0.5,
+) -> dict[str, Any]:
+    """How well a trajectory's headings agree with a reference's (e.g. another method's on the same log), in degrees.
+
+    Why: a map with one part turned against the rest can still score well on
+    map-only measures (each part agrees with itself), but its headings then
+    differ from a consistent reference's by the turn for the rest of the run.
+    ``heading_p95_deg``: 95th percentile of |heading - reference heading|
+    after the best rigid alignment of the positions (:func:`align_se2`, as
+    ATE). ``relative_p95_deg``: 95th percentile of the difference in heading
+    change over ``delta`` poses (local turns; a slow drift barely shows).
+    """
+    assoc = associate(times, poses, ref_times, ref_poses, max_gap=max_gap)
+    est = se2.as_poses(assoc.estimate).reshape(-1, 3)
+    ref = se2.as_poses(assoc.reference).reshape(-1, 3)
+    transform = align_se2(est[:, :2], ref[:, :2])
+    diff = np.abs(se2.wrap_angle(est[:, 2] + transform[2] - ref[:, 2]))
+    d = max(1, min(int(delta), est.shape[0] - 1))
+    turn = se2.wrap_angle((est[d:, 2] - est[:-d, 2]) - (ref[d:, 2] - ref[:-d, 2]))
+    return {
+        "pairs": int(est.shape[0]),
+        "heading_p95_deg": float(np.degrees(np.percentile(diff, 95))),
+        "heading_max_deg": float(np.degrees(diff.max())),
+        "relative_p95_deg": float(np.degrees(np.percentile(np.abs(turn), 95))),
     }

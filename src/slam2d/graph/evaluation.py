@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 
 from slam2d.core import se2
 from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
-from slam2d.io.tum import interpolate_poses
+from slam2d.io.tum import by_time, interpolate_poses
 
 __all__ = ["loop_closure_precision", "sequential_bound"]
 
@@ -43,10 +43,7 @@ def loop_closure_precision(
     there are no closures (or none falls inside the truth's time span).
     """
     items = list(closures)
-    t = np.asarray(truth_times, dtype=np.float64)
-    p = np.asarray(truth_poses, dtype=np.float64).reshape(-1, 3)
-    order = np.argsort(t, kind="stable")
-    t, p = t[order], p[order]
+    t, p = by_time(np.asarray(truth_times, dtype=np.float64), np.asarray(truth_poses, dtype=np.float64).reshape(-1, 3))
     trans: list[float] = []
     rot: list[float] = []
     for c in items:

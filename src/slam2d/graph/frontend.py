@@ -81,6 +81,19 @@ class GraphSlamParams(GridParams):
         help="a sequential match responding below this is not used: the odometry step is kept instead "
         "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
     )
+    match_between_nodes: bool = param(
+        True,
+        help="match every scan that adds no node against the running scans too, for its pose in the "
+        "trajectory (not in Karto, whose poses between nodes are the odometry's: with noisy odometry "
+        "they are degrees off); costs one sequential match per scan",
+    )
+    predict_from_last_scan: bool = param(
+        True,
+        help="when the last scan's matched pose plus the odometry since it gives a heading more than half "
+        "coarse_search_angle_offset from the last node's plus the odometry, predict from the last scan (its "
+        "heading only, after a match flat along a corridor); needs match_between_nodes; not in Karto: a turn "
+        "whose odometry heading goes 20 deg or more wrong between two nodes is then recovered scan by scan",
+    )
     odometry_fusion: bool = param(
         True,
         help="when the coarse angles responding within 0.1 of the best spread wider than the odometry's 3 deg, "
@@ -304,6 +317,9 @@ class GraphFrontend:
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
         self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
+        self._frame_degenerate = False  # whether its match was flat along a corridor
+        self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
 
@@ -324,6 +340,15 @@ class GraphFrontend:
     def odometry_at_nodes(self) -> NDArray[np.float64]:
         """The odometry pose of every node's scan, (N, 3)."""
         return np.asarray(self._odom, dtype=np.float64).reshape(-1, 3)
+
+    def between_node_steps(self) -> NDArray[np.float64]:
+        """(N-1, 3): per node k, the pose of node k+1 relative to node k along which the frames between them were placed.
+
+        Matched frames (``match_between_nodes``) hang from node k by their match, so they end at
+        node k+1 as it was placed; frames placed by odometry end at the odometry step. Whatever
+        an optimisation changes later is the correction to spread over them.
+        """
+        return np.asarray(self._steps, dtype=np.float64).reshape(-1, 3)
 
     def node_times(self) -> NDArray[np.float64]:
         return np.asarray(self._times, dtype=np.float64)
@@ -409,6 +434,38 @@ class GraphFrontend:
         ei, ej = self.graph.edge_i, self.graph.edge_j
         return bool(np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))))
 
+    def _matches_between_nodes(self, last: int) -> bool:
+        p = self.params
+        return last >= 0 and p.use_scan_matching and p.match_between_nodes
+
+    def _degenerate(self, cov: NDArray[np.float64]) -> bool:
+        """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
+        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * self.sequential.search_size**2)
+
+    def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64]):
+        """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
+
+        With ``odometry_fusion`` a match whose coarse heading is ambiguous is fused with the
+        prediction; a match below ``minimum_match_response`` is replaced by the prediction.
+        """
+        p = self.params
+        result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
+                             penalize=True, refine=True)
+        pose, cov = result.pose, result.covariance
+        if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+            c = cov.copy()
+            c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
+            odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            pose = _weighted_mean([pose, predicted], [c, odo])
+            cov = np.linalg.inv(np.linalg.inv(c) + np.linalg.inv(odo))
+        if result.response < p.minimum_match_response:
+            # The scan does not fit the running scans (clutter, people, a new room seen from
+            # its door): trust the odometry for this step, with an odometry-like uncertainty.
+            self._count("match_failures")
+            pose = predicted
+            cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+        return pose, cov, result
+
     # ----------------------------------------------------------------- the main step
 
     def process(self, frame: Frame) -> dict[str, float] | None:
@@ -423,6 +480,7 @@ class GraphFrontend:
             self._count("frames_without_odometry")
             odom = self._last_odom if self._last_odom is not None else np.zeros(3)
         odom = np.asarray(odom, dtype=np.float64)
+        previous_odom = self._last_odom
         self._last_odom = odom
         if self.graph.num_nodes:
             last = self.graph.num_nodes - 1
@@ -430,7 +488,22 @@ class GraphFrontend:
             predicted = se2.compose(self.graph.poses[last], offset)
         else:
             last, offset, predicted = -1, np.zeros(3), odom.copy()
-        if not self._moved_enough(odom, frame.timestamp):
+        if (p.predict_from_last_scan and self._matches_between_nodes(last) and self._frame_pose is not None
+                and previous_odom is not None):
+            # The last scan was matched too. Where its pose plus the odometry since it puts the
+            # heading more than half the angle window from the node-based prediction, the odometry
+            # turned wrong since the node, and the match could miss it: predict from that scan. Its
+            # position is taken only if its match was not flat along a corridor (chaining those
+            # drifts more than the odometry).
+            chained = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
+            if abs(float(se2.wrap_angle(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
+                self._count("predicted_from_last_scan")
+                if self._frame_degenerate:
+                    predicted = np.array([predicted[0], predicted[1], chained[2]])
+                else:
+                    predicted = chained
+        moved = self._moved_enough(odom, frame.timestamp)
+        if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
             return None
         scan = frame.scan
@@ -440,32 +513,32 @@ class GraphFrontend:
         if not use.any():
             self._count("empty_scans")
             self.anchor, self.offset = last, offset
+            if not moved and self._frame_pose is not None and previous_odom is not None:
+                # Between nodes: the last frame's pose plus the odometry since it.
+                guess = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
+                self.offset = se2.relative(self.graph.poses[last], guess)
+                self._frame_pose = guess
             return None
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
+        if not moved:
+            # A scan that adds no node is still matched against the running scans, for its own
+            # pose in the trajectory: between nodes the odometry alone can be degrees off.
+            pose, fcov, _ = self._sequential_estimate(points, predicted)
+            self._frame_degenerate = self._degenerate(fcov)
+            self._count("frames_matched_between_nodes")
+            self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
+            self._frame_pose = pose
+            return None
         values: dict[str, float] = {}
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
-                                 penalize=True, refine=True)
-            pose, cov = result.pose, result.covariance
+            pose, cov, result = self._sequential_estimate(points, predicted)
             values["response"] = result.response
-            values["correction_m"] = float(np.hypot(*(pose[:2] - predicted[:2])))
-            if p.odometry_fusion and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
-                c = cov.copy()
-                c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
-                odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
-                pose = _weighted_mean([pose, predicted], [c, odo])
-                cov = np.linalg.inv(np.linalg.inv(c) + np.linalg.inv(odo))
-            if result.response < p.minimum_match_response:
-                # The scan does not fit the running scans (clutter, people, a new room seen from
-                # its door): trust the odometry for this step, with an odometry-like uncertainty.
-                self._count("match_failures")
-                pose = predicted
-                cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
             cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
         node = self.graph.add_node(pose)
@@ -487,6 +560,12 @@ class GraphFrontend:
                 pose = _weighted_mean(means, covs)
                 self.graph.poses[node] = pose
                 self._world[node] = None
+            # The step from the last node that the frames in between were placed along: their
+            # matched poses end at this node as placed now, their odometry at the odometry step.
+            if self._matches_between_nodes(last):
+                self._steps.append(se2.relative(self.graph.poses[last], self.graph.poses[node]))
+            else:
+                self._steps.append(se2.relative(self._odom[last], odom))
         self._running.append(node)
         self._trim_running()
         closed = 0
@@ -494,6 +573,8 @@ class GraphFrontend:
             closed = self._try_close_loop(node, points)
         values["loop_closures"] = float(closed)
         self.anchor, self.offset = node, np.zeros(3)
+        self._frame_pose = self.graph.poses[node].copy()
+        self._frame_degenerate = self._degenerate(cov)
         return values
 
     def _path_length(self, i: int, j: int) -> float:

@@ -81,8 +81,7 @@ class GraphSlam(SlamMethod):
         inner = anchor < len(nodes) - 1
         if np.any(inner):
             k = anchor[inner]
-            odom = np.asarray(fe.odometry_at_nodes())
-            step = se2.relative(odom[k], odom[k + 1])
+            step = fe.between_node_steps()[k]
             correction = se2.relative(se2.compose(nodes[k], step), nodes[k + 1])
             done = np.hypot(offset[inner, 0], offset[inner, 1]) + np.abs(offset[inner, 2])
             total = np.hypot(step[:, 0], step[:, 1]) + np.abs(step[:, 2])

@@ -17,7 +17,7 @@ from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.io.base import ProgressCallback
-from slam2d.io.tum import interpolate_poses
+from slam2d.io.tum import by_time, poses_at_scans
 
 __all__ = ["MappingStats", "map_from_poses"]
 
@@ -57,11 +57,9 @@ def _check_trajectory(
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(p))):
         raise InputError("the trajectory holds NaN or infinite values", field="poses")
     backwards = int(np.count_nonzero(np.diff(t) < 0.0)) if t.shape[0] > 1 else 0
-    if backwards:
-        # Real logs step back a little (the Intel reference does, 4 times, like
-        # its scans): sort stably so every scan still finds its own pose.
-        order = np.argsort(t, kind="stable")
-        t, p = t[order], p[order]
+    # Real logs step back a little (the Intel reference does, 4 times, like
+    # its scans): sorted stably, every scan still finds its own pose.
+    t, p = by_time(t, p)
     return t, p, backwards
 
 
@@ -112,20 +110,17 @@ def map_from_poses(
             lo = p[:, :2].min(axis=0) - margin
             hi = p[:, :2].max(axis=0) + margin
             grid.ensure_contains(lo[0], lo[1], hi[0], hi[1])
-    for frame in frames:
+    placed = ((frame, None) for frame in frames) if along_odometry else poses_at_scans(frames, t, p, max_pose_gap)
+    for frame, pose in placed:
         stats.frames += 1
         scan = frame.scan
-        pose: NDArray[np.float64] | None = None
         if along_odometry:
             if frame.odometry is None:
                 stats.no_odometry += 1
             else:
                 pose = frame.odometry
-        else:
-            found, valid = interpolate_poses(t, p, scan.timestamp, max_pose_gap)
-            if valid[0]:
-                pose = found[0]
-            elif t.shape[0] and t[0] <= scan.timestamp <= t[-1]:
+        elif pose is None:
+            if t.shape[0] and t[0] <= scan.timestamp <= t[-1]:
                 stats.in_pose_gap += 1
             else:
                 stats.outside_trajectory += 1

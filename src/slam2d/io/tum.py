@@ -11,7 +11,10 @@ heading, which goes through a quaternion).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
+from itertools import islice
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -21,7 +24,7 @@ from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
 from slam2d.io.numeric_text import numeric_rows
 
-__all__ = ["read_tum", "write_tum", "interpolate_poses"]
+__all__ = ["read_tum", "write_tum", "by_time", "interpolate_poses", "poses_at_scans"]
 
 _COLUMNS = ("timestamp", "x", "y", "z", "qx", "qy", "qz", "qw")
 #: How far a quaternion's norm may be from 1 (files are written with ~9 decimals).
@@ -105,6 +108,14 @@ def write_tum(path: str | Path, timestamps: ArrayLike, poses: ArrayLike) -> Path
     return path
 
 
+def by_time(timestamps: NDArray[np.float64], poses: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A trajectory sorted by time, stably (poses with equal timestamps keep their order); as given when sorted."""
+    if timestamps.shape[0] > 1 and np.any(timestamps[1:] < timestamps[:-1]):
+        order = np.argsort(timestamps, kind="stable")
+        return timestamps[order], poses[order]
+    return timestamps, poses
+
+
 def interpolate_poses(
     timestamps: ArrayLike,
     poses: ArrayLike,
@@ -129,9 +140,7 @@ def interpolate_poses(
     valid = np.zeros(q.shape[0], dtype=bool)
     if t.shape[0] == 0 or q.shape[0] == 0:
         return out, valid
-    if np.any(t[1:] < t[:-1]):
-        order = np.argsort(t, kind="stable")
-        t, p = t[order], p[order]
+    t, p = by_time(t, p)
     # right: the last trajectory time <= query is at index k - 1
     k = np.searchsorted(t, q, side="right")
     before = k - 1
@@ -151,3 +160,20 @@ def interpolate_poses(
         out[between] = se2.interpolate(p[b[between]], p[a[between]], fraction)
         valid[between] = True
     return out, valid
+
+
+def poses_at_scans(
+    frames: Iterable[Any], timestamps: ArrayLike, poses: ArrayLike, max_gap: float, *, chunk: int = 256,
+) -> Iterator[tuple[Any, NDArray[np.float64] | None]]:
+    """Each frame with the trajectory's pose at its scan's timestamp, or None where it has none.
+
+    As :func:`interpolate_poses` (exact at a trajectory timestamp, interpolated across gaps of at
+    most ``max_gap`` s), looked up ``chunk`` frames at a time: one vectorised look-up per few
+    hundred scans instead of one per scan, while the frames still stream.
+    """
+    t, p = by_time(np.asarray(timestamps, dtype=np.float64).reshape(-1), se2.as_poses(poses).reshape(-1, 3))
+    it = iter(frames)
+    while batch := list(islice(it, chunk)):
+        found, valid = interpolate_poses(t, p, [frame.scan.timestamp for frame in batch], max_gap)
+        for frame, pose, ok in zip(batch, found, valid):
+            yield frame, (pose if ok else None)

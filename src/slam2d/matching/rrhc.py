@@ -35,7 +35,7 @@ from numba import njit
 
 from slam2d.matching.random_numbers import randint
 
-__all__ = ["rrhc_search", "HEADING_STEP"]
+__all__ = ["rrhc_search", "refine_offset", "near_known", "paired_gain", "HEADING_STEP"]
 
 #: Heading lattice of the search, rad.
 HEADING_STEP = 1.0 / 180.0
@@ -121,6 +121,22 @@ def _restart_table(values, cells_r, cells_c, lo, width):
 
 
 @njit(cache=True)
+def _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax):
+    """What a search around pose ``(x, y)`` needs: the pose and the rays in cells, and the per-heading cell caches.
+
+    Returns ``(bx, by, qx cells, qy cells, rows_k, cols_k, ready, tmp_r, tmp_c)``
+    for :func:`_cells_at` with headings ``|k| <= kmax`` cached.
+    """
+    n = qx.shape[0]
+    inv = 1.0 / resolution
+    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
+    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
+    return ((x - origin_x) * inv, (y - origin_y) * inv, qx * inv, qy * inv, rows_k, cols_k, ready,
+            np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
+
+
+@njit(cache=True)
 def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, disparity, max_iter, state,
                 refine_rounds=0):
     """Search offsets from pose ``(x, y, theta)`` (m, rad) for the rays' endpoints ``(qx, qy)`` (robot frame, m).
@@ -129,17 +145,8 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
     Returns ``(dx cells, dy cells, dtheta steps, fitness, evaluations, restarts, improvements, refine steps)``.
     """
     n = qx.shape[0]
-    inv = 1.0 / resolution
-    bx = (x - origin_x) * inv
-    by = (y - origin_y) * inv
-    qxc = qx * inv
-    qyc = qy * inv
     kmax = 4 * disparity + 2 * disparity  # restarts reach 2d steps; climbs wander a few d further
-    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
-    tmp_r = np.empty(n, dtype=np.int64)
-    tmp_c = np.empty(n, dtype=np.int64)
+    bx, by, qxc, qyc, rows_k, cols_k, ready, tmp_r, tmp_c = _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax)
     # restarts: dx, dy = rand(d) // 2 - d // 4 in [lo, lo + width); k = 4 rand(d) - 2 d
     lo = -(disparity // 4)
     width = (disparity - 1) // 2 + 1
@@ -233,20 +240,88 @@ def refine_offset(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, d
 
     Returns ``(dx, dy, k, fitness, rounds that moved)``, fitness normalised as :func:`rrhc_search`'s.
     """
-    n = qx.shape[0]
-    inv = 1.0 / resolution
-    bx = (x - origin_x) * inv
-    by = (y - origin_y) * inv
-    qxc = qx * inv
-    qyc = qy * inv
     kmax = abs(k) + rounds + 1
-    rows_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), dtype=np.int64)
-    ready = np.zeros(2 * kmax + 1, dtype=np.bool_)
-    tmp_r = np.empty(n, dtype=np.int64)
-    tmp_c = np.empty(n, dtype=np.int64)
+    bx, by, qxc, qyc, rows_k, cols_k, ready, tmp_r, tmp_c = _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax)
     r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
     best = _fitness(values, r_k, c_k, dx, dy)
     dx, dy, k, best, moved, _ = _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c,
                                         dx, dy, k, best, rounds)
-    return dx, dy, k, best / (255.0 * 14.0 * max(n, 1)), moved
+    return dx, dy, k, best / (255.0 * 14.0 * max(qx.shape[0], 1)), moved
+
+
+@njit(cache=True)
+def near_known(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, margin):
+    """Whether each point ``(qx, qy)`` (robot frame, m), placed at pose ``(x, y, theta)``, has a known cell (not 127)
+    within ``margin`` cells: the rays that can be judged against the map from this pose."""
+    n = qx.shape[0]
+    rmax, cmax = values.shape
+    out = np.zeros(n, dtype=np.bool_)
+    c = math.cos(theta)
+    s = math.sin(theta)
+    inv = 1.0 / resolution
+    for j in range(n):
+        col = int(math.floor((x + c * qx[j] - s * qy[j] - origin_x) * inv))
+        row = int(math.floor((y + s * qx[j] + c * qy[j] - origin_y) * inv))
+        for r in range(max(row - margin, 0), min(row + margin + 1, rmax)):
+            for cc in range(max(col - margin, 0), min(col + margin + 1, cmax)):
+                if values[r, cc] != 127:
+                    out[j] = True
+                    break
+            if out[j]:
+                break
+    return out
+
+
+@njit(cache=True)
+def _point_fitness(values, bx, by, c, s, qx, qy, out):
+    """Per-point fitness (the summand of :func:`_fitness`) of points ``qx, qy`` (cells) at a pose in cells."""
+    rmax, cmax = values.shape
+    for j in range(qx.shape[0]):
+        col = int(math.floor(bx + c * qx[j] - s * qy[j]))
+        row = int(math.floor(by + s * qx[j] + c * qy[j]))
+        out[j] = 0
+        if row < 1 or col < 1 or row >= rmax - 1 or col >= cmax - 1:
+            continue
+        v = np.int64(values[row, col])
+        if v == 127:
+            continue
+        out[j] = 10 * (255 - v) + (1020 - np.int64(values[row - 1, col]) - np.int64(values[row + 1, col])
+                                   - np.int64(values[row, col - 1]) - np.int64(values[row, col + 1]))
+
+
+@njit(cache=True)
+def paired_gain(values, origin_x, origin_y, resolution, qx, qy, xa, ya, ta, xb, yb, tb):
+    """How much better points ``(qx, qy)`` (robot frame, m) fit at pose a than at pose b, beam by beam.
+
+    A paired test over the beams: with ``g_j`` ray ``j``'s fitness at a minus
+    at b (normalised as :func:`rrhc_search`'s, so the mean is the fitness
+    gain), returns ``(mean gain, z, n)`` where ``z = mean / (sd / sqrt(n))``.
+    Why: a few dozen returns leave near-equal maxima far apart, and the
+    search's best can beat another pose by chance; ``z`` asks whether the gain
+    stands out from the beams' scatter, so a sparse scan needs a larger gain
+    than a dense one for the same ``z``. ``z`` is +inf for a gain with no
+    scatter, 0 with no gain.
+    """
+    n = qx.shape[0]
+    inv = 1.0 / resolution
+    qxc = qx * inv
+    qyc = qy * inv
+    fa = np.empty(n, dtype=np.int64)
+    fb = np.empty(n, dtype=np.int64)
+    _point_fitness(values, (xa - origin_x) * inv, (ya - origin_y) * inv, math.cos(ta), math.sin(ta), qxc, qyc, fa)
+    _point_fitness(values, (xb - origin_x) * inv, (yb - origin_y) * inv, math.cos(tb), math.sin(tb), qxc, qyc, fb)
+    if n < 2:
+        return 0.0, 0.0, n
+    norm = 255.0 * 14.0
+    total = 0.0
+    for j in range(n):
+        total += (fa[j] - fb[j]) / norm
+    mean = total / n
+    var = 0.0
+    for j in range(n):
+        e = (fa[j] - fb[j]) / norm - mean
+        var += e * e
+    var /= n - 1
+    if var <= 0.0:
+        return mean, (math.inf if mean > 0.0 else 0.0), n
+    return mean, mean / math.sqrt(var / n), n

@@ -21,6 +21,7 @@ revise the past override :meth:`~SlamMethod.trajectory` and
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from abc import ABC, abstractmethod
@@ -31,11 +32,14 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.params import as_dict, validate
 
 __all__ = ["SlamMethod", "Diagnostics"]
+
+log = logging.getLogger(__name__)
 
 
 class Diagnostics:
@@ -177,6 +181,35 @@ class SlamMethod(ABC):
         self.finish()
         self.diagnostics.summary["finish_wall_s"] = time.perf_counter() - wall0
         return self
+
+    def odometry_step(
+        self, last: NDArray[np.float64], odom: NDArray[np.float64], max_step: float, timestamp: float,
+    ) -> tuple[NDArray[np.float64], float, bool]:
+        """The odometry increment between two scans: ``(delta, length, is_motion)``.
+
+        ``delta`` is ``odom`` relative to ``last`` (the robot frame at ``last``), ``length`` its
+        translation. An increment longer than ``max_step`` metres, or not finite, is a reset or a
+        corrupt reading rather than motion: it is counted as ``odometry_jumps``, warned, and
+        ``is_motion`` is False. What to do then is the caller's choice (keep going with it, or
+        predict no motion); nothing here stops the run.
+        """
+        with np.errstate(invalid="ignore"):  # a non-finite reading is reported below, not by numpy
+            delta = se2.relative(last, odom)
+        length = math.hypot(float(delta[0]), float(delta[1]))
+        if length <= max_step and bool(np.all(np.isfinite(delta))):  # a non-finite step is a jump too
+            return delta, length, True
+        self.diagnostics.count("odometry_jumps")
+        log.warning("%s: odometry jumps %.2f m at t=%.3f; continuing", self.name, length, timestamp)
+        return delta, length, False
+
+    @staticmethod
+    def usable_odometry(frame: Frame) -> NDArray[np.float64] | None:
+        """The frame's odometry pose as floats, or None when it has none or it is not finite."""
+        odom = frame.odometry
+        if odom is None:
+            return None
+        odom = np.asarray(odom, dtype=np.float64)
+        return odom if bool(np.all(np.isfinite(odom))) else None
 
     @property
     def pose(self) -> NDArray[np.float64] | None:

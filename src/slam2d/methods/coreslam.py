@@ -129,17 +129,16 @@ class CoreSlam(SlamMethod):
         self._random = new_state(self.rng)
 
     def _predict(self, frame: Frame) -> NDArray[np.float64]:
-        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=np.float64)
+        odom = self.usable_odometry(frame)
         if self._pose is None:
             start = odom if (self.params.use_odometry and odom is not None) else np.zeros(3)
             pred = np.array(start, dtype=np.float64)
         elif self.params.use_odometry and odom is not None and self._last_odom is not None:
-            step = se2.relative(self._last_odom, odom)
-            if np.all(np.isfinite(step)) and math.hypot(step[0], step[1]) <= _MAX_ODOMETRY_STEP:
+            step, _, is_motion = self.odometry_step(self._last_odom, odom, _MAX_ODOMETRY_STEP, frame.timestamp)
+            if is_motion:
                 pred = se2.compose(self._pose, step)
                 self._sweep_step = step
-            else:
-                self.diagnostics.count("odometry_jumps")  # a reset or corrupt reading: predict no motion
+            else:  # a reset or corrupt reading (counted and warned): predict no motion
                 pred = self._pose.copy()
         else:
             if self.params.use_odometry:

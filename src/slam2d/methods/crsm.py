@@ -26,7 +26,7 @@ from slam2d.grids.crsm_map import CrsmMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
-from slam2d.matching.rrhc import HEADING_STEP, refine_offset, rrhc_search
+from slam2d.matching.rrhc import HEADING_STEP, near_known, paired_gain, refine_offset, rrhc_search
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -106,6 +106,25 @@ class CrsmParams:
         "none", choices=("none", "constant_velocity"),
         help="search centre: the last pose (the original) or the last pose plus the last matched motion",
     )
+    unknown_rays: str = param(
+        "drop", choices=("score", "drop"),
+        help="drop: rays that land on unknown space at the predicted pose (no known cell within known_margin) are "
+        "left out of this scan's fitness, so new walls neither pull the fit back onto mapped ones nor push it; "
+        "score: every ray counts, one on an unknown cell as a miss (the original)",
+    )
+    known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
+    turn_sigma: float = param(
+        0.07, unit="rad", low=0.0, high=10.0,
+        help="scatter of the turn per scan about the prediction (turn_null): a match whose turn differs from the "
+        "prediction's fit is kept only if the paired z of every beam's fitness gain over that fit reaches "
+        "|its extra turn| / turn_sigma (a likelihood ratio against a Gaussian turn prior; sparse scans need a "
+        "larger gain); otherwise the prediction's fit is taken. 0 = off (the original)",
+    )
+    turn_null: str = param(
+        "still", choices=("still", "last_motion"),
+        help="the prediction turn_sigma tests a match against: the last pose (still) or the last pose plus the "
+        "last matched motion (last_motion); either settled by the every-beam climb",
+    )
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
     )
@@ -138,9 +157,13 @@ class Crsm(SlamMethod):
         "improvements": "candidates that improved the best [-]",
         "refine_steps": "rounds of the final neighbour climbs (refine_rounds, dense_refine_rounds) that moved "
                         "the pose [-]",
-        "rays": "critical rays matched [-]",
+        "rays": "critical rays picked [-]",
+        "rays_on_unknown": "critical rays left out because they land on unknown space (unknown_rays=drop) [-]",
         "mean_density": "the scan's mean range jump between neighbouring beams, before clamping [m]",
         "cells_updated": "cells walked by the map update [cells]",
+        "turn_z": "paired z of the match's every-beam fitness gain over the prediction's fit when their headings "
+                  "differ (turn_sigma) [-]",
+        "turn_rejected": "1 when the match's turn lacked the evidence and the prediction's fit was taken [-]",
     }
 
     def __init__(self, params: CrsmParams | None = None, **kwargs) -> None:
@@ -188,19 +211,33 @@ class Crsm(SlamMethod):
                 # the map must hold the search window around a centre that may lie ahead of the old map
                 self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
             ox, oy = self._map.origin
+            if p.unknown_rays == "drop":
+                ahead = se2.compose(self._pose, self._step)
+                keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(pts[:, 0]),
+                                  np.ascontiguousarray(pts[:, 1]), *ahead, p.known_margin)
+                values["rays_on_unknown"] = float(keep.shape[0] - keep.sum())
+                if keep.sum() >= _MIN_RAYS:
+                    pts = pts[keep]
             dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
                 self._map.values, ox, oy, p.resolution,
                 np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
                 float(centre[0]), float(centre[1]), float(centre[2]),
                 p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
             )
-            if p.dense_refine_rounds > 0:
+            dense = None
+            if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
                 every = np.flatnonzero((d > 0) & (d < laser_max))
                 dense = ray_points(scan, d, every, p.resolution)
+                if p.unknown_rays == "drop":
+                    keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
+                                      np.ascontiguousarray(dense[:, 1]), *ahead, p.known_margin)
+                    if keep.sum() >= _MIN_RAYS:
+                        dense = dense[keep]
+                dqx, dqy = np.ascontiguousarray(dense[:, 0]), np.ascontiguousarray(dense[:, 1])
+            if p.dense_refine_rounds > 0:
                 dx, dy, dk, _, moved_rounds = refine_offset(
-                    self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
-                    np.ascontiguousarray(dense[:, 1]), float(centre[0]), float(centre[1]), float(centre[2]),
-                    dx, dy, dk, p.dense_refine_rounds,
+                    self._map.values, ox, oy, p.resolution, dqx, dqy, float(centre[0]), float(centre[1]),
+                    float(centre[2]), dx, dy, dk, p.dense_refine_rounds,
                 )
                 refined += moved_rounds
             values.update(score=fit, iterations=n, restarts=restarts, improvements=better, refine_steps=refined)
@@ -209,6 +246,8 @@ class Crsm(SlamMethod):
                 centre[1] + dy * p.resolution,
                 math.remainder(centre[2] + dk * HEADING_STEP, 2 * math.pi),
             ])
+            if p.turn_sigma > 0 and dense is not None:
+                moved = self._check_turn(moved, dqx, dqy, values)
         else:
             self.diagnostics.count("scans_too_few_rays")
             moved = self._pose
@@ -233,6 +272,43 @@ class Crsm(SlamMethod):
         values["cells_updated"] = self._integrate(scan, d, gain)
         self._scans += 1
         return values
+
+    def _check_turn(self, moved: NDArray[np.float64], qx: NDArray[np.float64], qy: NDArray[np.float64],
+                    values: dict[str, float]) -> NDArray[np.float64]:
+        """The match, or the prediction's fit if the match's extra turn is not borne out by every beam.
+
+        Sparse scans leave near-equal maxima degrees apart, and a wrong one
+        turns the rest of the map. The alternative is the prediction
+        (``turn_null``) settled by the every-beam neighbour climb. With a
+        Gaussian prior of scatter ``turn_sigma`` on the turn about the
+        prediction, the match wins if its log-likelihood gain, z^2 / 2 for the
+        paired z over the beams (:func:`~slam2d.matching.rrhc.paired_gain`),
+        exceeds the prior's penalty for its larger turn: z^2 >= (e_m^2 - e_a^2)
+        / turn_sigma^2 (e = each pose's turn away from the prediction). A
+        small extra turn needs little evidence, a large one in a sparse scan
+        much.
+        """
+        p = self.params
+        ox, oy = self._map.origin
+        pred = se2.compose(self._pose, self._step) if p.turn_null == "last_motion" else self._pose
+        ax, ay, ak, _, _ = refine_offset(self._map.values, ox, oy, p.resolution, qx, qy, float(pred[0]),
+                                         float(pred[1]), float(pred[2]), 0, 0, 0, max(p.dense_refine_rounds, 1))
+        alt = np.array([pred[0] + ax * p.resolution, pred[1] + ay * p.resolution,
+                        math.remainder(pred[2] + ak * HEADING_STEP, 2 * math.pi)])
+        e_m = math.remainder(moved[2] - pred[2], 2 * math.pi)
+        e_a = math.remainder(alt[2] - pred[2], 2 * math.pi)
+        needed = (e_m * e_m - e_a * e_a) / (p.turn_sigma * p.turn_sigma)
+        if needed <= 0.0:
+            return moved  # the match turns no further from the prediction than its fit does
+        _, z, _ = paired_gain(self._map.values, ox, oy, p.resolution, qx, qy, float(moved[0]), float(moved[1]),
+                              float(moved[2]), float(alt[0]), float(alt[1]), float(alt[2]))
+        values["turn_z"] = float(min(z, 1e6))
+        if z > 0.0 and z * z >= needed:
+            values["turn_rejected"] = 0.0
+            return moved
+        values["turn_rejected"] = 1.0
+        self.diagnostics.count("turns_rejected")
+        return alt
 
     def _integrate(self, scan, d: NDArray[np.float64], gain: float) -> float:
         p = self.params

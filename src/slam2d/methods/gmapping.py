@@ -190,20 +190,20 @@ class GMapping(SlamMethod):
         odom = np.asarray(odom, dtype=np.float64)
         if self._maps is None:
             return self._initialise(frame, odom)
-        delta = se2.relative(self._odom, odom)
-        step = math.hypot(delta[0], delta[1])
-        if step > self.params.jump_warning:
-            self.diagnostics.count("odometry_jumps")
-            log.warning("gmapping: odometry jumps %.2f m at t=%.3f; continuing", step, frame.timestamp)
+        # a jump is warned and counted, and the particles follow it (as GMapping does)
+        delta, step, _ = self.odometry_step(self._odom, odom, self.params.jump_warning, frame.timestamp)
         if step == 0.0 and delta[2] == 0.0:
             self.diagnostics.count("stationary_frames")
         p = self.params
         self._odom = odom
         tracked = None
-        if p.between_updates == "guided":
+        guided = p.between_updates == "guided"
+        # the beams are built once per scan, and only when something matches this scan
+        beams = self._beams(frame.scan) if guided else None
+        if guided:
             # the scan-matched increment replaces the odometry's in the motion model and the update gating
             before = self._track_start()[0]
-            tracked = self._track(frame, count=False)
+            tracked = self._track(frame, beams)
             if tracked is not None:
                 delta = se2.relative(before, tracked)
                 step = math.hypot(delta[0], delta[1])
@@ -216,15 +216,17 @@ class GMapping(SlamMethod):
         due = (self._linear >= p.linearUpdate or self._angular >= p.angularUpdate
                or (p.temporalUpdate >= 0.0 and frame.timestamp - self._last_update_time > p.temporalUpdate))
         values: dict[str, float] = {"updated": 0.0}
+        if not guided and (due or p.between_updates == "matched"):
+            beams = self._beams(frame.scan)
         if not due and p.between_updates == "matched":
-            tracked = self._track(frame)
-        elif not due and p.between_updates == "guided" and tracked is None and self._beams(frame.scan) is None:
+            tracked = self._track(frame, beams)
+        if beams is None and (due or p.between_updates != "odometry"):
             self.diagnostics.count("scans_without_valid_beam")
         rel = None
         if not due and tracked is not None:
             rel = se2.relative(self._node_poses[self._nodes - 1, self.best_particle()], tracked)
         if due:
-            values = self._filter_update(frame)
+            values = self._filter_update(frame, beams)
         self._store_frame(frame.timestamp, rel)
         return values
 
@@ -273,17 +275,14 @@ class GMapping(SlamMethod):
             return self._node_poses[self._nodes - 1, self.best_particle()], self._node_odom[self._nodes - 1]
         return self._track_pose, self._track_odom
 
-    def _track(self, frame: Frame, count: bool = True) -> NDArray[np.float64] | None:
+    def _track(self, frame: Frame, beams: BeamSet | None) -> NDArray[np.float64] | None:
         """``between_updates``: the best particle's pose for this scan, hill-climbed on its own map.
 
         The climb starts from the last tracked pose moved on by the odometry since. None (odometry
-        is used) when the scan has no valid beam or the match fails.
+        is used) when the scan has no valid beam (``beams`` None) or the match fails.
         """
         p = self.params
-        beams = self._beams(frame.scan)
         if beams is None:
-            if count:
-                self.diagnostics.count("scans_without_valid_beam")
             return None
         best = self.best_particle()
         last, last_odom = self._track_start()
@@ -302,13 +301,11 @@ class GMapping(SlamMethod):
         self._track_pose, self._track_odom = np.array([x, y, th]), self._odom
         return self._track_pose
 
-    def _filter_update(self, frame: Frame) -> dict[str, float]:
+    def _filter_update(self, frame: Frame, beams: BeamSet | None) -> dict[str, float]:
         p = self.params
         scan = frame.scan
         maps = self._maps
-        beams = self._beams(scan)
-        if beams is None:
-            self.diagnostics.count("scans_without_valid_beam")
+        if beams is None:  # counted by update()
             return {"updated": 0.0}
         if p.motion_noise == "update":
             self._state = self._update_poses.copy()

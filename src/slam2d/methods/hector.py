@@ -137,17 +137,17 @@ class Hector(SlamMethod):
         """Where the robot should be, and the prior's information (None: no odometry prior)."""
         p = self.params
         if p.use_odometry:
-            odom = frame.odometry
-            if odom is None or not np.all(np.isfinite(odom)):
+            odom = self.usable_odometry(frame)
+            if odom is None:
                 self.diagnostics.count("frames_without_odometry")
             else:
-                last, self._last_odom = self._last_odom, np.asarray(odom, dtype=np.float64)
+                last, self._last_odom = self._last_odom, odom
                 if last is not None:
-                    step = se2.relative(last, self._last_odom)
-                    if np.hypot(step[0], step[1]) <= p.odometry_max_step:
+                    # a jump (counted and warned) gives no prior: the match starts as without odometry
+                    step, _, is_motion = self.odometry_step(last, odom, p.odometry_max_step, frame.timestamp)
+                    if is_motion:
                         sx, st = p.odometry_sigma_xy, p.odometry_sigma_theta
                         return se2.compose(self._pose, step), np.diag([sx**-2, sx**-2, st**-2])
-                    self.diagnostics.count("odometry_jumps")
         # No usable odometry: the last pose, or the last pose plus the last motion.
         if p.constant_velocity and self._previous is not None:
             return se2.compose(self._pose, se2.relative(self._previous, self._pose)), None
@@ -167,10 +167,9 @@ class Hector(SlamMethod):
             self.diagnostics.count("scans_too_few_points")
         if self._pose is None:
             # The first scan defines the map frame (at the first odometry pose when odometry is used).
-            odom = frame.odometry
-            usable = odom is not None and bool(np.all(np.isfinite(odom)))
-            self._pose = np.array(odom if p.use_odometry and usable else np.zeros(3), dtype=np.float64)
-            self._last_odom = np.array(odom, dtype=np.float64) if usable else None
+            odom = self.usable_odometry(frame)
+            self._pose = np.array(odom if p.use_odometry and odom is not None else np.zeros(3), dtype=np.float64)
+            self._last_odom = odom
         else:
             before = self._pose
             self._pose, info = self._prediction(frame)

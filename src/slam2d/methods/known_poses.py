@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
-from slam2d.io.tum import interpolate_poses, read_tum
+from slam2d.io.tum import by_time, interpolate_poses, read_tum
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -51,8 +51,7 @@ class KnownPoses(SlamMethod):
         if not self.params.poses:
             raise InputError("known-poses needs a trajectory: set poses=FILE.tum", field="poses")
         times, poses = read_tum(self.params.poses)
-        order = np.argsort(times, kind="stable")
-        self._given_times, self._given_poses = times[order], poses[order]
+        self._given_times, self._given_poses = by_time(times, poses)
         self._grid = OccupancyGrid(self.params)
         self._pose: NDArray[np.float64] | None = None
 

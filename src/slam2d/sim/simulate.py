@@ -45,6 +45,9 @@ class SimulationParams:
         None, unit="m/s", low=0.0,
         help="cap the robot's speed (the study slowed the youBot down for Hector); default: the preset's",
     )
+    max_turn_rate: float | None = param(
+        None, unit="rad/s", low=0.0, help="cap the robot's turn rate; default: the preset's",
+    )
     seed: int = param(0, help="random seed of odometry and range noise; the same seed gives the same bytes")
     odometry_rate: float = param(
         50.0, unit="Hz", low=0.1,
@@ -151,6 +154,8 @@ def simulate(
     laser = laser_preset(params.laser)
     if params.max_speed is not None:
         robot = type(robot)(**{**asdict(robot), "max_speed": min(robot.max_speed, params.max_speed)})
+    if params.max_turn_rate is not None:
+        robot = type(robot)(**{**asdict(robot), "max_turn_rate": min(robot.max_turn_rate, params.max_turn_rate)})
 
     start = world.start
     if start is None:
