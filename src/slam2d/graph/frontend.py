@@ -348,6 +348,7 @@ class GraphFrontend:
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
+        self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
@@ -407,6 +408,16 @@ class GraphFrontend:
 
     def reference_positions(self, poses: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Where each node is for distance tests: barycentre of its points, or the robot position."""
+        if poses is None and self.params.use_scan_barycenter:
+            # Asked several times per kept scan while the poses rarely change: the last answer is
+            # reused while the poses are the same (compared by value, so in-place edits count).
+            cached = self._ref_cache
+            if cached is not None and np.array_equal(cached[0], self.graph.poses):
+                return cached[1]
+            out = se2.transform_points(self.graph.poses, self._bary_base[:, None, :])[:, 0, :]
+            out.flags.writeable = False
+            self._ref_cache = (self.graph.poses.copy(), out)
+            return out
         poses = self.graph.poses if poses is None else poses
         if not self.params.use_scan_barycenter:
             return poses[:, :2].copy()
@@ -691,7 +702,19 @@ class GraphFrontend:
                 self._count("near_skipped_retry")
                 continue
             chain = list(range(a, b))
-            result = self._match(self.sequential, self._seq_cache, chain, points, pose, penalize=False, refine=True)
+            # The cache's book-keeping is done whatever happens, so later matches read the grids
+            # they would have; a chain whose response bound (no 1 cm grid needed) is below the
+            # failure mark cannot link and is recorded as failed without drawing or searching.
+            lo, hi = self.sequential.search_box(points, pose)
+            entry = self._seq_cache.reserve(chain, lo, hi)
+            fail = 0.5 * p.link_match_minimum_response_fine
+            if self._seq_cache.bound(entry, points, pose, stop=fail) < fail:
+                self._count("near_skipped_bound")
+                self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
+                del self._near_failed[:-100]
+                continue
+            result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
+                                           grid=self._seq_cache.materialize(entry, lo, hi))
             if result.response <= p.link_match_minimum_response_fine:
                 # Only a chain far from linking (out of view, behind a wall) is skipped next
                 # time: one that nearly linked may link from the next pose.
@@ -855,6 +878,8 @@ class GraphFrontend:
             "optimizations": list(self.optimizations),
             "grid_builds": {"sequential": self._seq_cache.builds, "loop": self._loop_cache.builds},
             "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
+            # Grids actually drawn (a build whose near chain the response bound skipped may never be).
+            "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
         }
 
 

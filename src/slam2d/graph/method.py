@@ -121,6 +121,7 @@ class GraphSlam(SlamMethod):
                 "optimizations": s["optimizations"],
                 "grid_builds": s["grid_builds"],
                 "grid_extensions": s["grid_extensions"],
+                "grid_draws": s["grid_draws"],
             }
         )
 

@@ -58,6 +58,10 @@ _COVARIANCE_BAND = 0.1
 _BLOCK = 8
 # Windows with fewer translations than this are searched exhaustively.
 _BNB_MIN_STEPS = 31
+# Response bound: correlation cells per side of a block of the max-pooled bound grid.
+_BOUND_BLOCK = 8
+# Response bound: how many times a heading's translation window is quartered where the bound passes.
+_BOUND_SPLITS = 3
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -77,6 +81,22 @@ class MatchResult:
 
 
 # --------------------------------------------------------------------------- compiled kernels
+
+
+@njit(cache=True, inline="always")
+def _kernel(s, resolution, ex, kern):
+    """Fill ``kern`` with the smear of sigma ``s`` in 0..255 (``ex`` is scratch); returns its half-width in cells."""
+    half = int(math.ceil(2.0 * s / resolution))
+    n = 2 * half + 1
+    inv = resolution / s
+    for i in range(n):
+        d = (i - half) * inv
+        ex[i] = math.exp(-0.5 * d * d) * _SCALE
+    for i in range(n):
+        wy = ex[i] / _SCALE
+        for j in range(n):
+            kern[i, j] = np.uint8(wy * ex[j] + 0.5)
+    return half
 
 
 @njit(cache=True)
@@ -108,16 +128,8 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
         s = sigma[k]
         if s != last:
             last = s
-            half = int(math.ceil(2.0 * s / resolution))
+            half = _kernel(s, resolution, ex, kern)
             n = 2 * half + 1
-            inv = resolution / s
-            for i in range(n):
-                d = (i - half) * inv
-                ex[i] = math.exp(-0.5 * d * d) * _SCALE
-            for i in range(n):
-                wy = ex[i] / _SCALE
-                for j in range(n):
-                    kern[i, j] = np.uint8(wy * ex[j] + 0.5)
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
         if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
@@ -178,6 +190,41 @@ def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
             out[m] = k
             m += 1
     return out[:m]
+
+
+@njit(cache=True)
+def _inside_not(px, py, lo_x, lo_y, hi_x, hi_y, old_lo_x, old_lo_y, old_hi_x, old_hi_y):
+    """Indices of the points inside the first box and not inside the second."""
+    out = np.empty(px.shape[0], np.int64)
+    m = 0
+    for k in range(px.shape[0]):
+        x = px[k]
+        y = py[k]
+        if x >= lo_x and x <= hi_x and y >= lo_y and y <= hi_y and not (
+            x >= old_lo_x and x <= old_hi_x and y >= old_lo_y and y <= old_hi_y
+        ):
+            out[m] = k
+            m += 1
+    return out[:m]
+
+
+@njit(cache=True)
+def _rotated_extent(c, s, q):
+    """Bounding box of the points q rotated by every (cos, sin) pair, and their largest range."""
+    x_lo = y_lo = np.inf
+    x_hi = y_hi = -np.inf
+    for a in range(c.shape[0]):
+        for k in range(q.shape[0]):
+            x = c[a] * q[k, 0] - s[a] * q[k, 1]
+            y = s[a] * q[k, 0] + c[a] * q[k, 1]
+            x_lo = min(x_lo, x)
+            x_hi = max(x_hi, x)
+            y_lo = min(y_lo, y)
+            y_hi = max(y_hi, y)
+    reach = 0.0
+    for k in range(q.shape[0]):
+        reach = max(reach, math.sqrt(q[k, 0] * q[k, 0] + q[k, 1] * q[k, 1]))
+    return x_lo, y_lo, x_hi, y_hi, reach
 
 
 @njit(cache=True)
@@ -276,38 +323,51 @@ def _max_pool(grid, width):
     is about 2 log2(width) row-order passes instead of 2 width, each written to a
     second buffer (no in-place reads ahead) so it vectorises.
     """
-    rows, cols = grid.shape
     a = grid.copy()
     b = grid.copy()
     span = 1
     while span < width:
         step = min(span, width - span)  # the last pass only needs to reach width
-        for r in range(rows):
-            src = a[r]
-            dst = b[r]
-            ahead = src[step:]
-            for c in range(cols - step):
-                dst[c] = max(src[c], ahead[c])
-            for c in range(cols - step, cols):
-                dst[c] = src[c]
+        _max_ahead_cols(a, b, step)
         a, b = b, a
         span += step
     span = 1
     while span < width:
         step = min(span, width - span)
-        for r in range(rows):
-            dst = b[r]
-            src = a[r]
-            if r + step < rows:
-                ahead = a[r + step]
-                for c in range(cols):
-                    dst[c] = max(src[c], ahead[c])
-            else:
-                for c in range(cols):
-                    dst[c] = src[c]
+        _max_ahead_rows(a, b, step)
         a, b = b, a
         span += step
     return a
+
+
+@njit(cache=True, inline="always")
+def _max_ahead_cols(src, dst, s):
+    """dst[r, c] = max(src[r, c], src[r, c + s]) (src[r, c] where c + s is outside)."""
+    rows, cols = src.shape
+    for r in range(rows):
+        a = src[r]
+        d = dst[r]
+        ahead = a[s:]
+        for c in range(cols - s):
+            d[c] = max(a[c], ahead[c])
+        for c in range(max(cols - s, 0), cols):
+            d[c] = a[c]
+
+
+@njit(cache=True, inline="always")
+def _max_ahead_rows(src, dst, s):
+    """dst[r, c] = max(src[r, c], src[r + s, c]) (src[r, c] where r + s is outside)."""
+    rows, cols = src.shape
+    for r in range(rows):
+        d = dst[r]
+        a = src[r]
+        if r + s < rows:
+            ahead = src[r + s]
+            for c in range(cols):
+                d[c] = max(a[c], ahead[c])
+        else:
+            for c in range(cols):
+                d[c] = a[c]
 
 
 @njit(cache=True)
@@ -371,6 +431,310 @@ def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps
                 if v / n_points > best:
                     best = v / n_points
     return out, lookups
+
+
+@njit(cache=True)
+def _pooled_smear(out, px, py, sigma_max, origin_x, origin_y, resolution, block, row0, col0):
+    """Per block of ``block`` x ``block`` correlation cells, the largest value :func:`smear_points` can draw in it.
+
+    Max-combines into ``out``: ``out[R - row0, C - col0]`` bounds the cells [R block, R block + block)
+    x [C block, C block + block) of a grid with the given origin. The smear is a max over points
+    of kernels that fall off in each axis, so a block's largest value from one point is the
+    kernel at the block cell nearest to it: one write per block a kernel touches (a few)
+    instead of one per cell. Every point is drawn with the widest sigma, which bounds the
+    narrower ones.
+    """
+    rows, cols = out.shape
+    if px.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * sigma_max / resolution))
+    ex = np.empty(2 * widest + 1)
+    kern = np.empty((2 * widest + 1, 2 * widest + 1), np.uint8)
+    half = _kernel(sigma_max, resolution, ex, kern)
+    # Per offset of a cell in its block: the blocks its kernel touches (relative) and the
+    # nearest kernel cell in each.
+    most = (2 * half + block - 1) // block + 1
+    n_touch = np.zeros(block, np.int64)
+    rel = np.zeros((block, most), np.int64)
+    near = np.zeros((block, most), np.int64)
+    for o in range(block):
+        first = (o - half) // block
+        last = (o + half) // block
+        for t in range(last - first + 1):
+            b = first + t
+            lo = b * block - o
+            hi = lo + block - 1
+            rel[o, t] = b
+            near[o, t] = half + (0 if lo <= 0 <= hi else min(abs(lo), abs(hi)))
+        n_touch[o] = last - first + 1
+    last_u = -(1 << 62)
+    last_v = -(1 << 62)
+    for k in range(px.shape[0]):
+        cu = int(math.floor((px[k] - origin_x) / resolution))
+        cv = int(math.floor((py[k] - origin_y) / resolution))
+        if cu == last_u and cv == last_v:  # neighbouring beams often share a cell
+            continue
+        last_u = cu
+        last_v = cv
+        ov = cv % block
+        ou = cu % block
+        bv = cv // block - row0
+        bu = cu // block - col0
+        for t in range(n_touch[ov]):
+            br = bv + rel[ov, t]
+            if br < 0 or br >= rows:
+                continue
+            ki = near[ov, t]
+            for t2 in range(n_touch[ou]):
+                bc = bu + rel[ou, t2]
+                if bc < 0 or bc >= cols:
+                    continue
+                v = kern[ki, near[ou, t2]]
+                if v > out[br, bc]:
+                    out[br, bc] = v
+
+
+@njit(cache=True)
+def _node_blocks(px, py, sigma_max, resolution, block):
+    """One scan's :func:`_pooled_smear` in the lattice of origin 0, as its non-empty blocks: (rows, cols, values)."""
+    if px.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8)
+    pad = int(math.ceil(2.0 * sigma_max / resolution)) + 1
+    c_lo = (int(math.floor(px.min() / resolution)) - pad) // block
+    c_hi = (int(math.floor(px.max() / resolution)) + pad) // block
+    r_lo = (int(math.floor(py.min() / resolution)) - pad) // block
+    r_hi = (int(math.floor(py.max() / resolution)) + pad) // block
+    local = np.zeros((r_hi - r_lo + 1, c_hi - c_lo + 1), np.uint8)
+    _pooled_smear(local, px, py, sigma_max, 0.0, 0.0, resolution, block, r_lo, c_lo)
+    n = 0
+    for v in local.ravel():
+        if v:
+            n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    vals = np.empty(n, np.uint8)
+    n = 0
+    for i in range(local.shape[0]):
+        for j in range(local.shape[1]):
+            if local[i, j]:
+                rows[n] = i + r_lo
+                cols[n] = j + c_lo
+                vals[n] = local[i, j]
+                n += 1
+    return rows, cols, vals
+
+
+@njit(cache=True)
+def _node_stats(pts, sig, out):
+    """out = (min x, min y, max x, max y, 2 max sigma, the one sigma or NaN); a scan without points:
+    (inf, inf, -inf, -inf, 0, inf)."""
+    n = pts.shape[0]
+    if n == 0:
+        out[0] = out[1] = out[5] = np.inf
+        out[2] = out[3] = -np.inf
+        out[4] = 0.0
+        return
+    lo_x = hi_x = pts[0, 0]
+    lo_y = hi_y = pts[0, 1]
+    s_lo = s_hi = sig[0]
+    for k in range(1, n):
+        lo_x = min(lo_x, pts[k, 0])
+        hi_x = max(hi_x, pts[k, 0])
+        lo_y = min(lo_y, pts[k, 1])
+        hi_y = max(hi_y, pts[k, 1])
+        s_lo = min(s_lo, sig[k])
+        s_hi = max(s_hi, sig[k])
+    out[0] = lo_x
+    out[1] = lo_y
+    out[2] = hi_x
+    out[3] = hi_y
+    out[4] = 2.0 * s_hi
+    out[5] = s_lo if s_lo == s_hi else np.nan
+
+
+@njit(cache=True)
+def _scatter_max(out, rows, cols, vals, row0, col0):
+    """out[rows - row0, cols - col0] = max(out there, vals), skipping what falls outside."""
+    n_r, n_c = out.shape
+    for k in range(rows.shape[0]):
+        r = rows[k] - row0
+        c = cols[k] - col0
+        if r >= 0 and r < n_r and c >= 0 and c < n_c and vals[k] > out[r, c]:
+            out[r, c] = vals[k]
+
+
+@njit(cache=True)
+def _range_max_levels(pooled, levels):
+    """levels[k][r, c] = max of pooled[r:r + 2^k, c:c + 2^k] (clipped at the edges): a sparse table."""
+    rows, cols = pooled.shape
+    out = np.empty((levels, rows, cols), np.uint8)
+    out[0] = pooled
+    tmp = np.empty((rows, cols), np.uint8)
+    for k in range(1, levels):
+        s = 1 << (k - 1)
+        _max_ahead_cols(out[k - 1], tmp, s)
+        _max_ahead_rows(tmp, out[k], s)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _range_max(table, r_lo, r_hi, c_lo, c_hi):
+    """Max of the pooled grid over blocks [r_lo, r_hi] x [c_lo, c_hi] (inclusive, inside the grid)."""
+    size = min(r_hi - r_lo, c_hi - c_lo) + 1
+    k = 0
+    while (2 << k) <= size and k + 1 < table.shape[0]:
+        k += 1
+    s = 1 << k
+    m = 0
+    r = r_lo
+    while True:
+        rr = min(r, r_hi - s + 1)
+        c = c_lo
+        while True:
+            cc = min(c, c_hi - s + 1)
+            v = table[k, rr, cc]
+            if v > m:
+                m = v
+            if cc + s > c_hi:
+                break
+            c += s
+        if rr + s > r_hi:
+            break
+        r += s
+    return m
+
+
+@njit(cache=True, inline="always")
+def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop):
+    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``."""
+    rows, cols = table.shape[1], table.shape[2]
+    total = 0
+    for k in range(qx.shape[0]):
+        h = half + rng[k] * delta
+        c_lo = max(int(math.floor((wx0[k] - h - origin_x) / resolution)) // block, 0)
+        c_hi = min(int(math.floor((wx0[k] + h - origin_x) / resolution)) // block, cols - 1)
+        r_lo = max(int(math.floor((wy0[k] - h - origin_y) / resolution)) // block, 0)
+        r_hi = min(int(math.floor((wy0[k] + h - origin_y) / resolution)) // block, rows - 1)
+        if c_lo <= c_hi and r_lo <= r_hi:
+            total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
+        if total >= stop:
+            break
+    return total
+
+
+@njit(cache=True)
+def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy, x0, y0, theta0, angles,
+                           trans, slack, delta, stop, splits):
+    """Upper bound (sum, 0..255 per point) of the score of every pose within ``trans`` (m) in x and y
+    of (x0, y0) and within ``delta`` (rad) of a heading theta0 + angles[a] (``slack`` m more for
+    rounding).
+
+    A point at range r turned by at most delta moves at most r delta, so at each listed heading
+    it lands in a square of half-side trans + slack + r delta around its place; its value is at
+    most the largest pooled block that square touches (a range maximum, from a sparse table: a
+    few lookups per point). A heading whose bound reaches ``stop`` is split into the four
+    quarters of its translation window, ``splits`` times deep (a branch and bound on the bound).
+    Returns early, with a sum of at least ``stop``, once a finest square reaches it (the caller
+    only asks whether the bound stays below it); otherwise the bound.
+    """
+    n = qx.shape[0]
+    rng = np.empty(n)
+    r_max = 0.0
+    for k in range(n):
+        rng[k] = math.sqrt(qx[k] * qx[k] + qy[k] * qy[k])
+        r_max = max(r_max, rng[k])
+    widest = int(2.0 * (trans + slack + r_max * delta) / (resolution * block)) + 2
+    levels = 1
+    while (1 << levels) <= widest:
+        levels += 1
+    table = _range_max_levels(pooled, levels)
+    wx0 = np.empty(n)
+    wy0 = np.empty(n)
+    sx = np.empty(n)
+    sy = np.empty(n)
+    # Squares to examine: (x offset, y offset, half-width of the translations, depth).
+    stack = np.empty((4 * splits + 1, 4))
+    best = 0
+    for a in range(angles.shape[0]):
+        th = theta0 + angles[a]
+        c = math.cos(th)
+        s = math.sin(th)
+        for k in range(n):
+            wx0[k] = x0 + c * qx[k] - s * qy[k]
+            wy0[k] = y0 + s * qx[k] + c * qy[k]
+        stack[0, 0] = 0.0
+        stack[0, 1] = 0.0
+        stack[0, 2] = trans
+        stack[0, 3] = 0.0
+        top = 1
+        while top > 0:
+            top -= 1
+            dx, dy, t, depth = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+            for k in range(n):
+                sx[k] = wx0[k] + dx
+                sy[k] = wy0[k] + dy
+            total = _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, sx, sy,
+                                  t + slack, delta, stop)
+            if total < stop:
+                if total > best:
+                    best = total
+            elif depth >= splits:
+                return total
+            else:
+                q = 0.5 * t
+                for i in range(4):
+                    stack[top, 0] = dx + (q if i & 1 else -q)
+                    stack[top, 1] = dy + (q if i & 2 else -q)
+                    stack[top, 2] = q
+                    stack[top, 3] = depth + 1
+                    top += 1
+    return best
+
+
+@njit(cache=True)
+def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penalize, dvp, avp, min_dp, min_ap):
+    """Raw and (with ``penalize``) penalised responses of a search, its best, how many poses tie
+    with it (within 1e-12) and the first of them (angle, y, x).
+
+    Element by element the arithmetic of :meth:`CorrelativeMatcher._penalty` in numpy, in the
+    same order, so the values are the same bits; unscored poses (sum < 0) stay at -1.
+    """
+    na, ny, nx = sums.shape
+    raw = np.empty((na, ny, nx))
+    resp = np.empty((na, ny, nx))
+    two_pi = 2 * np.pi
+    best = -np.inf
+    for a in range(na):
+        pa = 1.0
+        if penalize:
+            dth = (ctheta + angles[a]) - ptheta
+            dth = (dth + np.pi) % two_pi - np.pi
+            pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
+        for i in range(ny):
+            dy = (cy + offs[i]) - py
+            for j in range(nx):
+                r = sums[a, i, j] / norm
+                raw[a, i, j] = r
+                if penalize:
+                    dx = (cx + offs[j]) - px
+                    d2 = dx * dx + dy * dy
+                    pd = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
+                    v = r * (pd * pa) if r >= 0 else -1.0
+                else:
+                    v = r
+                resp[a, i, j] = v
+                if v > best:
+                    best = v
+    ties = 0
+    first = (0, 0, 0)
+    for a in range(na):
+        for i in range(ny):
+            for j in range(nx):
+                if resp[a, i, j] >= best - 1e-12:
+                    if ties == 0:
+                        first = (a, i, j)
+                    ties += 1
+    return raw, resp, best, ties, first
 
 
 # --------------------------------------------------------------------------- the matcher
@@ -454,14 +818,11 @@ class CorrelativeMatcher:
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
         angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
-        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        x = c * q[None, :, 0] - s * q[None, :, 1]
-        y = s * q[None, :, 0] + c * q[None, :, 1]
-        reach = float(np.sqrt((q * q).sum(axis=1)).max(initial=0.0))
+        x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), np.ascontiguousarray(q))
         # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
         pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
-        lo = np.array([x.min(), y.min()]) + prior[:2] - pad
-        hi = np.array([x.max(), y.max()]) + prior[:2] + pad
+        lo = np.array([x_lo, y_lo]) + prior[:2] - pad
+        hi = np.array([x_hi, y_hi]) + prior[:2] + pad
         return lo, hi
 
     def search_box(self, query_points: NDArray[np.float64], prior: NDArray[np.float64]):
@@ -503,14 +864,91 @@ class CorrelativeMatcher:
         if px.size and clip:
             lo = np.maximum(lo, np.array([px.min(), py.min()]) - margin)
             hi = np.minimum(hi, np.array([px.max(), py.max()]) + margin)
-        hi = np.maximum(hi, lo + res)
-        origin = np.floor(lo / res) * res
-        shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
-        grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.uint8)
+        ox, oy, rows, cols = self._geometry(lo, hi)
+        grid = np.zeros((rows, cols), dtype=np.uint8)
+        origin = (ox, oy)
         if px.size:
             smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
                                np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
+
+    def _geometry(self, lo, hi) -> tuple[float, float, int, int]:
+        res = self.resolution
+        hi = np.maximum(hi, lo + res)
+        origin = np.floor(lo / res) * res
+        shape = np.ceil((hi - origin) / res).astype(np.int64) + 1
+        return float(origin[0]), float(origin[1]), int(shape[1]), int(shape[0])
+
+    def grid_geometry(self, ref_sigmas, lo, hi) -> tuple[float, float, int, int]:
+        """(origin x, origin y, rows, cols) of ``correlation_grid(..., lo, hi, clip=False)``, without drawing it."""
+        return self._geometry(np.asarray(lo, dtype=np.float64).copy(), np.asarray(hi, dtype=np.float64).copy())
+
+    def response_bound(self, ref_points, ref_sigmas, query_points, prior, *, stop: float = 2.0) -> float:
+        """An upper bound of :meth:`match`'s response on any grid drawn from at most these reference points.
+
+        Exact (never below the response), with or without penalty and refinement: it covers
+        every translation the coarse and fine searches can try (the window plus one fine
+        step) and every heading within the larger of half a coarse step and the fine window
+        of a coarse angle, on a grid max-pooled over ``_BOUND_BLOCK`` cells a side
+        (:func:`_pooled_smear`, drawn without drawing the correlation grid). A caller that only
+        needs to know that a match cannot reach a threshold (a near chain out of view) can skip
+        the grid and the search. ``stop``: return as soon as the bound is known to reach it
+        (some value >= ``stop``). With response expansion (angles beyond the window) it returns 1.
+        """
+        ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        if self.response_expansion:
+            return 1.0
+        if np.asarray(query_points).size == 0 or ref.shape[0] == 0 or not np.all(np.isfinite(prior)):
+            return 0.0
+        lo, hi = self.query_box(query_points, prior, self.coarse_angle_offset + self._bound_angles()[1])
+        reach = sum(self._bound_window())
+        ox, oy, rows, cols = self._geometry(lo - reach - 1.0, hi + reach + 1.0)
+        pooled = self.pooled_grid(ref, self._sig(ref, ref_sigmas), ox, oy, rows, cols)
+        return self.pooled_bound(pooled, ox, oy, query_points, prior, stop=stop)
+
+    def pooled_grid(self, ref_points, ref_sigmas, origin_x, origin_y, rows, cols, out=None):
+        """The bound grid of :meth:`pooled_bound` for the correlation grid (origin, rows x cols) of these points.
+
+        ``out`` (a bound grid of the same geometry) is extended instead of a new one drawn.
+        """
+        b = _BOUND_BLOCK
+        if out is None:
+            out = np.zeros((rows // b + 1, cols // b + 1), np.uint8)
+        ref = np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
+        if ref.shape[0]:
+            _pooled_smear(out, np.ascontiguousarray(ref[:, 0]), np.ascontiguousarray(ref[:, 1]),
+                          float(np.max(ref_sigmas)), origin_x, origin_y, self.resolution, b, 0, 0)
+        return out
+
+    def _bound_angles(self):
+        """The coarse angles and the largest heading any search tries away from the nearest one."""
+        n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
+        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        n_fine = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
+        return angles, max(0.5 * self.coarse_angle_resolution, n_fine * self.fine_angle_step) + 1e-9
+
+    def _bound_window(self) -> tuple[float, float]:
+        """(translations a search tries each way: the coarse window plus one fine step; slack for
+        the cell rounding of the lookup table, its centre possibly a mean of offsets, and of a grid
+        whose origin is another multiple of the cell), m."""
+        return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
+
+    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
+        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        if self.response_expansion:
+            return 1.0
+        if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
+            return 0.0
+        angles, delta = self._bound_angles()
+        n = q.shape[0] * _SCALE
+        total = _pooled_response_bound(pooled, _BOUND_BLOCK, origin_x, origin_y, self.resolution,
+                                       np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
+                                       float(prior[0]), float(prior[1]), float(prior[2]), angles,
+                                       *self._bound_window(), delta, int(math.ceil(stop * n)), _BOUND_SPLITS)
+        return float(total) / n
 
     def _penalty(self, dx, dy, dth):
         d2 = dx * dx + dy * dy
@@ -545,26 +983,25 @@ class CorrelativeMatcher:
                 grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
             )
             lookups += flat.size * n_points
-        raw = sums / (n_points * _SCALE)
         offs = (np.arange(n_steps) - half) * (step * res)
-        xs = center[0] + offs[None, None, :]
-        ys = center[1] + offs[None, :, None]
-        ths = center[2] + angles[:, None, None]
-        if penalize:
-            dth = np.asarray(ths - prior[2])
-            dth = (dth + np.pi) % (2 * np.pi) - np.pi
-            resp = np.where(raw >= 0, raw * self._penalty(xs - prior[0], ys - prior[1], dth), -1.0)
+        # Responses, penalties and the best in one compiled pass (the same arithmetic as numpy's).
+        raw, resp, best, ties, first = _responses(
+            sums, float(n_points * _SCALE), offs, angles, float(center[0]), float(center[1]), float(center[2]),
+            float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
+            self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty,
+        )
+        a0, y0, x0 = first
+        if ties == 1:
+            pose = np.array([center[0] + offs[x0], center[1] + offs[y0], center[2] + angles[a0]])
         else:
-            resp = raw
-        best = float(resp.max())
-        # Karto averages every pose with the best response.
-        a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
-        pose = np.array([
-            center[0] + offs[x_i].mean(),
-            center[1] + offs[y_i].mean(),
-            center[2] + angles[a_i].mean(),
-        ])
-        raw_best = float(raw[a_i[0], y_i[0], x_i[0]])
+            # Karto averages every pose with the best response.
+            a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
+            pose = np.array([
+                center[0] + offs[x_i].mean(),
+                center[1] + offs[y_i].mean(),
+                center[2] + angles[a_i].mean(),
+            ])
+        raw_best = float(raw[a0, y0, x0])
         return pose, best, raw_best, resp, offs, lookups
 
     def _positional_covariance(self, resp, offs, center, pose, best, step_m):
@@ -710,16 +1147,20 @@ class GridCache:
         self.query_margin = float(query_margin)
         self.max_extra = int(max_extra)
         self.max_entries = int(max_entries)
+        self.draw_margin = 1.0  # m drawn beyond a request's box (see materialize)
         self._entries: list[dict] = []
         # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
-        self._box = np.zeros((0, 5))
+        self._box = np.zeros((0, 6))
         self._known = np.zeros(0, dtype=bool)
-        self.builds = 0
+        self._blocks: dict = {}  # node -> its share of a bound grid (see bound())
+        self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
+        self.draws = 0  # grids actually drawn
 
     def invalidate(self) -> None:
         self._entries.clear()
         self._known[:] = False
+        self._blocks.clear()
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
@@ -730,25 +1171,42 @@ class GridCache:
         if top > self._known.size:
             grow = max(top, 2 * self._known.size)
             self._known = np.concatenate([self._known, np.zeros(grow - self._known.size, bool)])
-            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 5))])
+            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 6))])
         # Each node's box is computed once (until the next invalidate), the rest is array work.
         for n in idx[~self._known[idx]].tolist():
             pts, sig = self.points_of(n)
-            if pts.shape[0]:
-                self._box[n, :2] = pts.min(axis=0)
-                self._box[n, 2:4] = pts.max(axis=0)
-                self._box[n, 4] = 2.0 * float(sig.max())
-            else:
-                self._box[n] = (np.inf, np.inf, -np.inf, -np.inf, 0.0)
+            _node_stats(pts, sig, self._box[n])
             self._known[n] = True
         b = self._box[idx]
         return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
 
+    def _sigma_of(self, nodes) -> float | None:
+        """The one sigma of every point of these nodes (as :func:`_uniform` of their sigmas; after :meth:`_extent`)."""
+        u = self._box[np.asarray(nodes, dtype=np.int64), 5]
+        u = u[u != np.inf]  # nodes without points add no sigma
+        if u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0]):
+            return None
+        return float(u[0])
+
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
-        wanted = set(int(n) for n in nodes)
+        """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
+        return self.materialize(self.reserve(nodes, lo, hi), lo, hi)
+
+    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> dict:
+        """The entry :meth:`get` would return, with its book-keeping done but its smearing deferred.
+
+        Which entry serves a request, and which nodes it then holds, depend only on
+        earlier requests, never on whether their grids were drawn: a caller that can
+        tell from the entry's points alone that it need not match (:meth:`bound`)
+        leaves the cache exactly as :meth:`get` would, so later matches read the same
+        grids. :meth:`materialize` draws what is pending (max-combining is
+        order-free, so the grid equals the one drawn at once).
+        """
+        wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         for k, e in enumerate(self._entries):
             have = e["nodes"]
-            if not (have & wanted) or len(have - wanted) > self.max_extra:
+            common = len(have & wanted)
+            if not common or len(have) - common > self.max_extra:
                 continue
             missing = sorted(wanted - have)
             xlo, xhi, reach = self._extent(missing)
@@ -762,38 +1220,134 @@ class GridCache:
             if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
                 continue
             if missing:
-                pts, sig = self._gather(missing)
-                grid, ox, oy = e["grid"]
                 # Repeated cells are skipped only while every point drawn has had one sigma.
-                same = e["sigma"] is not None and _uniform(sig) == e["sigma"]
+                same = e["sigma"] is not None and self._sigma_of(missing) == e["sigma"]
                 if not same:
                     e["sigma"] = None
-                smear_in_row_order(grid, ox, oy, self.matcher.resolution, np.ascontiguousarray(pts[:, 0]),
-                                   np.ascontiguousarray(pts[:, 1]), np.ascontiguousarray(sig), same)
+                e["order"].extend(missing)
                 have.update(missing)
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
             self._entries.insert(0, self._entries.pop(k))
-            return e["grid"]
+            return e
         order_nodes = sorted(wanted)
         xlo, xhi, reach = self._extent(order_nodes)
-        pts, sig = self._gather(order_nodes)
         # Room to grow by ``margin`` around the points (the next scans extend them), but never
         # far beyond the query's reach (a long buffer in open space would make a huge grid).
         blo = np.maximum(lo - self.query_margin, xlo - reach - self.margin)
         bhi = np.minimum(hi + self.query_margin, xhi + reach + self.margin)
-        grid = self.matcher.correlation_grid(pts, sig, blo, bhi, clip=False)
-        # The grid's true extent (whole cells) bounds what later requests may ask for.
-        ox, oy = grid[1], grid[2]
-        rows, cols = grid[0].shape
+        ox, oy, rows, cols = self.matcher.grid_geometry(None, blo, bhi)
         res = self.matcher.resolution
-        self._entries.insert(0, {"grid": grid, "nodes": wanted, "lo": np.array([ox, oy]),
-                                 "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
-                                 "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": _uniform(sig)})
+        e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
+             "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
+             "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": self._sigma_of(order_nodes),
+             "parts": [], "order": list(order_nodes)}
+        self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
+        return e
+
+    def materialize(self, e: dict, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
+        """The entry's grid, drawn where a query inside (lo, hi) can read it.
+
+        A cell holds its final value once every point whose smear reaches it is drawn. The
+        entry keeps the box where that holds (``drawn``) and grows it to each request plus
+        ``draw_margin`` (which also covers the fine search's degree beyond the coarse angles,
+        0.2 m at 12 m), drawing only the points near the part that is new, and new scans only
+        inside it: a chain's grid is drawn where its matches look, not over all its scans.
+        Max-combining is order-free, so every cell a match reads equals the grid drawn at once.
+        """
+        res = self.matcher.resolution
+        grid = e["grid"]
+        if grid is None:
+            blo, bhi = e["box"]
+            ox, oy, rows, cols = self.matcher.grid_geometry(None, blo, bhi)
+            grid = e["grid"] = (np.zeros((rows, cols), np.uint8), ox, oy)
+            e["drawn"] = None
+            e["n_drawn"] = 0
+            self.draws += 1
+        old = e["drawn"]
+        parts = self._parts(e)
+        inside = old is not None and bool(np.all(lo >= old[0]) and np.all(hi <= old[1]))
+        if inside and e["n_drawn"] == len(parts):
+            return grid
+        new = old if inside else (lo - self.draw_margin, hi + self.draw_margin)
+        if old is not None and not inside:
+            new = (np.minimum(new[0], old[0]), np.maximum(new[1], old[1]))
+        # A point further than its smear's reach (plus a cell's rounding) from a box draws nothing in it.
+        m = e["reach"] + 2.0 * res
+        same = e["sigma"] is not None  # one sigma for every point: repeated cells can be skipped
+        g, ox, oy = grid
+        if old is not None and not inside and e["n_drawn"]:
+            pts, sig = _concat(parts[: e["n_drawn"]])
+            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
+                               old[0][0] - m, old[0][1] - m, old[1][0] + m, old[1][1] + m)
+            if keep.size:
+                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+        if e["n_drawn"] < len(parts):
+            pts, sig = _concat(parts[e["n_drawn"]:])
+            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
+            if keep.size:
+                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+        e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
+        e["n_drawn"] = len(parts)
         return grid
 
-    def _gather(self, nodes: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        parts = [self.points_of(n) for n in nodes]
-        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
+        """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
+
+        The entry keeps its bound grid and extends it as scans are added, as it does the
+        correlation grid. Each scan's share (its blocks in a lattice of origin 0, a few hundred)
+        is computed once per scan until :meth:`invalidate`, so a new entry costs a scatter of
+        those, not a smear of every point. The lattice differs from the correlation grid's by at
+        most a cell's rounding, which the bound's reach allows for.
+        """
+        m = self.matcher
+        res = m.resolution
+        b = _BOUND_BLOCK
+        if e.get("pooled") is None:
+            row0 = int(math.floor(float(e["lo"][1]) / res)) // b - 1
+            col0 = int(math.floor(float(e["lo"][0]) / res)) // b - 1
+            rows = int(math.floor(float(e["hi"][1]) / res)) // b + 2 - row0
+            cols = int(math.floor(float(e["hi"][0]) / res)) // b + 2 - col0
+            e["pooled"] = (np.zeros((rows, cols), np.uint8), row0, col0)
+            e["pooled_nodes"] = 0
+        pooled, row0, col0 = e["pooled"]
+        order = e["order"]
+        if e["pooled_nodes"] < len(order):
+            parts = [self._node_blocks(n) for n in order[e["pooled_nodes"]:]]
+            _scatter_max(pooled, np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]),
+                         np.concatenate([q[2] for q in parts]), row0, col0)
+            e["pooled_nodes"] = len(order)
+        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop)
+
+    def _node_blocks(self, n: int):
+        got = self._blocks.get(n)
+        if got is None:
+            pts, sig = self.points_of(n)
+            sigma_max = float(sig.max()) if sig.size else self.matcher.smear_deviation
+            got = _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sigma_max,
+                               self.matcher.resolution, _BOUND_BLOCK)
+            self._blocks[n] = got
+        return got
+
+    def _parts(self, e: dict) -> list:
+        """Per node of the entry, its (world points, sigmas), fetched when first needed."""
+        parts, order = e["parts"], e["order"]
+        if len(parts) < len(order):
+            parts.extend(self.points_of(n) for n in order[len(parts):])
+        return parts
+
+    def entry_points(self, e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every reference point (world) and sigma the entry's grid holds or will hold."""
+        return _concat(self._parts(e))
+
+
+
+def _concat(parts) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(points, sigmas) of a list of per-node (points, sigmas)."""
+    if not parts:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])

@@ -1,0 +1,185 @@
+"""The matcher's speed paths change no result: the response bound, lazily drawn cache grids, the fused response pass."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from slam2d.core import se2
+from slam2d.matching.correlative import (
+    _BOUND_BLOCK,
+    CorrelativeMatcher,
+    GridCache,
+    _range_max,
+    _range_max_levels,
+    _responses,
+)
+
+
+def _walls(rng, n_walls=8, extent=6.0, step=0.015):
+    """Random straight walls (a cluttered room) as points ~1.5 cm apart."""
+    pts = []
+    for _ in range(n_walls):
+        a = rng.uniform(-extent, extent, 2)
+        b = a + rng.uniform(-4.0, 4.0, 2)
+        n = max(2, int(np.linalg.norm(b - a) / step))
+        pts.append(a + (b - a) * np.linspace(0.0, 1.0, n)[:, None])
+    return np.vstack(pts)
+
+
+def _scene(seed):
+    rng = np.random.default_rng(seed)
+    world = _walls(rng)
+    truth = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-math.pi, math.pi)])
+    # The query sees part of the world (a subset of walls, or other walls when seed is odd: out of view).
+    seen = _walls(rng) if seed % 2 else world[rng.random(world.shape[0]) < 0.6][::3]
+    q = se2.transform_points(se2.inverse(truth), seen) + rng.normal(0.0, 0.005, (seen.shape[0], 2))
+    prior = truth + np.array([rng.uniform(-0.12, 0.12), rng.uniform(-0.12, 0.12), rng.uniform(-0.3, 0.3)])
+    return world, q, prior
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_bound_is_never_below_the_response(seed):
+    world, q, prior = _scene(seed)
+    m = CorrelativeMatcher()
+    sig = np.full(world.shape[0], 0.03)
+    bound = m.response_bound(world, sig, q, prior)
+    for penalize in (False, True):
+        r = m.match(world, sig, q, prior, penalize=penalize, refine=True)
+        assert r.response <= bound + 1e-12, (seed, penalize, r.response, bound)
+    # The same through a cache entry (its own lattice), drawn or not.
+    cache = GridCache(m, lambda i: (world, sig))
+    lo, hi = m.search_box(q, prior)
+    e = cache.reserve([0], lo, hi)
+    assert cache.bound(e, q, prior) == pytest.approx(bound, abs=0.05)
+    assert m.match(None, None, q, prior, penalize=False, grid=cache.materialize(e, lo, hi)).response <= cache.bound(
+        e, q, prior) + 1e-12
+    # Out-of-view queries (odd seeds) are what it is for: the bound prunes them well below 1.
+    if seed % 2:
+        assert bound < 0.9
+
+
+def test_bound_prunes_a_query_from_another_place_and_keeps_a_true_match():
+    world, q, prior = _scene(0)
+    m = CorrelativeMatcher()
+    sig = np.full(world.shape[0], 0.03)
+    far = np.array([prior[0] + 40.0, prior[1], prior[2]])
+    assert m.response_bound(world, sig, q, far) == 0.0
+    r = m.match(world, sig, q, prior, penalize=False)
+    assert r.response > 0.5 and m.response_bound(world, sig, q, prior) >= r.response
+    # With an early stop the answer only says "at least the stop".
+    assert m.response_bound(world, sig, q, prior, stop=0.3) >= 0.3
+
+
+def test_pooled_grid_equals_max_pooling_the_drawn_grid():
+    rng = np.random.default_rng(7)
+    world = _walls(rng, extent=2.0)
+    m = CorrelativeMatcher()
+    sig = np.full(world.shape[0], 0.03)
+    lo, hi = world.min(axis=0) - 0.5, world.max(axis=0) + 0.5
+    grid, ox, oy = m.correlation_grid(world, sig, lo, hi, clip=False)
+    pooled = m.pooled_grid(world, sig, ox, oy, *grid.shape)
+    b = _BOUND_BLOCK
+    rows, cols = grid.shape
+    padded = np.zeros((pooled.shape[0] * b, pooled.shape[1] * b), np.uint8)
+    padded[:rows, :cols] = grid
+    want = padded.reshape(pooled.shape[0], b, pooled.shape[1], b).max(axis=(1, 3))
+    assert np.array_equal(pooled, want)
+
+
+def test_range_max_equals_a_plain_max():
+    rng = np.random.default_rng(8)
+    pooled = rng.integers(0, 256, (37, 45)).astype(np.uint8)
+    table = _range_max_levels(pooled, 4)
+    for _ in range(300):
+        r0, c0 = rng.integers(0, 37), rng.integers(0, 45)
+        r1, c1 = rng.integers(r0, 37), rng.integers(c0, 45)
+        assert _range_max(table, r0, r1, c0, c1) == pooled[r0 : r1 + 1, c0 : c1 + 1].max()
+
+
+def test_lazily_drawn_cache_grid_equals_the_whole_grid_where_requests_read():
+    rng = np.random.default_rng(9)
+    parts = [_walls(rng, n_walls=3, extent=8.0) for _ in range(6)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    q = _walls(rng, n_walls=3, extent=2.0)[::4]
+    priors = [np.array([-3.0, -2.0, 0.2]), np.array([-1.0, 0.0, 0.2]), np.array([2.0, 1.5, -0.4])]
+    nodes = [[0, 1, 2], [0, 1, 2, 3], [0, 1, 2, 3, 4, 5]]
+    for prior, ns in zip(priors, nodes):
+        lo, hi = m.search_box(q, prior)
+        e = cache.reserve(ns, lo, hi)
+        g, ox, oy = cache.materialize(e, lo, hi)
+        rows, cols = g.shape
+        box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+        pts = np.vstack([parts[i] for i in sorted(e["nodes"])])
+        whole, wx, wy = m.correlation_grid(pts, np.full(len(pts), 0.03), np.array([ox, oy]), box_hi, clip=False)
+        assert (wx, wy) == (ox, oy)
+        # Every cell of the request's box (and the margin) equals the grid drawn at once ...
+        r0, c0 = (np.floor((lo - cache.draw_margin - [ox, oy]) / m.resolution)).astype(int)
+        r1, c1 = (np.floor((hi + cache.draw_margin - [ox, oy]) / m.resolution)).astype(int)
+        c0, r0 = max(r0, 0), max(c0, 0)  # (x, y) -> (col, row)
+        c1, r1 = min(r1, cols - 1), min(c1, rows - 1)
+        assert np.array_equal(g[r0 : r1 + 1, c0 : c1 + 1], whole[r0 : r1 + 1, c0 : c1 + 1])
+        # ... so the match is the same.
+        a = m.match(None, None, q, prior, grid=(g, ox, oy))
+        b = m.match(None, None, q, prior, grid=(whole, wx, wy))
+        assert np.array_equal(a.pose, b.pose) and a.response == b.response
+        assert np.array_equal(a.covariance, b.covariance)
+    assert cache.draws <= cache.builds
+
+
+@pytest.mark.parametrize("penalize", [False, True])
+def test_fused_responses_are_the_numpy_values_bit_for_bit(penalize):
+    rng = np.random.default_rng(10)
+    m = CorrelativeMatcher()
+    na, n = 21, 17
+    sums = rng.integers(0, 255 * 300, (na, n, n)).astype(np.float64)
+    sums[0, 0, :3] = -1.0  # unscored poses (branch and bound)
+    norm = 300 * 255.0
+    offs = (np.arange(n) - 8) * 0.02
+    angles = (np.arange(na) - 10) * math.radians(2.0)
+    center = np.array([0.31, -7.2, 3.1])
+    prior = np.array([0.27, -7.15, -3.05])  # across the +-pi seam
+    raw, resp, best, ties, first = _responses(sums, norm, offs, angles, *center, *prior, penalize,
+                                              m.distance_variance_penalty, m.angle_variance_penalty,
+                                              m.minimum_distance_penalty, m.minimum_angle_penalty)
+    want_raw = sums / norm
+    if penalize:
+        xs = center[0] + offs[None, None, :]
+        ys = center[1] + offs[None, :, None]
+        dth = np.asarray(center[2] + angles[:, None, None] - prior[2])
+        dth = (dth + np.pi) % (2 * np.pi) - np.pi
+        want = np.where(want_raw >= 0, want_raw * m._penalty(xs - prior[0], ys - prior[1], dth), -1.0)
+    else:
+        want = want_raw
+    assert np.array_equal(raw, want_raw) and np.array_equal(resp, want)
+    assert best == want.max()
+    hits = np.argwhere(want >= want.max() - 1e-12)
+    assert ties == len(hits) and tuple(hits[0]) == tuple(first)
+
+
+def test_karto_with_and_without_the_bound_gives_the_same_trajectory(monkeypatch):
+    from slam2d.methods import get_method
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    frames = simulate("office", SimulationParams(duration=120.0, seed=1)).frames()
+    pruned = get_method("karto")(seed=0).run(frames)
+    assert pruned.diagnostics.counters.get("near_skipped_bound", 0) > 0  # the bound did prune
+    monkeypatch.setattr(GridCache, "bound", lambda self, e, q, prior, stop=2.0: 2.0)
+    full = get_method("karto")(seed=0).run(frames)
+    assert "near_skipped_bound" not in full.diagnostics.counters
+    ta, pa = pruned.trajectory()
+    tb, pb = full.trajectory()
+    assert np.array_equal(ta, tb) and np.array_equal(pa, pb)
+
+
+def test_bound_of_nothing_is_zero():
+    m = CorrelativeMatcher()
+    world, q, prior = _scene(2)
+    sig = np.full(world.shape[0], 0.03)
+    assert m.response_bound(world, sig, np.zeros((0, 2)), prior) == 0.0
+    assert m.response_bound(np.zeros((0, 2)), np.zeros(0), q, prior) == 0.0
+    assert m.response_bound(world, sig, q, np.array([np.nan, 0.0, 0.0])) == 0.0
