@@ -493,15 +493,13 @@ class GraphFrontend:
         if p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
             c = cov.copy()
             c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
-            odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
-            pose = _weighted_mean([pose, predicted], [c, odo])
-            cov = np.linalg.inv(np.linalg.inv(c) + np.linalg.inv(odo))
+            pose, cov = _fuse(pose, c, predicted, _odometry_covariance())
         if result.response < p.minimum_match_response:
             # The scan does not fit the running scans (clutter, people, a new room seen from
             # its door): trust the odometry for this step, with an odometry-like uncertainty.
             self._count("match_failures")
             pose = predicted
-            cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            cov = _odometry_covariance()
         return pose, cov, result
 
     # ----------------------------------------------------------------- the main step
@@ -526,14 +524,15 @@ class GraphFrontend:
             predicted = se2.compose(self.graph.poses[last], offset)
         else:
             last, offset, predicted = -1, np.zeros(3), odom.copy()
-        if (p.predict_from_last_scan and self._matches_between_nodes(last) and self._frame_pose is not None
-                and previous_odom is not None):
+        # The last frame's pose plus the odometry since it (None before the first frame).
+        chained = (None if self._frame_pose is None or previous_odom is None
+                   else se2.compose(self._frame_pose, se2.relative(previous_odom, odom)))
+        if p.predict_from_last_scan and self._matches_between_nodes(last) and chained is not None:
             # The last scan was matched too. Where its pose plus the odometry since it puts the
             # heading more than half the angle window from the node-based prediction, the odometry
             # turned wrong since the node, and the match could miss it: predict from that scan. Its
             # position is taken only if its match was not flat along a corridor (chaining those
             # drifts more than the odometry).
-            chained = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
             if abs(float(se2.wrap_angle(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
                 self._count("predicted_from_last_scan")
                 if self._frame_degenerate:
@@ -551,11 +550,10 @@ class GraphFrontend:
         if not use.any():
             self._count("empty_scans")
             self.anchor, self.offset = last, offset
-            if not moved and self._frame_pose is not None and previous_odom is not None:
+            if not moved and chained is not None:
                 # Between nodes: the last frame's pose plus the odometry since it.
-                guess = se2.compose(self._frame_pose, se2.relative(previous_odom, odom))
-                self.offset = se2.relative(self.graph.poses[last], guess)
-                self._frame_pose = guess
+                self.offset = se2.relative(self.graph.poses[last], chained)
+                self._frame_pose = chained
             return None
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
@@ -578,7 +576,7 @@ class GraphFrontend:
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
-            cov = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            cov = _odometry_covariance()
         node = self.graph.add_node(pose)
         self._points.append(points)
         self._sigmas.append(sigmas)
@@ -656,10 +654,9 @@ class GraphFrontend:
             # 0.63 m along the corridor from the truth): the odometry prediction is fused in, so
             # along the corridor it decides.
             self._count("sequential_recoveries_fused")
-            odo = np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+            odo = _odometry_covariance()
             odo[2, 2] = MAX_COV  # the odometry's heading is what went wrong
-            pose = _weighted_mean([alt.pose, predicted], [alt.covariance, odo])
-            cov = np.linalg.inv(np.linalg.inv(alt.covariance) + np.linalg.inv(odo))
+            pose, cov = _fuse(alt.pose, alt.covariance, predicted, odo)
             alt = dataclasses.replace(alt, pose=pose, covariance=cov)
             values["recovery_m"] = float(np.hypot(*(pose[:2] - result.pose[:2])))
         else:
@@ -932,6 +929,17 @@ def _reachable(start, near, ei, ej, n):
                 queue[tail] = w
                 tail += 1
     return out
+
+
+def _odometry_covariance() -> NDArray[np.float64]:
+    """A fresh odometry-step covariance (what a step the scan cannot place is given)."""
+    return np.diag([ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_XY**2, ODOMETRY_SIGMA_THETA**2])
+
+
+def _fuse(pose: NDArray[np.float64], cov: NDArray[np.float64], predicted: NDArray[np.float64],
+          odo: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A match fused with the odometry prediction by information weighting: (pose, covariance)."""
+    return _weighted_mean([pose, predicted], [cov, odo]), np.linalg.inv(np.linalg.inv(cov) + np.linalg.inv(odo))
 
 
 def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float64]]) -> NDArray[np.float64]:
