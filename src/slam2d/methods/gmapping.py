@@ -15,7 +15,6 @@ along it, as the ROS node publishes it. See docs/methods/gmapping.md.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -44,7 +43,6 @@ from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 
 __all__ = ["GMappingParams", "GMapping"]
 
-log = logging.getLogger(__name__)
 
 # maxRange when the laser reports no finite range_max (the ROS wiki's maxUrange default)
 _FALLBACK_MAX_RANGE = 80.0
