@@ -18,7 +18,8 @@ from slam2d.core.scan import LaserScan, make_scan
 from slam2d.errors import InputError
 from slam2d.io import open_recording
 from slam2d.io.base import ReadOptions
-from slam2d.io.carmen import DEFAULT_SICK_MAX_RANGE, CarmenLog, write_carmen
+from slam2d.io.carmen import DEFAULT_SICK_MAX_RANGE, CarmenLog, infer_no_return_code, write_carmen
+from slam2d.io.inspect import summarize
 from slam2d.io.tum import interpolate_poses, read_tum
 from tests.conftest import dataset_file
 
@@ -256,7 +257,8 @@ def test_real_log_reads(name):
     elif keyword == "FLASER":
         assert coverage == pytest.approx(180.0, abs=1e-9)
         assert scan.angle_min == pytest.approx(-math.pi / 2, abs=1e-12)
-        assert scan.range_max == DEFAULT_SICK_MAX_RANGE
+        # aces writes no return as exactly 50.00 m, inferred from the log (see below)
+        assert scan.range_max == (50.0 if name.startswith("aces") else DEFAULT_SICK_MAX_RANGE)
         assert np.array_equal(scan.mount, np.zeros(3))
     # no reading at or beyond the maximum, or zero, survives as a return
     for f in frames[::25]:
@@ -645,3 +647,129 @@ def test_range_min_beyond_the_maximum_names_the_line_and_field(tmp_path):
         _scans(open_recording(path, ReadOptions(range_min=25.0)))
     text = str(err.value)
     assert "urg.log:1" in text and "range_max" in text and "range_min" in text
+
+
+# ---------------------------------------------------------------------------- inferred no-return code
+
+
+def _saturating_log(path: Path, *, code_per_scan: int, scans: int = 30, seed: int = 0, params=()) -> Path:
+    """FLASER lines of continuous readings up to ~49.9 m, ``code_per_scan`` of them written as 50.0."""
+    rng = np.random.default_rng(seed)
+    lines = list(params)
+    for i in range(scans):
+        ranges = np.round(rng.uniform(0.5, 49.9, 40), 2)
+        ranges[:code_per_scan] = 50.0
+        lines.append(_flaser(ranges.tolist(), 1.0 + i))
+    text = "".join(line + "\n" for line in lines).encode()
+    if path.name.endswith(".gz"):
+        path.write_bytes(gzip.compress(text))
+    else:
+        path.write_bytes(text)
+    return path
+
+
+@pytest.mark.parametrize("name", ["sat.log", "sat.log.gz"])
+def test_repeated_largest_value_is_inferred_as_no_return(tmp_path, name):
+    path = _saturating_log(tmp_path / name, code_per_scan=2)
+    log = open_recording(path)
+    scans = _scans(log)
+    assert all(s.range_max == 50.0 for s in scans)
+    assert all(np.isnan(s.ranges[:2]).all() and not np.isnan(s.ranges[2:]).any() for s in scans)
+    (note,) = log.notes()
+    assert "no-return code inferred: 50 m (60 of 1200 readings" in note
+    assert log.no_return_codes["FLASER"].count == 60
+    summary = summarize(open_recording(path))
+    assert summary.notes == [note] and summary.range_max == 50.0
+
+
+def test_largest_value_occurring_once_is_kept(tmp_path):
+    path = _saturating_log(tmp_path / "once.log", code_per_scan=0)
+    lines = path.read_text().splitlines()
+    tokens = lines[5].split()
+    tokens[2] = "50.0"  # the log's largest reading, once
+    lines[5] = " ".join(tokens)
+    _write_lines(path, lines)
+    log = open_recording(path)
+    scans = _scans(log)
+    assert log.notes() == [] and log.no_return_codes == {}
+    assert all(s.range_max == DEFAULT_SICK_MAX_RANGE for s in scans)
+    assert scans[5].ranges[0] == 50.0
+    assert not any(np.isnan(s.ranges).any() for s in scans)
+
+
+def test_rule_needs_count_dominance_and_readings_below():
+    rng = np.random.default_rng(1)
+    real = {float(v): 1 for v in np.round(rng.uniform(1.0, 49.9, 500), 2)}
+    assert infer_no_return_code({**real, 50.0: 620}).value == 50.0
+    assert infer_no_return_code({**real, 50.0: 19}) is None  # too rare to be a code
+    # a value repeating as often as its neighbours is a wall, not a code
+    assert infer_no_return_code({**real, 49.0: 30, 49.5: 10, 50.0: 60}) is None
+    assert infer_no_return_code({**real, 44.0: 30, 49.5: 6, 50.0: 60}).value == 50.0  # 44 m: outside the band
+    # every reading the same value, or nothing read near it: nothing to compare with
+    assert infer_no_return_code({2.0: 500}) is None
+    assert infer_no_return_code({1.0: 5, 2.0: 500}) is None
+    # readings at or beyond the SICK codes are no return anyway and never candidates
+    assert infer_no_return_code({**real, 81.83: 4000}) is None
+    assert infer_no_return_code({**real, 0.0: 4000}) is None
+
+
+def test_stated_maximum_wins_over_inference(tmp_path):
+    stated = ["PARAM robot_front_laser_max 60.0 host 0 0"]
+    path = _saturating_log(tmp_path / "stated.log", code_per_scan=2, params=stated)
+    log = open_recording(path)
+    scans = _scans(log)
+    assert log.notes() == []
+    assert all(s.range_max == 60.0 and not np.isnan(s.ranges).any() for s in scans)
+    # a PARAM half-way: lines before it have no stated maximum and get the code, lines after it not
+    lines = _saturating_log(tmp_path / "half.log", code_per_scan=2, scans=40).read_text().splitlines()
+    lines.insert(20, stated[0])
+    path = _write_lines(tmp_path / "half.log", lines)
+    scans = _scans(open_recording(path))
+    assert [s.range_max for s in scans] == [50.0] * 20 + [60.0] * 20
+    assert np.isnan(scans[0].ranges[0]) and scans[-1].ranges[0] == 50.0
+
+
+def test_range_max_option_wins_over_inference(tmp_path):
+    path = _saturating_log(tmp_path / "sat.log", code_per_scan=2)
+    log = open_recording(path, ReadOptions(range_max=60.0))
+    scans = _scans(log)
+    assert log.notes() == [] and log.no_return_codes == {}
+    assert all(s.range_max == 60.0 and not np.isnan(s.ranges).any() for s in scans)
+    (lower,) = {s.range_max for s in _scans(open_recording(path, ReadOptions(range_max=40.0)))}
+    assert lower == 40.0
+
+
+def test_written_logs_state_their_maximum_and_infer_nothing(tmp_path):
+    # write_carmen (and so `slam2d simulate`) writes no return as the stated maximum, many times
+    frames = _random_frames(40, 60)
+    path = write_carmen(tmp_path / "sim.log.gz", frames)
+    log = open_recording(path)
+    read = list(log.frames())
+    assert log.notes() == []
+    for r, w in zip(read, frames):
+        _assert_same_scan(r.scan, w.scan)
+
+
+@pytest.mark.datasets
+@pytest.mark.parametrize("name", sorted(REAL_LOGS) + ["robustness/infinite-corridor-corrupt-timestamps.log.gz"])
+def test_real_logs_no_return_code(name):
+    log = CarmenLog(dataset_file(name))
+    codes = log._infer_no_return_codes()
+    if name.startswith("aces"):
+        assert set(codes) == {"FLASER"}
+        code = codes["FLASER"]
+        assert (code.value, code.count, code.readings) == (50.0, 620, 79200)
+        assert code.band_count <= 4
+    else:
+        assert codes == {}, "intel, fr079, fr101 (SICK codes 81.83/81.91), mines and CSAIL must infer nothing"
+
+
+def test_info_prints_what_was_inferred(tmp_path, capsys):
+    from slam2d.cli import main
+
+    path = _saturating_log(tmp_path / "sat.log.gz", code_per_scan=3)
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "inferred by the reader" in out and "no-return code inferred: 50 m" in out
+    assert main(["info", str(path), "--range-max", "60"]) == 0
+    assert "inferred by the reader" not in capsys.readouterr().out

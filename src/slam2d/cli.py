@@ -132,6 +132,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         for s in summary.streams:
             st.add_row(s["name"], s["type"], str(s["count"]), s.get("used_as", ""))
         out.print(st)
+    if summary.notes:
+        out.print("inferred by the reader:")
+        for line in summary.notes:
+            out.print(f"  - {line}", markup=False)
     if summary.problems:
         out.print(f"[yellow]problems found ({len(summary.problems)}):[/yellow]")
         for line in summary.problems:

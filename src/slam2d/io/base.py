@@ -78,8 +78,9 @@ class ReadOptions:
         None,
         unit="m",
         low=0.0,
-        help="readings at or beyond this are no return, whatever the recording states (a laser that "
-        "reports no return as a fixed long range, e.g. 50 m in the aces log); unset: the recording's own maximum",
+        help="readings at or beyond this are no return, whatever the recording states or the reader "
+        "infers (a CARMEN log that states no maximum has its no-return code inferred, e.g. 50 m in "
+        "aces; this replaces the inference); unset: the recording's own maximum",
     )
 
 
@@ -129,6 +130,10 @@ class Recording(ABC):
 
     def streams(self) -> list[StreamInfo]:
         """Topics or message types with their counts (complete after a full read)."""
+        return []
+
+    def notes(self) -> list[str]:
+        """What the reader inferred rather than read (e.g. a no-return code); complete after a full read."""
         return []
 
     @property

@@ -38,6 +38,7 @@ class RecordingSummary:
     odometry_path_length: float = 0.0
     laser_mount: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     streams: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what the reader inferred, not read
     problems: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
@@ -86,6 +87,7 @@ def summarize(recording: Recording, progress: ProgressCallback | None = None) ->
     problems = list(recording.problems.lines())
     s.scans = len(stamps)
     s.odometry_source = recording.odometry_source
+    s.notes = list(recording.notes())
     s.streams = [asdict(st) if isinstance(st, StreamInfo) else dict(st) for st in recording.streams()]
     if s.scans:
         t = np.asarray(stamps)
