@@ -438,29 +438,29 @@ def crsm_mines_consistency(_: Path) -> tuple[None, str]:
 
 #: docs/methods/gmapping.md, "Recommended parameters": the one set for dense logs from long-range
 #: SICK lasers (intel, fr079, aces, fr101): motion noise for odometry better than GMapping's defaults
-#: assume, and aces's no-return reading (50.0 m) dropped
-GMAPPING_DENSE = {"srt": 0.05, "stt": 0.05, "maxRange": 49.9}
+#: assume. (aces's no-return reading, 50.0 m, no longer needs maxRange=49.9: the CARMEN reader
+#: infers it as the log's no-return code.)
+GMAPPING_DENSE = {"srt": 0.05, "stt": 0.05}
 #: the same page: what fr079 needs on top of it (its odometry misses a turn on the spot; the
 #: scan-matched increments drive the motion model); it hurts aces, so it is not in the set
 GMAPPING_DENSE_GUIDED = {**GMAPPING_DENSE, "between_updates": "guided"}
 
 
 def _gmapping(rel: str, particles: int = 30, settings: dict | None = None,
-              range_max: float | None = None, more_seeds: tuple[int, ...] = ()) -> Callable[[Path], tuple[float, str]]:
+              more_seeds: tuple[int, ...] = ()) -> Callable[[Path], tuple[float, str]]:
     """`gmapping` on a shared log, in this process (so peak memory is its own).
 
-    ``settings`` / ``range_max`` (the reader's ``--range-max``) default to none: GMapping's
-    defaults. Time is the whole run (reading, filter, map, writing the run folder) with seed 0. The
-    note gives the ATE against the log's ``reference.tum``, the filter's per-update latency (median
-    and p95 of the updates' wall time), its CPU time and the map tiles it held; ``more_seeds`` are
-    run after it (not timed) and their ATEs added to the note.
+    ``settings`` default to none: GMapping's defaults. Time is the whole run (reading, filter, map,
+    writing the run folder) with seed 0. The note gives the ATE against the log's
+    ``reference.tum``, the filter's per-update latency (median and p95 of the updates' wall time),
+    its CPU time and the map tiles it held; ``more_seeds`` are run after it (not timed) and their
+    ATEs added to the note.
     """
 
     def run(workdir: Path) -> tuple[float, str]:
         import numpy as np
 
         from slam2d.eval.evaluate import evaluate_run, load_reference, load_run
-        from slam2d.io.base import ReadOptions
         from slam2d.methods.runner import run_method
 
         tag = "-".join(f"{k}{v}" for k, v in sorted((settings or {}).items()))
@@ -469,7 +469,7 @@ def _gmapping(rel: str, particles: int = 30, settings: dict | None = None,
         def one(seed: int) -> tuple[Path, float]:
             out = workdir / f"gmapping-{Path(rel).parent.name}-{particles}{tag}-s{seed}"
             run_method("gmapping", DATA / rel, out, settings={"particles": particles, **(settings or {})},
-                       seed=seed, read_options=ReadOptions(range_max=range_max))
+                       seed=seed)
             ate = evaluate_run(load_run(out), reference)
             return out, ate["trajectory"]["ate"]["translation_m"]["rmse"]
 
@@ -750,15 +750,15 @@ CASES: list[Case] = [
     Case("gmapping-intel", "`gmapping` defaults (30 particles) on intel, whole run; per-update latency in notes",
          _gmapping("intel/intel.clf.gz", more_seeds=(1, 2, 3, 4)), target="< 30 s (C++ original 46 s), ATE < 0.10 m",
          max_seconds=30.0, needs=(SHARED,), repeat=1),
-    Case("gmapping-intel-dense", "`gmapping` on intel with the docs' dense-log set (`srt=0.05 stt=0.05 "
-         "maxRange=49.9`), seeds 0-4",
+    Case("gmapping-intel-dense", "`gmapping` on intel with the docs' dense-log set (`srt=0.05 stt=0.05`), "
+         "seeds 0-4",
          _gmapping("intel/intel.clf.gz", settings=GMAPPING_DENSE, more_seeds=(1, 2, 3, 4)),
          target="< 30 s, ATE < 0.10 m every seed (in the notes)", max_seconds=30.0, needs=(SHARED,), repeat=1),
     Case("gmapping-fr079", "`gmapping` defaults (30 particles) on fr079, whole run; per-update latency in notes",
          _gmapping("fr079/fr079.clf.gz"), target="< 40 s (C++ original 60 s), ATE < 0.30 m", max_seconds=40.0,
          needs=(SHARED,), repeat=1),
-    Case("gmapping-fr079-dense", "`gmapping` on fr079 with the docs' dense-log set (`srt=0.05 stt=0.05 "
-         "maxRange=49.9`)", _gmapping("fr079/fr079.clf.gz", settings=GMAPPING_DENSE),
+    Case("gmapping-fr079-dense", "`gmapping` on fr079 with the docs' dense-log set (`srt=0.05 stt=0.05`)",
+         _gmapping("fr079/fr079.clf.gz", settings=GMAPPING_DENSE),
          target="< 40 s, ATE < 0.30 m (in the notes)", max_seconds=40.0, needs=(SHARED,), repeat=1),
     Case("gmapping-fr079-dense-guided", "`gmapping` on fr079 with the dense-log set plus what fr079 needs "
          "(`between_updates=guided`: the scan-matched increments drive the motion model; docs: not for aces)",
@@ -766,12 +766,12 @@ CASES: list[Case] = [
          max_seconds=40.0, needs=(SHARED,), repeat=1),
     Case("gmapping-aces", "`gmapping` defaults (30 particles) on aces", _gmapping("aces/aces.clf.gz"),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
-    Case("gmapping-aces-dense", "`gmapping` on aces with the docs' dense-log set (`srt=0.05 stt=0.05 maxRange=49.9`: "
-         "aces reports no return as 50.0 m)", _gmapping("aces/aces.clf.gz", settings=GMAPPING_DENSE, more_seeds=(1, 2)),
+    Case("gmapping-aces-dense", "`gmapping` on aces with the docs' dense-log set (`srt=0.05 stt=0.05`; the reader "
+         "infers aces's no-return code, 50.0 m)", _gmapping("aces/aces.clf.gz", settings=GMAPPING_DENSE, more_seeds=(1, 2)),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-fr101", "`gmapping` defaults (30 particles) on fr101", _gmapping("fr101/fr101.clf.gz"),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
-    Case("gmapping-fr101-dense", "`gmapping` on fr101 with the docs' dense-log set",
+    Case("gmapping-fr101-dense", "`gmapping` on fr101 with the docs' dense-log set (`srt=0.05 stt=0.05`)",
          _gmapping("fr101/fr101.clf.gz", settings=GMAPPING_DENSE), target="ATE < 0.15 m (in the notes)",
          needs=(SHARED,), repeat=1),
     Case("gmapping-memory-intel-100", "`gmapping` with 100 particles on intel: peak memory (copy-on-write tiles)",
