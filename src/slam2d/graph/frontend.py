@@ -210,7 +210,8 @@ class GraphSlamParams(GridParams):
     )
     loop_confirm_path: float = param(
         5.0, unit="m", low=0.0,
-        help="a loop hypothesis waits for confirmation until the robot has travelled this far past it (not in Karto)",
+        help="a loop hypothesis waits for confirmation until the robot has travelled this far past it, and "
+        "the two old scans of a confirming pair lie at most this far apart along their pass (not in Karto)",
     )
     loop_match_maximum_correction: float = param(
         0.5, unit="m", low=0.0,
@@ -247,6 +248,11 @@ class GraphSlamParams(GridParams):
     )
     loop_search_space_smear_deviation: float = param(
         0.03, unit="m", low=0.0, help="smear sigma of the loop grid [LoopSearchSpaceSmearDeviation]"
+    )
+    smear_beam_spacing: float = param(
+        0.0, low=0.0,
+        help="widen each reference point's smear, in quadrature, by this share of the gap between its beam "
+        "and the next at its range (range x angle increment), up to 10 cells (not in Karto; 0 = off)",
     )
     distance_variance_penalty: float = param(
         0.3**2, unit="m^2", low=1e-9,
@@ -580,6 +586,11 @@ class GraphFrontend:
             return None
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
+        if p.smear_beam_spacing > 0:
+            # A reference point stands for the stretch of wall between it and its neighbours'
+            # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
+            gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
+            sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), 10.0 * self.sequential.resolution)
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         if not moved:
@@ -885,7 +896,9 @@ class GraphFrontend:
             if self._path_length(h.node, hyp.node) > p.loop_confirm_path:
                 continue
             keep.append(h)
-            if h.node == hyp.node:
+            # Both legs of the cycle through the graph must be short: a long one carries the
+            # drift a closure is there to correct, and a wrong match can agree with it.
+            if h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
                 continue
             via_h = se2.compose(se2.compose(poses[h.frm], h.z), se2.relative(poses[h.node], poses[hyp.node]))
             err = se2.relative(se2.compose(poses[hyp.frm], hyp.z), via_h)
