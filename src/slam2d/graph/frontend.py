@@ -592,9 +592,6 @@ class GraphFrontend:
             # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
             gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
             sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), 10.0 * self.sequential.resolution)
-            # In steps of a quarter cell: the grid drawing builds a kernel per distinct sigma.
-            q = 0.25 * self.sequential.resolution
-            sigmas = np.maximum(np.round(sigmas / q) * q, self.sequential.smear_deviation)
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         if not moved:
