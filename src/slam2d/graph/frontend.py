@@ -806,8 +806,7 @@ class GraphFrontend:
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
                        "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
                        "correction_m": correction, "path_m": path, "threshold_coarse": coarse_threshold,
-                       "pose": [float(v) for v in coarse.pose],
-                       "chain_poses": self.graph.poses[a:b].tolist()}
+                       "pose": [float(v) for v in coarse.pose]}
             self.loop_attempts.append(attempt)
             if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
                 self._count("loop_rejected_drift")
