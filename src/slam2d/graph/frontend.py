@@ -192,6 +192,27 @@ class GraphSlamParams(GridParams):
     loop_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response of the fine loop match [LoopMatchMinimumResponseFine]"
     )
+    loop_match_minimum_response_confirmed: float = param(
+        0.55, low=0.0, high=1.0,
+        help="a loop match whose coarse and fine responses reach this but not Karto's thresholds (and whose "
+        "coarse variances pass) is kept as a hypothesis, and accepted with another such hypothesis (or a "
+        "closure) from a different scan nearby when the two agree on where the new scans lie in the old map "
+        "(loop_confirm_distance, loop_confirm_angle) (not in Karto: on logs thinned to ~1 m between scans "
+        "true closures respond 0.55-0.8); 1 turns it off",
+    )
+    loop_confirm_distance: float = param(
+        0.1, unit="m", low=0.0,
+        help="two loop hypotheses confirm each other when the cycle through both (chain to scan, scan to scan "
+        "along the graph, scan to chain, back along the old chain) closes within this distance (not in Karto)",
+    )
+    loop_confirm_angle: float = param(
+        1.5 * _DEG, unit="rad", low=0.0, help="and within this angle (not in Karto)"
+    )
+    loop_confirm_path: float = param(
+        5.0, unit="m", low=0.0,
+        help="a loop hypothesis waits for confirmation until the robot has travelled this far past it, and "
+        "the two old scans of a confirming pair lie at most this far apart along their pass (not in Karto)",
+    )
     loop_match_maximum_correction: float = param(
         0.5, unit="m", low=0.0,
         help="a loop closure may move the new scan at most this far plus loop_match_maximum_drift times "
@@ -227,6 +248,12 @@ class GraphSlamParams(GridParams):
     )
     loop_search_space_smear_deviation: float = param(
         0.03, unit="m", low=0.0, help="smear sigma of the loop grid [LoopSearchSpaceSmearDeviation]"
+    )
+    smear_beam_spacing: float = param(
+        1.0, low=0.0,
+        help="widen each reference point's smear, in quadrature, by this share of the gap between its beam "
+        "and the next at its range (range x angle increment), up to 10 cells (not in Karto, whose smear is "
+        "the same for every point: far points of a 1 deg laser 1 m apart then match as isolated dots); 0 = off",
     )
     distance_variance_penalty: float = param(
         0.3**2, unit="m^2", low=1e-9,
@@ -275,6 +302,7 @@ class LoopClosure:
     cost_before: float
     cost_after: float
     chain_size: int
+    confirmed_by: int = -1  # node of the hypothesis that confirmed a weak closure (-1: passed Karto's thresholds)
 
     def as_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -345,6 +373,8 @@ class GraphFrontend:
         # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
         self._tried: list[tuple[int, int, float, float]] = []
         self._self_response: dict[int, float] = {}
+        # Weak loop matches waiting for a consistent partner: see _confirm_hypothesis.
+        self._hypotheses: list[_Hypothesis] = []
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -557,6 +587,11 @@ class GraphFrontend:
             return None
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
+        if p.smear_beam_spacing > 0:
+            # A reference point stands for the stretch of wall between it and its neighbours'
+            # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
+            gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
+            sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), 10.0 * self.sequential.resolution)
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         if not moved:
@@ -762,45 +797,118 @@ class GraphFrontend:
                 matcher = self.loop.with_window(max(2.0 * allowed, self.sequential.search_size))
             # The refine step can lift a coarse pose by about the angle sampling's loss, so the
             # branch and bound must keep scoring poses that far below the threshold.
-            floor = coarse_threshold - (_REFINE_GAIN if p.loop_coarse_refine else 0.0)
+            floor = min(coarse_threshold, p.loop_match_minimum_response_confirmed)
+            floor -= _REFINE_GAIN if p.loop_coarse_refine else 0.0
             coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False,
                                  refine=p.loop_coarse_refine, min_response=floor)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
                        "var_x": float(coarse.covariance[0, 0]), "var_y": float(coarse.covariance[1, 1]),
-                       "correction_m": correction, "path_m": path, "threshold_coarse": coarse_threshold}
+                       "correction_m": correction, "path_m": path, "threshold_coarse": coarse_threshold,
+                       "pose": [float(v) for v in coarse.pose]}
             self.loop_attempts.append(attempt)
             if correction > p.loop_match_maximum_correction + p.loop_match_maximum_drift * path:
                 self._count("loop_rejected_drift")
                 continue
-            if not (
-                coarse.response > coarse_threshold
-                and coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
-                and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse
-            ):
+            variance_ok = (coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
+                           and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse)
+            strong = coarse.response > coarse_threshold
+            if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
                 self._count("loop_rejected_coarse")
                 continue
             fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
             attempt["response_fine"] = fine.response
-            if fine.response < p.loop_match_minimum_response_fine:
+            strong = strong and fine.response >= p.loop_match_minimum_response_fine
+            if not strong and fine.response < p.loop_match_minimum_response_confirmed:
                 self._count("loop_rejected_fine")
                 continue
-            self.graph.poses[node] = fine.pose
-            self._world[node] = None
-            frm = self._link_chain_to_scan(chain, node, fine.pose, fine.covariance)
-            z = se2.relative(self.graph.poses[frm], fine.pose)
+            frm = self._closest_in_chain(chain, fine.pose)
+            hyp = _Hypothesis(node=node, frm=frm, z=se2.relative(self.graph.poses[frm], fine.pose),
+                              covariance=self._local_covariance(frm, fine.covariance),
+                              response_coarse=coarse.response, response_fine=fine.response, chain_size=b - a)
+            partner = None
+            if not strong:
+                # Below Karto's thresholds a match alone is not trusted; a second one from another
+                # scan that puts the new scans in the same place of the old map is the evidence.
+                partner = self._confirming_hypothesis(hyp)
+                if partner is None:
+                    self._hypotheses.append(hyp)
+                    self._count("loop_hypotheses")
+                    attempt["hypothesis"] = True
+                    continue
+                self._hypotheses.remove(partner)
+                self._count("loop_confirmed")
+            attempt["accepted"] = True
+            for h in (partner, hyp):
+                if h is None:
+                    continue
+                if h.node == node:
+                    self.graph.poses[node] = fine.pose
+                    self._world[node] = None
+                if not self._has_edge(h.frm, h.node):
+                    self.graph.add_edge(h.frm, h.node, h.z, np.linalg.inv(h.covariance))
             before, after = self.optimize()
-            self.loop_closures.append(
-                LoopClosure(
-                    frm=frm, to=node, time_from=self._times[frm], time_to=self._times[node],
-                    measurement=[float(v) for v in z], response_coarse=coarse.response,
-                    response_fine=fine.response, cost_before=before, cost_after=after, chain_size=b - a,
+            for h in (partner, hyp):
+                if h is None:
+                    continue
+                self.loop_closures.append(
+                    LoopClosure(
+                        frm=h.frm, to=h.node, time_from=self._times[h.frm], time_to=self._times[h.node],
+                        measurement=[float(v) for v in h.z], response_coarse=h.response_coarse,
+                        response_fine=h.response_fine, cost_before=before, cost_after=after, chain_size=h.chain_size,
+                        confirmed_by=-1 if partner is None else (partner.node if h is hyp else hyp.node),
+                    )
                 )
-            )
-            self._count("loop_closures")
-            closed += 1
+                self._count("loop_closures")
+                closed += 1
             candidate = None
+
+    def _closest_in_chain(self, chain: list[int], pose: NDArray[np.float64]) -> int:
+        """The chain's scan whose reference position is closest to the new scan at ``pose`` (LinkChainToScan's choice)."""
+        ref = self.reference_positions()
+        node = self.graph.num_nodes - 1
+        target = se2.transform_points(pose, self._bary_base[node][None, :])[0] if self.params.use_scan_barycenter else pose[:2]
+        d2 = ((ref[chain] - target) ** 2).sum(axis=1)
+        return int(chain[int(np.argmin(d2))])
+
+    def _local_covariance(self, i: int, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """A world-frame match covariance rotated into node i's frame, as an edge from i holds it."""
+        c, s = math.cos(self.graph.poses[i][2]), math.sin(self.graph.poses[i][2])
+        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = rot @ covariance @ rot.T
+        return 0.5 * (cov + cov.T) + np.eye(3) * 1e-12
+
+    def _confirming_hypothesis(self, hyp: _Hypothesis) -> _Hypothesis | None:
+        """A waiting hypothesis from another recent scan that agrees with ``hyp`` (pairwise consistency).
+
+        Each hypothesis says where its scan lies relative to an old scan. Going round the cycle
+        old scan 1 -> new scan 1 (hypothesis 1) -> new scan 2 (the graph, a few metres of recent
+        matching) -> old scan 2 (hypothesis 2, inverted) -> old scan 1 (the graph along the old
+        pass) must bring us back where we started if both are right; two wrong matches (or one
+        right, one wrong) rarely agree. Expired hypotheses are dropped here.
+        """
+        p = self.params
+        poses = self.graph.poses
+        keep = []
+        best, best_err = None, math.inf
+        for h in self._hypotheses:
+            if self._path_length(h.node, hyp.node) > p.loop_confirm_path:
+                continue
+            keep.append(h)
+            # Both legs of the cycle through the graph must be short: a long one carries the
+            # drift a closure is there to correct, and a wrong match can agree with it.
+            if h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
+                continue
+            via_h = se2.compose(se2.compose(poses[h.frm], h.z), se2.relative(poses[h.node], poses[hyp.node]))
+            err = se2.relative(se2.compose(poses[hyp.frm], hyp.z), via_h)
+            dist, ang = float(np.hypot(err[0], err[1])), abs(float(se2.wrap_angle(err[2])))
+            if dist <= p.loop_confirm_distance and ang <= p.loop_confirm_angle:
+                score = dist / max(p.loop_confirm_distance, 1e-9) + ang / max(p.loop_confirm_angle, 1e-9)
+                if score < best_err:
+                    best, best_err = h, score
+        self._hypotheses = keep
+        return best
 
     def _coarse_self_response(self, node: int, points: NDArray[np.float64]) -> float:
         """Coarse loop response of the scan against itself, the truth half a coarse step off every sample.
@@ -878,6 +986,19 @@ class GraphFrontend:
             # Grids actually drawn (a build whose near chain the response bound skipped may never be).
             "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
         }
+
+
+@dataclass
+class _Hypothesis:
+    """A loop match below Karto's thresholds, waiting for a consistent second one."""
+
+    node: int  # the new scan
+    frm: int  # the old scan the edge would hang from
+    z: NDArray[np.float64]  # the new scan's pose in frm's frame
+    covariance: NDArray[np.float64]  # in frm's frame
+    response_coarse: float
+    response_fine: float
+    chain_size: int
 
 
 MAX_COV = 500.0
