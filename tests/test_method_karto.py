@@ -308,3 +308,24 @@ def test_sequential_recovery_along_a_corridor_keeps_the_odometry_there():
     assert fused >= 1 and errs and max(errs) < 0.15, step_errors
     errs, fused = step_errors[float("inf")]
     assert fused == 0 and max(errs) > 0.3, step_errors
+
+
+def test_sequential_recovery_after_a_response_drop_finds_a_wheel_slip():
+    """Corridor loop, RPLidar, seed 2, t = 20.9 s: the odometry logs 8 mm of a 0.15 m frame step, the node is
+    predicted 0.25 m short (beyond the +-0.15 m window) and the match, 0.63 against 0.95 for the frame before,
+    stays there. The drop from the last frame's response triggers the wide search, which finds the step."""
+    sim = simulate("corridor-loop", SimulationParams(duration=25.0, seed=2, laser="rplidar-a1"))
+    errors = {}
+    for drop in (0.2, 1.0):
+        slam = _run("karto", sim.frames(), sequential_recovery_drop=drop)
+        fe = slam.frontend
+        nt = fe.node_times()
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, nt)]
+        steps = [se2.relative(se2.relative(truth[i], truth[i + 1]), se2.relative(fe.graph.poses[i], fe.graph.poses[i + 1]))
+                 for i in range(len(nt) - 1)]
+        errors[drop] = (max(float(np.hypot(s[0], s[1])) for s in steps),
+                        slam.diagnostics.counters["sequential_response_drops"])
+    worst, drops = errors[0.2]
+    assert drops >= 1 and worst < 0.05, errors
+    worst, drops = errors[1.0]
+    assert drops == 0 and worst > 0.2, errors
