@@ -329,3 +329,47 @@ def test_sequential_recovery_after_a_response_drop_finds_a_wheel_slip():
     assert drops >= 1 and worst < 0.05, errors
     worst, drops = errors[1.0]
     assert drops == 0 and worst > 0.2, errors
+
+
+def _square_loop(n_side=20, step=0.5):
+    """Truth of a square loop walked twice (nodes every ``step`` m), as a front end's node poses."""
+    poses = []
+    for lap in range(2):
+        for side in range(4):
+            theta = side * np.pi / 2
+            for k in range(n_side):
+                if not poses:
+                    poses.append(np.zeros(3))
+                    continue
+                poses.append(se2.compose(poses[-1], [step, 0.0, np.pi / 2 if k == 0 else 0.0]))
+    return np.asarray(poses)
+
+
+def test_closure_bound_is_exact_with_exact_steps_and_cuts_a_drifting_chain():
+    from types import SimpleNamespace
+
+    from slam2d.backends import PoseGraph
+    from slam2d.graph.evaluation import closure_bound
+
+    truth = _square_loop()
+    rng = np.random.default_rng(1)
+    exact = [se2.relative(truth[k], truth[k + 1]) for k in range(len(truth) - 1)]
+    for noisy in (False, True):
+        steps = [z + (np.array([0.0, 0.0, 0.004]) + rng.normal(0, [0.01, 0.01, 0.002]) if noisy else 0.0)
+                 for z in exact]
+        poses = [truth[0]]
+        for z in steps:
+            poses.append(se2.compose(poses[-1], z))
+        g = PoseGraph()
+        g.add_nodes(np.asarray(poses))
+        n = len(poses)
+        g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), np.diag([1e4, 1e4, 1e5]))
+        fe = SimpleNamespace(graph=g, node_times=lambda n=n: np.arange(n, dtype=float))
+        b = closure_bound(fe, truth, radius=0.3)
+        assert b["closures"] == n - 80  # every node of the second lap returns to the first
+        if noisy:  # a biased heading drifts the chain by metres; the closures hold it to centimetres
+            assert b["ate_before_m"] > 0.5 and b["ate_m"] < 0.1 * b["ate_before_m"], b
+        else:
+            assert b["ate_before_m"] < 1e-9 and b["ate_m"] < 1e-6, b
+    with pytest.raises(ValueError):
+        closure_bound(fe, truth[:-1])
