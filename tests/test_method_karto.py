@@ -373,3 +373,26 @@ def test_closure_bound_is_exact_with_exact_steps_and_cuts_a_drifting_chain():
             assert b["ate_before_m"] < 1e-9 and b["ate_m"] < 1e-6, b
     with pytest.raises(ValueError):
         closure_bound(fe, truth[:-1])
+
+
+def test_response_drop_triggers_the_wide_search_only_against_a_close_last_frame():
+    """A match 0.3 below the last frame's response is searched again; with no close last frame (NaN) it is not."""
+    from slam2d.matching.correlative import MatchResult
+
+    sim = simulate("paper-arena", SimulationParams(duration=10.0, seed=5))
+    slam = _run("karto", sim.frames())
+    fe = slam.frontend
+    last = fe.num_nodes - 1
+    truth = fe.graph.poses[last].copy()
+    points, _ = fe.node_points(last)
+    off = truth + np.array([0.25, 0.0, 0.0])  # beyond the +-0.15 m window, the match inside it
+    first = MatchResult(off + np.array([-0.04, 0.0, 0.0]), np.eye(3) * 1e-4, 0.65, 0.65, 0)
+    before = slam.diagnostics.counters["sequential_response_drops"]
+    out, recovered = fe._recover_sequential(first, points, off, {}, float("nan"))
+    assert out is first and not recovered and slam.diagnostics.counters["sequential_response_drops"] == before
+    out, recovered = fe._recover_sequential(first, points, off, {}, 0.7)  # a drop of 0.05: no trigger
+    assert out is first and not recovered
+    values: dict = {}
+    out, recovered = fe._recover_sequential(first, points, off, values, 0.95)
+    assert slam.diagnostics.counters["sequential_response_drops"] == before + 1
+    assert recovered and np.allclose(out.pose[:2], truth[:2], atol=0.02), out.pose - truth
