@@ -396,3 +396,16 @@ def test_response_drop_triggers_the_wide_search_only_against_a_close_last_frame(
     out, recovered = fe._recover_sequential(first, points, off, values, 0.95)
     assert slam.diagnostics.counters["sequential_response_drops"] == before + 1
     assert recovered and np.allclose(out.pose[:2], truth[:2], atol=0.02), out.pose - truth
+
+
+def test_flat_near_links_can_be_freed_along_the_corridor(karto_run, loop_sim):
+    """link_flat_variance: near links flat along a corridor get that variance along it, nothing else changes there."""
+    freed = _run("karto", loop_sim.frames(), link_flat_variance=100.0)
+    assert karto_run.diagnostics.counters["near_links_flat"] == 0
+    assert freed.diagnostics.counters["near_links_flat"] > 0
+    g = freed.frontend.graph
+    ei, ej = np.asarray(g.edge_i), np.asarray(g.edge_j)
+    info = np.asarray(g.information)[ej - ei > 70]  # links to an older pass
+    weakest = [float(np.linalg.eigvalsh(np.linalg.inv(m)[:2, :2])[-1]) for m in info]
+    assert max(weakest) >= 99.0  # the flat ones are free along the corridor
+    assert min(weakest) < 1.0  # the others keep the match's covariance

@@ -166,6 +166,14 @@ class GraphSlamParams(GridParams):
     link_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response that links a near chain [LinkMatchMinimumResponseFine]"
     )
+    link_flat_variance: float = param(
+        0.0, unit="m^2", low=0.0,
+        help="a near-chain link whose match is flat along a corridor (its x, y spread fills the window) gets "
+        "this variance along the corridor (not in Karto): unpenalised, such a match only repeats where the "
+        "graph already puts the scan, and dozens of them along one corridor hold the graph there against a "
+        "loop closure; 0 (default) keeps the window's variance, since 1-100 helped the simulated worlds but "
+        "not intel, aces or fr101",
+    )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
     )
@@ -737,9 +745,15 @@ class GraphFrontend:
                     self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
                     del self._near_failed[:-100]
             else:
+                cov = result.covariance
+                if p.link_flat_variance > 0 and self._degenerate(cov):
+                    w, v = np.linalg.eigh(cov[:2, :2])
+                    cov = cov.copy()
+                    cov[:2, :2] += max(p.link_flat_variance - w[-1], 0.0) * np.outer(v[:, -1], v[:, -1])
+                    self._count("near_links_flat")
                 means.append(result.pose)
-                covs.append(result.covariance)
-                self._link_chain_to_scan(chain, node, result.pose, result.covariance)
+                covs.append(cov)
+                self._link_chain_to_scan(chain, node, result.pose, cov)
                 count += 1
         return count
 
