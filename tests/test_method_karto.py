@@ -310,3 +310,104 @@ def test_sequential_recovery_along_a_corridor_keeps_the_odometry_there():
     assert fused >= 1 and errs and max(errs) < 0.15, step_errors
     errs, fused = step_errors[float("inf")]
     assert fused == 0 and max(errs) > 0.3, step_errors
+
+
+def test_sequential_recovery_after_a_response_drop_finds_a_wheel_slip():
+    """Corridor loop, RPLidar, seed 2, t = 20.9 s: the odometry logs 8 mm of a 0.15 m frame step, the node is
+    predicted 0.25 m short (beyond the +-0.15 m window) and the match, 0.63 against 0.95 for the frame before,
+    stays there. The drop from the last frame's response triggers the wide search, which finds the step."""
+    sim = simulate("corridor-loop", SimulationParams(duration=25.0, seed=2, laser="rplidar-a1"))
+    errors = {}
+    for drop in (0.2, 1.0):
+        slam = _run("karto", sim.frames(), sequential_recovery_drop=drop)
+        fe = slam.frontend
+        nt = fe.node_times()
+        truth = sim.scan_truth[np.searchsorted(sim.scan_times, nt)]
+        steps = [se2.relative(se2.relative(truth[i], truth[i + 1]), se2.relative(fe.graph.poses[i], fe.graph.poses[i + 1]))
+                 for i in range(len(nt) - 1)]
+        errors[drop] = (max(float(np.hypot(s[0], s[1])) for s in steps),
+                        slam.diagnostics.counters["sequential_response_drops"])
+    worst, drops = errors[0.2]
+    assert drops >= 1 and worst < 0.05, errors
+    worst, drops = errors[1.0]
+    assert drops == 0 and worst > 0.2, errors
+
+
+def _square_loop(n_side=20, step=0.5):
+    """Truth of a square loop walked twice (nodes every ``step`` m), as a front end's node poses."""
+    poses = []
+    for lap in range(2):
+        for side in range(4):
+            theta = side * np.pi / 2
+            for k in range(n_side):
+                if not poses:
+                    poses.append(np.zeros(3))
+                    continue
+                poses.append(se2.compose(poses[-1], [step, 0.0, np.pi / 2 if k == 0 else 0.0]))
+    return np.asarray(poses)
+
+
+def test_closure_bound_is_exact_with_exact_steps_and_cuts_a_drifting_chain():
+    from types import SimpleNamespace
+
+    from slam2d.backends import PoseGraph
+    from slam2d.graph.evaluation import closure_bound
+
+    truth = _square_loop()
+    rng = np.random.default_rng(1)
+    exact = [se2.relative(truth[k], truth[k + 1]) for k in range(len(truth) - 1)]
+    for noisy in (False, True):
+        steps = [z + (np.array([0.0, 0.0, 0.004]) + rng.normal(0, [0.01, 0.01, 0.002]) if noisy else 0.0)
+                 for z in exact]
+        poses = [truth[0]]
+        for z in steps:
+            poses.append(se2.compose(poses[-1], z))
+        g = PoseGraph()
+        g.add_nodes(np.asarray(poses))
+        n = len(poses)
+        g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), np.diag([1e4, 1e4, 1e5]))
+        fe = SimpleNamespace(graph=g, node_times=lambda n=n: np.arange(n, dtype=float))
+        b = closure_bound(fe, truth, radius=0.3)
+        assert b["closures"] == n - 80  # every node of the second lap returns to the first
+        if noisy:  # a biased heading drifts the chain by metres; the closures hold it to centimetres
+            assert b["ate_before_m"] > 0.5 and b["ate_m"] < 0.1 * b["ate_before_m"], b
+        else:
+            assert b["ate_before_m"] < 1e-9 and b["ate_m"] < 1e-6, b
+    with pytest.raises(ValueError):
+        closure_bound(fe, truth[:-1])
+
+
+def test_response_drop_triggers_the_wide_search_only_against_a_close_last_frame():
+    """A match 0.3 below the last frame's response is searched again; with no close last frame (NaN) it is not."""
+    from slam2d.matching.correlative import MatchResult
+
+    sim = simulate("paper-arena", SimulationParams(duration=10.0, seed=5))
+    slam = _run("karto", sim.frames())
+    fe = slam.frontend
+    last = fe.num_nodes - 1
+    truth = fe.graph.poses[last].copy()
+    points, _ = fe.node_points(last)
+    off = truth + np.array([0.25, 0.0, 0.0])  # beyond the +-0.15 m window, the match inside it
+    first = MatchResult(off + np.array([-0.04, 0.0, 0.0]), np.eye(3) * 1e-4, 0.65, 0.65, 0)
+    before = slam.diagnostics.counters["sequential_response_drops"]
+    out, recovered = fe._recover_sequential(first, points, off, {}, float("nan"))
+    assert out is first and not recovered and slam.diagnostics.counters["sequential_response_drops"] == before
+    out, recovered = fe._recover_sequential(first, points, off, {}, 0.7)  # a drop of 0.05: no trigger
+    assert out is first and not recovered
+    values: dict = {}
+    out, recovered = fe._recover_sequential(first, points, off, values, 0.95)
+    assert slam.diagnostics.counters["sequential_response_drops"] == before + 1
+    assert recovered and np.allclose(out.pose[:2], truth[:2], atol=0.02), out.pose - truth
+
+
+def test_flat_near_links_can_be_freed_along_the_corridor(karto_run, loop_sim):
+    """link_flat_variance: near links flat along a corridor get that variance along it, nothing else changes there."""
+    freed = _run("karto", loop_sim.frames(), link_flat_variance=100.0)
+    assert karto_run.diagnostics.counters["near_links_flat"] == 0
+    assert freed.diagnostics.counters["near_links_flat"] > 0
+    g = freed.frontend.graph
+    ei, ej = np.asarray(g.edge_i), np.asarray(g.edge_j)
+    info = np.asarray(g.information)[ej - ei > 70]  # links to an older pass
+    weakest = [float(np.linalg.eigvalsh(np.linalg.inv(m)[:2, :2])[-1]) for m in info]
+    assert max(weakest) >= 99.0  # the flat ones are free along the corridor
+    assert min(weakest) < 1.0  # the others keep the match's covariance

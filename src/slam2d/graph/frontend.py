@@ -122,6 +122,13 @@ class GraphSlamParams(GridParams):
         help="a sequential match whose unpenalised response is below this is searched again over "
         "sequential_recovery_window, and a recovery must respond at least this (not in Karto)",
     )
+    sequential_recovery_drop: float = param(
+        0.2, low=0.0, high=1.0,
+        help="a sequential match whose unpenalised response is this much below the last matched scan's is "
+        "searched again over sequential_recovery_window too (not in Karto): consecutive scans overlap almost "
+        "wholly, so a sudden drop means the odometry prediction is off by more than the window (wheel slip); "
+        "1 turns it off",
+    )
     sequential_recovery_margin: float = param(
         0.1, low=0.0, high=1.0,
         help="how much higher the recovery's response must be than the first match's unpenalised response "
@@ -158,6 +165,14 @@ class GraphSlamParams(GridParams):
     )
     link_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response that links a near chain [LinkMatchMinimumResponseFine]"
+    )
+    link_flat_variance: float = param(
+        0.0, unit="m^2", low=0.0,
+        help="a near-chain link whose match is flat along a corridor (its x, y spread fills the window) gets "
+        "this variance along the corridor (not in Karto): unpenalised, such a match only repeats where the "
+        "graph already puts the scan, and dozens of them along one corridor hold the graph there against a "
+        "loop closure; 0 (default) keeps the window's variance, since 1-100 helped the simulated worlds but "
+        "not intel, aces or fr101",
     )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
@@ -381,6 +396,7 @@ class GraphFrontend:
         self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
         self._frame_degenerate = False  # whether its match was flat along a corridor
+        self._frame_response = math.nan  # the last matched scan's unpenalised response
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
@@ -505,7 +521,7 @@ class GraphFrontend:
         return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * self.sequential.search_size**2)
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
-                             values: dict[str, float] | None = None):
+                             values: dict[str, float] | None = None, last_response: float = math.nan):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
         With ``values`` (a new node's log) a stuck or weak match is searched again over the
@@ -518,12 +534,13 @@ class GraphFrontend:
                              penalize=True, refine=True)
         recovered = False
         if values is not None:
-            result, recovered = self._recover_sequential(result, points, predicted, values)
+            result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
         pose, cov = result.pose, result.covariance
         if p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
             c = cov.copy()
             c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
             pose, cov = _fuse(pose, c, predicted, _odometry_covariance())
+        self._frame_response = result.raw_response
         if result.response < p.minimum_match_response:
             # The scan does not fit the running scans (clutter, people, a new room seen from
             # its door): trust the odometry for this step, with an odometry-like uncertainty.
@@ -548,6 +565,11 @@ class GraphFrontend:
         odom = np.asarray(odom, dtype=np.float64)
         previous_odom = self._last_odom
         self._last_odom = odom
+        # The last frame's response is a reference only for a scan taken close to it (less than
+        # the gate's travel by odometry): on logs thinned to a metre between scans it varies too much.
+        last_response, self._frame_response = self._frame_response, math.nan
+        if previous_odom is None or math.hypot(*(odom[:2] - previous_odom[:2])) >= p.minimum_travel_distance:
+            last_response = math.nan
         if self.graph.num_nodes:
             last = self.graph.num_nodes - 1
             offset = se2.relative(self._odom[last], odom)
@@ -607,7 +629,7 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            pose, cov, result = self._sequential_estimate(points, predicted, values)
+            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response)
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
@@ -648,7 +670,7 @@ class GraphFrontend:
         self._frame_degenerate = self._degenerate(cov)
         return values
 
-    def _recover_sequential(self, result, points, predicted, values):
+    def _recover_sequential(self, result, points, predicted, values, last_response=math.nan):
         """Search a sequential match again over the wide recovery window when it is stuck or weak.
 
         Karto trusts the odometry to within its +-0.15 m window. On fr079 the odometry logs
@@ -664,9 +686,13 @@ class GraphFrontend:
             return result, False
         shift = float(np.abs(result.pose[:2] - predicted[:2]).max())
         edge = shift >= 0.5 * m.search_size - 2.5 * m.resolution  # within a coarse step of the edge
-        if not edge and result.raw_response >= p.sequential_recovery_response:
+        # A drop from the last matched scan's response (NaN: none) counts as weak as well.
+        drop = result.raw_response < last_response - p.sequential_recovery_drop
+        if not edge and not drop and result.raw_response >= p.sequential_recovery_response:
             return result, False
-        self._count("sequential_edge_hits" if edge else "sequential_weak_matches")
+        self._count("sequential_edge_hits" if edge else
+                    "sequential_weak_matches" if result.raw_response < p.sequential_recovery_response
+                    else "sequential_response_drops")
         # Coarse over the wide window on a fresh grid at the loop matcher's cell (5 cm: cheap to
         # build, and the cached 1 cm grids stay as they were), then the usual 1 cm match there.
         wide = self.loop.with_window(p.sequential_recovery_window)
@@ -754,9 +780,15 @@ class GraphFrontend:
                     self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
                     del self._near_failed[:-100]
             else:
+                cov = result.covariance
+                if p.link_flat_variance > 0 and self._degenerate(cov):
+                    w, v = np.linalg.eigh(cov[:2, :2])
+                    cov = cov.copy()
+                    cov[:2, :2] += max(p.link_flat_variance - w[-1], 0.0) * np.outer(v[:, -1], v[:, -1])
+                    self._count("near_links_flat")
                 means.append(result.pose)
-                covs.append(result.covariance)
-                self._link_chain_to_scan(chain, node, result.pose, result.covariance)
+                covs.append(cov)
+                self._link_chain_to_scan(chain, node, result.pose, cov)
                 count += 1
         return count
 
