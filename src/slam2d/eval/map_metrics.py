@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -398,14 +398,18 @@ def map_to_truth(
         if rows.size:
             truth_pts = truth.cell_to_world(np.stack([rows, cols], axis=1))
     map_pts = obstacle_points(grid, occupied_threshold=occupied_threshold, transform=transform)
-    if float(truth.resolution) <= 0.5 * float(grid.resolution):
+    on_lattice = float(truth.resolution) <= 0.5 * float(grid.resolution)
+    if on_lattice:
         # A map can only put a wall at its own cell centres: judged against the exact wall, a
         # perfect map would score up to half a diagonal cell depending on where its lattice
         # happens to fall. Judging it against the cells a perfect map on its own lattice
-        # would mark takes that luck out (needs a truth finer than the map to know them).
-        truth_pts = _on_lattice(truth_pts, grid, transform)
-        all_truth_pts = _on_lattice(all_truth_pts, grid, transform)
-    n_map, n_truth = int(map_pts.shape[0]), int(truth_pts.shape[0])
+        # could mark takes that luck out (needs a truth finer than the map to know them).
+        choices = _lattice_choices(truth_pts, float(truth.resolution), grid, transform)
+        all_choices = _lattice_choices(all_truth_pts, float(truth.resolution), grid, transform)
+        truth_pts = choices.centres
+        all_truth_pts = all_choices.centres
+    n_map = int(map_pts.shape[0])
+    n_truth = int(choices.units.shape[0]) if on_lattice else int(truth_pts.shape[0])
     if n_map == 0:
         inf, nan = float("inf"), float("nan")
         return {
@@ -422,6 +426,9 @@ def map_to_truth(
     from scipy.spatial import cKDTree
 
     truth_to_map = cKDTree(map_pts).query(truth_pts, k=1)[0]
+    if on_lattice:
+        # Each true cell is judged by the best of the map cells the wall could fall in.
+        truth_to_map = truth_to_map[choices.units].min(axis=1)
     # A map wall on a true wall is no ghost, seen or not: the reverse direction uses every true cell.
     map_to_truth_d = cKDTree(all_truth_pts).query(map_pts, k=1)[0]
     within = tol + _DISTANCE_SLACK
@@ -441,18 +448,56 @@ def map_to_truth(
     }
 
 
-def _on_lattice(points: NDArray[np.float64], grid: Any, transform: ArrayLike | None) -> NDArray[np.float64]:
-    """Truth-frame ``points`` moved to the centres of the ``grid`` cells they fall in (one point per cell).
+class _LatticeChoices(NamedTuple):
+    """True wall cells moved onto a map's lattice (see :func:`_lattice_choices`)."""
 
-    ``transform`` maps the grid's frame into the truth's, as in :func:`map_to_truth`.
+    centres: NDArray[np.float64]  # (C, 2) truth-frame centres of every map cell a true wall may fall in
+    units: NDArray[np.int64]  # (U, 4) rows of ``centres``: the choices of one true cell (repeats allowed)
+
+
+def _lattice_choices(
+    points: NDArray[np.float64], truth_resolution: float, grid: Any, transform: ArrayLike | None
+) -> _LatticeChoices:
+    """The ``grid`` cells a perfect map could mark for true obstacle cells centred at ``points``.
+
+    A true cell of side ``truth_resolution`` only says the wall passes somewhere inside it. The
+    map cells it may fall in are those whose inside overlaps the true cell (taken along the
+    map's axes, around its centre mapped into the map's frame): one cell, or two or four when
+    the true cell lies across a map cell boundary. A wall exactly on a boundary, as walls at
+    round coordinates are on a lattice anchored at 0, belongs to both neighbours; which of
+    them a mapper marks is luck (the side it is seen from, range noise). Needs
+    ``truth_resolution`` at most half the map's, so there are at most two per axis.
+
+    Returns the centres (truth frame) of the distinct cells, and for each distinct set of
+    choices (true cells with the same choices are one unit, so a wall counts once per map
+    cell it falls in) the indices of its choices, padded by repeating one.
     """
     to_truth = None if transform is None else _as_transform(transform, "transform")
     in_map = points if to_truth is None else se2.transform_points(se2.inverse(to_truth), points)
-    cells = np.unique(grid.world_to_cell(in_map).reshape(-1, 2), axis=0)
+    in_map = np.asarray(in_map, dtype=np.float64).reshape(-1, 2)
+    res = float(grid.resolution)
+    origin = np.asarray(grid.origin, dtype=np.float64)
+    # The true cell, shrunk by a hair so that a map cell it only touches along an edge is out.
+    half = 0.5 * truth_resolution - _DISTANCE_SLACK
+    low = np.floor((in_map - half - origin) / res).astype(np.int64)  # [x, y] cells
+    high = np.floor((in_map + half - origin) / res).astype(np.int64)
+    # The four corners' cells: (low | high) in x times (low | high) in y, as [row, col].
+    corners = np.stack(
+        [
+            np.stack([low[:, 1], low[:, 0]], axis=-1),
+            np.stack([low[:, 1], high[:, 0]], axis=-1),
+            np.stack([high[:, 1], low[:, 0]], axis=-1),
+            np.stack([high[:, 1], high[:, 0]], axis=-1),
+        ],
+        axis=1,
+    )  # (N, 4, 2)
+    cells, index = np.unique(corners.reshape(-1, 2), axis=0, return_inverse=True)
+    per_point = np.sort(index.reshape(-1, 4), axis=1)
+    units = np.unique(per_point, axis=0)
     centres = grid.cell_to_world(cells)
     if to_truth is not None:
         centres = se2.transform_points(to_truth, centres)
-    return np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    return _LatticeChoices(np.asarray(centres, dtype=np.float64).reshape(-1, 2), units.reshape(-1, 4))
 
 
 def _rigid_fit(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
