@@ -492,12 +492,47 @@ def _lattice_choices(
         axis=1,
     )  # (N, 4, 2)
     cells, index = np.unique(corners.reshape(-1, 2), axis=0, return_inverse=True)
-    per_point = np.sort(index.reshape(-1, 4), axis=1)
-    units = np.unique(per_point, axis=0)
+    units = _minimal_sets(index.reshape(-1, 4))
     centres = grid.cell_to_world(cells)
     if to_truth is not None:
         centres = se2.transform_points(to_truth, centres)
-    return _LatticeChoices(np.asarray(centres, dtype=np.float64).reshape(-1, 2), units.reshape(-1, 4))
+    return _LatticeChoices(np.asarray(centres, dtype=np.float64).reshape(-1, 2), units)
+
+
+# The 14 non-empty proper subsets of 4 slots, as masks.
+_SUBSET_MASKS = np.array([[(m >> k) & 1 for k in range(4)] for m in range(1, 15)], dtype=np.bool_)
+
+
+def _canonical_sets(rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Rows of up to 4 indices (repeats allowed, -1 = none) as sets: distinct values sorted, -1 first."""
+    s = np.sort(rows, axis=1)
+    repeat = np.zeros(s.shape, dtype=np.bool_)
+    repeat[:, 1:] = s[:, 1:] == s[:, :-1]
+    s[repeat] = -1
+    return np.sort(s, axis=1)
+
+
+def _minimal_sets(rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The distinct sets among ``rows`` ``(N, 4)`` that hold no other one, padded by repeating.
+
+    A true cell whose choices include all of another's adds nothing (a wall cell lying on a
+    boundary next to one inside a cell); without boundaries every set is one cell and this
+    is one unit per map cell, as before choices existed.
+    """
+    units = np.unique(_canonical_sets(rows), axis=0)
+    n = units.shape[0]
+    size = np.count_nonzero(units >= 0, axis=1)
+    subsets = np.where(_SUBSET_MASKS[None, :, :], units[:, None, :], -1).reshape(-1, 4)
+    subsets = _canonical_sets(subsets)
+    sub_size = np.count_nonzero(subsets >= 0, axis=1).reshape(n, -1)
+    ids = np.unique(np.concatenate([units, subsets]), axis=0, return_inverse=True)[1].reshape(-1)
+    is_unit = np.zeros(int(ids.max()) + 1, dtype=np.bool_)
+    is_unit[ids[:n]] = True
+    proper = (sub_size > 0) & (sub_size < size[:, None])
+    redundant = np.any(proper & is_unit[ids[n:].reshape(n, -1)], axis=1)
+    kept = units[~redundant]
+    # Pad with the set's largest index (the last column, never -1).
+    return np.where(kept >= 0, kept, kept[:, -1:]).astype(np.int64)
 
 
 def _rigid_fit(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
