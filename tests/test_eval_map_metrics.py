@@ -539,7 +539,7 @@ def test_a_wall_on_a_map_cell_boundary_may_be_drawn_on_either_side(row, expected
     assert result["map_to_truth_m"]["mean"] == pytest.approx(expected, abs=1e-9)
     assert result["recall"] == (1.0 if expected == 0.0 else 0.0)
     # one unit per map cell along the wall, not two (a cell's two choices are one wall cell)
-    assert result["truth_cells"] == 52
+    assert result["truth_cells"] == result["truth_cells_between"] == 52
 
 
 def test_a_wall_drawn_on_both_sides_of_a_boundary_is_no_ghost():

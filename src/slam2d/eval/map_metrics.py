@@ -368,7 +368,9 @@ def map_to_truth(
          "precision": share of map obstacle cells within ``tolerance`` of a true one,
          "recall": share of true obstacle cells within ``tolerance`` of a map one,
          "f1": their harmonic mean, "tolerance_m": tolerance,
-         "map_cells": map obstacle cells, "truth_cells": true obstacle cells}
+         "map_cells": map obstacle cells, "truth_cells": true obstacle cells,
+         "truth_cells_total": every true obstacle cell, seen or not,
+         "truth_cells_between": true cells on a map cell boundary (see below)}
 
     where stats are ``{"mean", "median", "p95", "max"}``. "Within" includes
     the tolerance itself.
@@ -379,6 +381,14 @@ def map_to_truth(
     :func:`visible_walls`) limits the true cells to those the laser could have
     hit; ``truth_cells_total`` then says how many there are in all. With different resolutions even identical walls are
     some fraction of a cell apart (cell centres do not coincide).
+
+    When the truth is at least twice as fine as the map, the true cells are first put on
+    the map's lattice: each becomes the map cells a perfect map could mark for it (one, or
+    two or four when the true cell lies across a map cell boundary: a wall on the boundary
+    belongs to either neighbour, and the mapper's side of it is luck), and is judged by the
+    nearest of them; ``truth_cells`` then counts these units (one per map cell off
+    boundaries) and ``truth_cells_between`` those with a choice. In the other direction a
+    map cell on any of the choices lies on a true wall.
 
     A map with no obstacle cells gives ``truth_to_map_m`` all infinite,
     ``map_to_truth_m`` all NaN, precision NaN, recall 0 and F1 0. A truth with
@@ -410,6 +420,8 @@ def map_to_truth(
         all_truth_pts = all_choices.centres
     n_map = int(map_pts.shape[0])
     n_truth = int(choices.units.shape[0]) if on_lattice else int(truth_pts.shape[0])
+    # True cells a perfect map could draw in two (or four) map cells: walls on cell boundaries.
+    n_between = int(np.count_nonzero(np.any(choices.units != choices.units[:, :1], axis=1))) if on_lattice else 0
     if n_map == 0:
         inf, nan = float("inf"), float("nan")
         return {
@@ -422,6 +434,7 @@ def map_to_truth(
             "map_cells": 0,
             "truth_cells": n_truth,
             "truth_cells_total": n_truth_total,
+            "truth_cells_between": n_between,
         }
     from scipy.spatial import cKDTree
 
@@ -445,6 +458,7 @@ def map_to_truth(
         "map_cells": n_map,
         "truth_cells": n_truth,
         "truth_cells_total": n_truth_total,
+        "truth_cells_between": n_between,
     }
 
 
