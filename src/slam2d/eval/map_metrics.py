@@ -174,8 +174,9 @@ def _hits_per_scan(
     for frame, pose in poses_at_scans(frames, pose_times, poses, max_pose_gap):
         if pose is None:
             continue
-        points = se2.transform_points(se2.compose(pose, frame.scan.mount), frame.scan.points())
-        cells = grid.world_to_cell(points)
+        laser = se2.compose(pose, frame.scan.mount)
+        points = se2.transform_points(laser, frame.scan.points())
+        cells = grid.hit_cells(laser[:2], points)  # the cells the mapper marks, boundaries included
         inside = grid.in_bounds(cells)
         rows.append((int(occupied[cells[inside, 0], cells[inside, 1]].sum()), int(points.shape[0])))
     return np.array(rows, dtype=np.int64).reshape(-1, 2)

@@ -37,7 +37,7 @@ _CORNER_EPS = 1e-9
 # A hit is moved this far along its beam (in cells) before its cell is found, so that a beam
 # ending exactly on a cell boundary (a noise-free wall at round coordinates) marks the cell
 # beyond it, where the wall's material is, not the free cell in front that it crossed.
-_HIT_NUDGE = 1e-6
+HIT_NUDGE = 1e-6
 
 
 @njit(cache=True, inline="always")
@@ -130,14 +130,14 @@ def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols
 
 @njit(cache=True, inline="always")
 def _end_coords(u0, v0, x, y, origin_x, origin_y, resolution, is_hit):
-    """A beam's end in cell units; a hit moved ``_HIT_NUDGE`` cells on along the beam."""
+    """A beam's end in cell units; a hit moved ``HIT_NUDGE`` cells on along the beam."""
     u1 = (x - origin_x) / resolution
     v1 = (y - origin_y) / resolution
     if is_hit:
         length = math.hypot(u1 - u0, v1 - v0)
         if length > 0.0:
-            u1 += _HIT_NUDGE * (u1 - u0) / length
-            v1 += _HIT_NUDGE * (v1 - v0) / length
+            u1 += HIT_NUDGE * (u1 - u0) / length
+            v1 += HIT_NUDGE * (v1 - v0) / length
     return u1, v1
 
 
