@@ -122,7 +122,9 @@ def test_endpoint_occupied_and_laser_cell_free(x, y, theta, beam, r):
     grid.integrate_scan([x, y, theta], [r], [beam])
     end = np.array([x + r * math.cos(theta + beam), y + r * math.sin(theta + beam)])
     laser_cell = tuple(grid.world_to_cell([x, y]))
-    end_cell = tuple(grid.world_to_cell(end))
+    # A hit on a cell boundary belongs to the cell beyond it along the beam.
+    onward = end + 1e-6 * 0.05 * (end - np.array([x, y])) / np.hypot(*(end - np.array([x, y])))
+    end_cell = tuple(grid.world_to_cell(onward))
     occ = grid.occupancy()
     assert occ[end_cell] == HIT
     if laser_cell != end_cell:
@@ -130,6 +132,24 @@ def test_endpoint_occupied_and_laser_cell_free(x, y, theta, beam, r):
     # Nothing but the ray was touched: at most one cell per crossed row/column, plus the start.
     span = abs(end_cell[0] - laser_cell[0]) + abs(end_cell[1] - laser_cell[1]) + 1
     assert 1 <= int((occ >= 0).sum()) <= span
+
+
+@pytest.mark.parametrize(("start", "end", "hit_cell", "free_cell"), [
+    ((2.5, 5.5), (2.5, 2.0), (1, 2), (2, 2)),  # down onto y = 2: the wall is in row 1
+    ((2.5, 0.5), (2.5, 2.0), (2, 2), (1, 2)),  # up onto it: row 2
+    ((5.5, 2.5), (3.0, 2.5), (2, 2), (2, 3)),  # left onto x = 3: column 2
+    ((0.5, 2.5), (3.0, 2.5), (2, 3), (2, 2)),  # right onto it: column 3
+])
+def test_a_hit_on_a_cell_boundary_marks_the_cell_beyond_it(start, end, hit_cell, free_cell):
+    # A noise-free beam ending exactly on a wall at a round coordinate ends on a cell boundary.
+    # floor() put the hit in the upper (right) cell whichever way the beam came, so beams from
+    # above marked the free cell in front of the wall, and the next beams' free space erased it
+    # (a simulated RPLidar floor without range noise lost a fifth of its walls).
+    grid = unit_grid()
+    grid.integrate_points(list(start), [list(end)])
+    occ = grid.occupancy()
+    assert occ[hit_cell] == HIT
+    assert occ[free_cell] == FREE
 
 
 def test_one_update_per_cell_per_scan_and_hits_win():

@@ -196,3 +196,26 @@ def test_start_outside_the_world(tmp_path):
     with pytest.raises(InputError) as err:
         simulate(world, SimulationParams(duration=1.0))
     assert "w.yaml" in str(err.value) and "start" in str(err.value)
+
+
+def test_the_last_beam_of_a_distorted_sweep_is_cast_from_the_pose_at_the_sweeps_end():
+    # Beam N-1 is measured N-1 mirror steps after beam 0 (LaserSpec.sweep_duration), not N:
+    # the end pose was one beam step late (RPLidar: 0.5 ms of motion).
+    from slam2d.sim.laser import LaserSimulator
+    from slam2d.sim.simulate import _poses_at
+    from slam2d.sensors.range_noise import ConstantSigma
+
+    params = SimulationParams(duration=6.0, range_noise="none", dropouts=False, distortion=True, laser="rplidar-a1")
+    sim = simulate("paper-arena", params)
+    lidar = LaserSimulator(sim.laser, sim.world, ConstantSigma(0.0), dropouts=False)
+    mount = np.asarray(sim.robot.laser_mount, dtype=np.float64)
+    checked = 0
+    for k, i in enumerate(sim.scan_indices[:-2]):
+        end = _poses_at(sim.times, sim.truth, np.array([sim.times[i] + sim.laser.sweep_duration]))[0]
+        start = sim.truth[i]
+        if np.hypot(*(end[:2] - start[:2])) < 0.01 or np.isnan(sim.scans[k].ranges[-1]):
+            continue
+        expected = lidar.cast(se2.compose(end, mount))[0][-1]
+        assert sim.scans[k].ranges[-1] == pytest.approx(expected, abs=1e-9)
+        checked += 1
+    assert checked > 5

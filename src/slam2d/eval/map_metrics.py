@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -174,8 +174,9 @@ def _hits_per_scan(
     for frame, pose in poses_at_scans(frames, pose_times, poses, max_pose_gap):
         if pose is None:
             continue
-        points = se2.transform_points(se2.compose(pose, frame.scan.mount), frame.scan.points())
-        cells = grid.world_to_cell(points)
+        laser = se2.compose(pose, frame.scan.mount)
+        points = se2.transform_points(laser, frame.scan.points())
+        cells = grid.hit_cells(laser[:2], points)  # the cells the mapper marks, boundaries included
         inside = grid.in_bounds(cells)
         rows.append((int(occupied[cells[inside, 0], cells[inside, 1]].sum()), int(points.shape[0])))
     return np.array(rows, dtype=np.int64).reshape(-1, 2)
@@ -368,7 +369,9 @@ def map_to_truth(
          "precision": share of map obstacle cells within ``tolerance`` of a true one,
          "recall": share of true obstacle cells within ``tolerance`` of a map one,
          "f1": their harmonic mean, "tolerance_m": tolerance,
-         "map_cells": map obstacle cells, "truth_cells": true obstacle cells}
+         "map_cells": map obstacle cells, "truth_cells": true obstacle cells,
+         "truth_cells_total": every true obstacle cell, seen or not,
+         "truth_cells_between": true cells on a map cell boundary (see below)}
 
     where stats are ``{"mean", "median", "p95", "max"}``. "Within" includes
     the tolerance itself.
@@ -379,6 +382,14 @@ def map_to_truth(
     :func:`visible_walls`) limits the true cells to those the laser could have
     hit; ``truth_cells_total`` then says how many there are in all. With different resolutions even identical walls are
     some fraction of a cell apart (cell centres do not coincide).
+
+    When the truth is at least twice as fine as the map, the true cells are first put on
+    the map's lattice: each becomes the map cells a perfect map could mark for it (one, or
+    two or four when the true cell lies across a map cell boundary: a wall on the boundary
+    belongs to either neighbour, and the mapper's side of it is luck), and is judged by the
+    nearest of them; ``truth_cells`` then counts these units (one per map cell off
+    boundaries) and ``truth_cells_between`` those with a choice. In the other direction a
+    map cell on any of the choices lies on a true wall.
 
     A map with no obstacle cells gives ``truth_to_map_m`` all infinite,
     ``map_to_truth_m`` all NaN, precision NaN, recall 0 and F1 0. A truth with
@@ -398,14 +409,20 @@ def map_to_truth(
         if rows.size:
             truth_pts = truth.cell_to_world(np.stack([rows, cols], axis=1))
     map_pts = obstacle_points(grid, occupied_threshold=occupied_threshold, transform=transform)
-    if float(truth.resolution) <= 0.5 * float(grid.resolution):
+    on_lattice = float(truth.resolution) <= 0.5 * float(grid.resolution)
+    if on_lattice:
         # A map can only put a wall at its own cell centres: judged against the exact wall, a
         # perfect map would score up to half a diagonal cell depending on where its lattice
         # happens to fall. Judging it against the cells a perfect map on its own lattice
-        # would mark takes that luck out (needs a truth finer than the map to know them).
-        truth_pts = _on_lattice(truth_pts, grid, transform)
-        all_truth_pts = _on_lattice(all_truth_pts, grid, transform)
-    n_map, n_truth = int(map_pts.shape[0]), int(truth_pts.shape[0])
+        # could mark takes that luck out (needs a truth finer than the map to know them).
+        choices = _lattice_choices(truth_pts, float(truth.resolution), grid, transform)
+        all_choices = _lattice_choices(all_truth_pts, float(truth.resolution), grid, transform)
+        truth_pts = choices.centres
+        all_truth_pts = all_choices.centres
+    n_map = int(map_pts.shape[0])
+    n_truth = int(choices.units.shape[0]) if on_lattice else int(truth_pts.shape[0])
+    # True cells a perfect map could draw in two (or four) map cells: walls on cell boundaries.
+    n_between = int(np.count_nonzero(np.any(choices.units != choices.units[:, :1], axis=1))) if on_lattice else 0
     if n_map == 0:
         inf, nan = float("inf"), float("nan")
         return {
@@ -418,10 +435,14 @@ def map_to_truth(
             "map_cells": 0,
             "truth_cells": n_truth,
             "truth_cells_total": n_truth_total,
+            "truth_cells_between": n_between,
         }
     from scipy.spatial import cKDTree
 
     truth_to_map = cKDTree(map_pts).query(truth_pts, k=1)[0]
+    if on_lattice:
+        # Each true cell is judged by the best of the map cells the wall could fall in.
+        truth_to_map = truth_to_map[choices.units].min(axis=1)
     # A map wall on a true wall is no ghost, seen or not: the reverse direction uses every true cell.
     map_to_truth_d = cKDTree(all_truth_pts).query(map_pts, k=1)[0]
     within = tol + _DISTANCE_SLACK
@@ -438,21 +459,95 @@ def map_to_truth(
         "map_cells": n_map,
         "truth_cells": n_truth,
         "truth_cells_total": n_truth_total,
+        "truth_cells_between": n_between,
     }
 
 
-def _on_lattice(points: NDArray[np.float64], grid: Any, transform: ArrayLike | None) -> NDArray[np.float64]:
-    """Truth-frame ``points`` moved to the centres of the ``grid`` cells they fall in (one point per cell).
+class _LatticeChoices(NamedTuple):
+    """True wall cells moved onto a map's lattice (see :func:`_lattice_choices`)."""
 
-    ``transform`` maps the grid's frame into the truth's, as in :func:`map_to_truth`.
+    centres: NDArray[np.float64]  # (C, 2) truth-frame centres of every map cell a true wall may fall in
+    units: NDArray[np.int64]  # (U, 4) rows of ``centres``: the choices of one true cell (repeats allowed)
+
+
+def _lattice_choices(
+    points: NDArray[np.float64], truth_resolution: float, grid: Any, transform: ArrayLike | None
+) -> _LatticeChoices:
+    """The ``grid`` cells a perfect map could mark for true obstacle cells centred at ``points``.
+
+    A true cell of side ``truth_resolution`` only says the wall passes somewhere inside it. The
+    map cells it may fall in are those whose inside overlaps the true cell (taken along the
+    map's axes, around its centre mapped into the map's frame): one cell, or two or four when
+    the true cell lies across a map cell boundary. A wall exactly on a boundary, as walls at
+    round coordinates are on a lattice anchored at 0, belongs to both neighbours; which of
+    them a mapper marks is luck (the side it is seen from, range noise). Needs
+    ``truth_resolution`` at most half the map's, so there are at most two per axis.
+
+    Returns the centres (truth frame) of the distinct cells, and for each distinct set of
+    choices (true cells with the same choices are one unit, so a wall counts once per map
+    cell it falls in) the indices of its choices, padded by repeating one.
     """
     to_truth = None if transform is None else _as_transform(transform, "transform")
     in_map = points if to_truth is None else se2.transform_points(se2.inverse(to_truth), points)
-    cells = np.unique(grid.world_to_cell(in_map).reshape(-1, 2), axis=0)
+    in_map = np.asarray(in_map, dtype=np.float64).reshape(-1, 2)
+    res = float(grid.resolution)
+    origin = np.asarray(grid.origin, dtype=np.float64)
+    # The true cell, shrunk by a hair so that a map cell it only touches along an edge is out.
+    half = 0.5 * truth_resolution - _DISTANCE_SLACK
+    low = np.floor((in_map - half - origin) / res).astype(np.int64)  # [x, y] cells
+    high = np.floor((in_map + half - origin) / res).astype(np.int64)
+    # The four corners' cells: (low | high) in x times (low | high) in y, as [row, col].
+    corners = np.stack(
+        [
+            np.stack([low[:, 1], low[:, 0]], axis=-1),
+            np.stack([low[:, 1], high[:, 0]], axis=-1),
+            np.stack([high[:, 1], low[:, 0]], axis=-1),
+            np.stack([high[:, 1], high[:, 0]], axis=-1),
+        ],
+        axis=1,
+    )  # (N, 4, 2)
+    cells, index = np.unique(corners.reshape(-1, 2), axis=0, return_inverse=True)
+    units = _minimal_sets(index.reshape(-1, 4))
     centres = grid.cell_to_world(cells)
     if to_truth is not None:
         centres = se2.transform_points(to_truth, centres)
-    return np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    return _LatticeChoices(np.asarray(centres, dtype=np.float64).reshape(-1, 2), units)
+
+
+# The 14 non-empty proper subsets of 4 slots, as masks.
+_SUBSET_MASKS = np.array([[(m >> k) & 1 for k in range(4)] for m in range(1, 15)], dtype=np.bool_)
+
+
+def _canonical_sets(rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Rows of up to 4 indices (repeats allowed, -1 = none) as sets: distinct values sorted, -1 first."""
+    s = np.sort(rows, axis=1)
+    repeat = np.zeros(s.shape, dtype=np.bool_)
+    repeat[:, 1:] = s[:, 1:] == s[:, :-1]
+    s[repeat] = -1
+    return np.sort(s, axis=1)
+
+
+def _minimal_sets(rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The distinct sets among ``rows`` ``(N, 4)`` that hold no other one, padded by repeating.
+
+    A true cell whose choices include all of another's adds nothing (a wall cell lying on a
+    boundary next to one inside a cell); without boundaries every set is one cell and this
+    is one unit per map cell, as before choices existed.
+    """
+    units = np.unique(_canonical_sets(rows), axis=0)
+    n = units.shape[0]
+    size = np.count_nonzero(units >= 0, axis=1)
+    subsets = np.where(_SUBSET_MASKS[None, :, :], units[:, None, :], -1).reshape(-1, 4)
+    subsets = _canonical_sets(subsets)
+    sub_size = np.count_nonzero(subsets >= 0, axis=1).reshape(n, -1)
+    ids = np.unique(np.concatenate([units, subsets]), axis=0, return_inverse=True)[1].reshape(-1)
+    is_unit = np.zeros(int(ids.max()) + 1, dtype=np.bool_)
+    is_unit[ids[:n]] = True
+    proper = (sub_size > 0) & (sub_size < size[:, None])
+    redundant = np.any(proper & is_unit[ids[n:].reshape(n, -1)], axis=1)
+    kept = units[~redundant]
+    # Pad with the set's largest index (the last column, never -1).
+    return np.where(kept >= 0, kept, kept[:, -1:]).astype(np.int64)
 
 
 def _rigid_fit(source: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from slam2d.core import se2
 from slam2d.core.scan import LaserScan
 from slam2d.errors import InputError
-from slam2d.grids.raycast import integrate_rays
+from slam2d.grids.raycast import HIT_NUDGE, integrate_rays
 from slam2d.params import param, validate
 
 if TYPE_CHECKING:
@@ -236,6 +236,20 @@ class OccupancyGrid:
         col = np.floor((pts[..., 0] - ox) / self.resolution)
         row = np.floor((pts[..., 1] - oy) / self.resolution)
         return np.stack([row, col], axis=-1).astype(np.int64)
+
+    def hit_cells(self, laser_xy: ArrayLike, points: ArrayLike) -> NDArray[np.int64]:
+        """Cells ``[row, col]`` ``(N, 2)`` a scan's hits at world ``points`` ``(N, 2)`` mark from ``laser_xy``.
+
+        As :meth:`world_to_cell`, except that a point on a cell boundary belongs to the cell
+        beyond it along its beam, as the mapper decides (:func:`~slam2d.grids.raycast.integrate_rays`):
+        look endpoints up with this to agree with the map about exact hits.
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        start = np.asarray(laser_xy, dtype=np.float64).reshape(-1)[:2]
+        along = pts - start
+        length = np.hypot(along[:, 0], along[:, 1])[:, None]
+        unit = np.divide(along, length, out=np.zeros_like(along), where=length > 0.0)
+        return self.world_to_cell(pts + (HIT_NUDGE * self.resolution) * unit)
 
     def cell_to_world(self, cells: ArrayLike) -> NDArray[np.float64]:
         """World ``[x, y]`` of the centres of cells ``[row, col]``, ``(..., 2)``."""

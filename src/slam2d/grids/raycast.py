@@ -34,6 +34,10 @@ __all__ = [
 
 # Corner crossings closer than this (in cells) count as exact: step diagonally.
 _CORNER_EPS = 1e-9
+# A hit is moved this far along its beam (in cells) before its cell is found, so that a beam
+# ending exactly on a cell boundary (a noise-free wall at round coordinates) marks the cell
+# beyond it, where the wall's material is, not the free cell in front that it crossed.
+HIT_NUDGE = 1e-6
 
 
 @njit(cache=True, inline="always")
@@ -124,6 +128,19 @@ def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols
     return count
 
 
+@njit(cache=True, inline="always")
+def _end_coords(u0, v0, x, y, origin_x, origin_y, resolution, is_hit):
+    """A beam's end in cell units; a hit moved ``HIT_NUDGE`` cells on along the beam."""
+    u1 = (x - origin_x) / resolution
+    v1 = (y - origin_y) / resolution
+    if is_hit:
+        length = math.hypot(u1 - u0, v1 - v0)
+        if length > 0.0:
+            u1 += HIT_NUDGE * (u1 - u0) / length
+            v1 += HIT_NUDGE * (v1 - v0) / length
+    return u1, v1
+
+
 @njit(cache=True)
 def integrate_rays(
     logodds,
@@ -146,7 +163,8 @@ def integrate_rays(
 
     Every beam starts at ``(start_x, start_y)`` (the laser) and ends at
     ``(end_x[i], end_y[i])``. Beams with ``is_hit[i]`` add ``l_hit`` to their
-    endpoint cell; then every beam adds ``l_miss`` to the cells it crosses
+    endpoint cell (a hit exactly on a cell boundary belongs to the cell beyond it,
+    along the beam: the wall's side); then every beam adds ``l_miss`` to the cells it crosses
     before its endpoint cell (a beam without a hit clears its endpoint cell
     too). Hits are applied first and a cell takes one update per scan
     (``stamp[r, c] == scan_stamp`` marks it done), so a wall cell grazed by a
@@ -159,23 +177,23 @@ def integrate_rays(
     rows, cols = logodds.shape
     n = end_x.shape[0]
     updated = 0
+    u0 = (start_x - origin_x) / resolution
+    v0 = (start_y - origin_y) / resolution
     for i in range(n):
         if not is_hit[i]:
             continue
-        col = int(math.floor((end_x[i] - origin_x) / resolution))
-        row = int(math.floor((end_y[i] - origin_y) / resolution))
+        u1, v1 = _end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, True)
+        col = int(math.floor(u1))
+        row = int(math.floor(v1))
         if 0 <= row < rows and 0 <= col < cols and stamp[row, col] != scan_stamp:
             stamp[row, col] = scan_stamp
             logodds[row, col] = min(l_max, logodds[row, col] + l_hit)
             updated += 1
 
-    u0 = (start_x - origin_x) / resolution
-    v0 = (start_y - origin_y) / resolution
     start_col = int(math.floor(u0))
     start_row = int(math.floor(v0))
     for i in range(n):
-        u1 = (end_x[i] - origin_x) / resolution
-        v1 = (end_y[i] - origin_y) / resolution
+        u1, v1 = _end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, is_hit[i])
         end_col = int(math.floor(u1))
         end_row = int(math.floor(v1))
         du = u1 - u0

@@ -194,9 +194,9 @@ def simulate(
 
     mount = np.asarray(robot.laser_mount, dtype=np.float64)
     scan_indices = np.arange(0, len(times), samples_per_scan, dtype=np.int64)
-    sweep = (laser.beams * laser.angle_increment) / (2.0 * np.pi) / laser.rate  # time of the measured arc
     laser_start = se2.compose(truth[scan_indices], mount)
-    sweep_end_times = times[scan_indices] + sweep
+    # From the first beam to the last: N - 1 steps of the mirror (pose_end is the last beam's pose).
+    sweep_end_times = times[scan_indices] + laser.sweep_duration
     laser_end = se2.compose(_poses_at(times, truth, sweep_end_times), mount)
     scans = []
     for k, i in enumerate(scan_indices):
