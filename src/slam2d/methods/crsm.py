@@ -59,6 +59,12 @@ class CrsmParams:
         help="rays the density walk aims to pick per scan (kept within +-25 %); the original's 40 leaves the "
         "URG-04LX's mines maps less consistent (docs/methods/crsm.md)",
     )
+    ray_count_control: str = param(
+        "additive", choices=("additive", "proportional"),
+        help="how the density walk's threshold factor follows desired_number_of_picked_rays: scaled by picked / "
+        "desired (slam2d's; steady counts) or moved by the excess in rays (the original; with 120 rays it saws "
+        "between ~400 and ~40 rays per scan)",
+    )
     scan_density_lower_boundary: float = param(
         0.3, unit="m", low=0.0, help="range jump between neighbouring beams that makes both critical"
     )
@@ -121,9 +127,19 @@ class CrsmParams:
         "larger gain); otherwise the prediction's fit is taken. 0 = off (the original)",
     )
     turn_null: str = param(
-        "still", choices=("still", "last_motion"),
-        help="the prediction turn_sigma tests a match against: the last pose (still) or the last pose plus the "
-        "last matched motion (last_motion); either settled by the every-beam climb",
+        "still", choices=("still", "last_motion", "velocity"),
+        help="the prediction turn_sigma tests a match against: the last pose (still), the last pose plus the "
+        "last matched motion (last_motion), or plus this scan's interval times the mean velocity of the last "
+        "velocity_scans motions from the scan timestamps (velocity); each settled by the every-beam climb",
+    )
+    turn_starts: str = param(
+        "prediction", choices=("prediction", "translations"),
+        help="where the every-beam climb for the turn test's alternative starts: the prediction only, or also at the "
+        "match's position and at the last pose plus the mean recent translation, each at the prediction's heading",
+    )
+    velocity_scans: int = param(
+        3, low=1, high=100,
+        help="motions averaged for the velocity of turn_null=velocity and turn_starts=translations",
     )
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
@@ -175,6 +191,9 @@ class Crsm(SlamMethod):
         self._map.draw_patch(np.zeros(3), p.robot_length, p.robot_width)
         self._pose = np.zeros(3)
         self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._recent: list[tuple[NDArray[np.float64], float]] = []  # the last matched motions and their intervals
+        self._last_time = math.nan
+        self._dt = 0.0
         self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
         self._warm = True
         self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
@@ -184,6 +203,8 @@ class Crsm(SlamMethod):
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
         scan = frame.scan
+        dt = frame.timestamp - self._last_time
+        self._dt = dt if math.isfinite(dt) and dt > 0.0 else 0.0
         laser_max = scan.range_max if math.isfinite(scan.range_max) else float(np.nanmax(scan.ranges, initial=0.0))
         d = np.nan_to_num(scan.ranges, nan=0.0)
         # error codes as no return: as "returns" at the laser they are critical rays (every one a jump) that
@@ -198,7 +219,8 @@ class Crsm(SlamMethod):
             self._scans += 1
             return {"rays": 0.0}
         selected, self._parameter, mean_density, _ = critical_rays(
-            d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays
+            d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays,
+            p.ray_count_control == "proportional",
         )
         values.update(rays=float(selected.shape[0]), mean_density=float(mean_density))
         if self._scans == 0:
@@ -266,6 +288,12 @@ class Crsm(SlamMethod):
             step = se2.relative(self._pose, moved)
         self._step = step
         self._pose = moved
+        self._last_time = frame.timestamp
+        if self._dt > 0.0:
+            self._recent.append((step, self._dt))
+            del self._recent[:-p.velocity_scans]
+        else:
+            self._recent.clear()  # no interval (first scan, repeated or backward stamp): no velocity to keep
         if self._scans < p.warmup_density_scans:
             mean_density = _WARMUP_DENSITY
         gain = min(max(mean_density, _DENSITY_RANGE[0]), _DENSITY_RANGE[1])
@@ -290,11 +318,28 @@ class Crsm(SlamMethod):
         """
         p = self.params
         ox, oy = self._map.origin
-        pred = se2.compose(self._pose, self._step) if p.turn_null == "last_motion" else self._pose
-        ax, ay, ak, _, _ = refine_offset(self._map.values, ox, oy, p.resolution, qx, qy, float(pred[0]),
-                                         float(pred[1]), float(pred[2]), 0, 0, 0, max(p.dense_refine_rounds, 1))
-        alt = np.array([pred[0] + ax * p.resolution, pred[1] + ay * p.resolution,
-                        math.remainder(pred[2] + ak * HEADING_STEP, 2 * math.pi)])
+        if p.turn_null == "last_motion":
+            pred = se2.compose(self._pose, self._step)
+        elif p.turn_null == "velocity":
+            pred = se2.compose(self._pose, self._velocity_step())
+        else:
+            pred = self._pose
+        # where the every-beam climb for the prediction's fit starts: the prediction, and (turn_starts=translations)
+        # also the match's position and the last pose plus the recent mean translation, at the prediction's heading.
+        # Why: the climb moves a cell per round, so from the last pose alone it cannot follow a robot that moved
+        # 15-20 cm, ends on a poor local fit, and a wrong turn then beats it (mines-exp1 scans 702, 711).
+        starts = [pred]
+        if p.turn_starts == "translations":
+            glide = se2.compose(self._pose, self._velocity_step(turn=False))
+            starts += [np.array([moved[0], moved[1], pred[2]]), np.array([glide[0], glide[1], pred[2]])]
+        alt, best = pred, -math.inf
+        for pred in starts:
+            ax, ay, ak, fit, _ = refine_offset(self._map.values, ox, oy, p.resolution, qx, qy, float(pred[0]),
+                                               float(pred[1]), float(pred[2]), 0, 0, 0, max(p.dense_refine_rounds, 1))
+            if fit > best:
+                best = fit
+                alt = np.array([pred[0] + ax * p.resolution, pred[1] + ay * p.resolution,
+                                math.remainder(pred[2] + ak * HEADING_STEP, 2 * math.pi)])
         e_m = math.remainder(moved[2] - pred[2], 2 * math.pi)
         e_a = math.remainder(alt[2] - pred[2], 2 * math.pi)
         needed = (e_m * e_m - e_a * e_a) / (p.turn_sigma * p.turn_sigma)
@@ -309,6 +354,17 @@ class Crsm(SlamMethod):
         values["turn_rejected"] = 1.0
         self.diagnostics.count("turns_rejected")
         return alt
+
+    def _velocity_step(self, turn: bool = True) -> NDArray[np.float64]:
+        """The motion over this scan's interval at the mean velocity of the last ``velocity_scans`` matched motions."""
+        if not self._recent:
+            return np.zeros(3)
+        span = sum(dt for _, dt in self._recent)
+        mean = sum(step for step, _ in self._recent) / span
+        out = mean * self._dt
+        if not turn:
+            out[2] = 0.0
+        return out
 
     def _integrate(self, scan, d: NDArray[np.float64], gain: float) -> float:
         p = self.params
