@@ -26,6 +26,7 @@ from slam2d.grids.crsm_map import CrsmMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
+from slam2d.matching.scan_to_scan import consecutive_motion
 from slam2d.matching.rrhc import HEADING_STEP, near_known, paired_gain, refine_offset, rrhc_search
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -127,10 +128,11 @@ class CrsmParams:
         "larger gain); otherwise the prediction's fit is taken. 0 = off (the original)",
     )
     turn_null: str = param(
-        "still", choices=("still", "last_motion", "velocity"),
+        "still", choices=("still", "last_motion", "velocity", "scan_to_scan"),
         help="the prediction turn_sigma tests a match against: the last pose (still), the last pose plus the "
         "last matched motion (last_motion), or plus this scan's interval times the mean velocity of the last "
-        "velocity_scans motions from the scan timestamps (velocity); each settled by the every-beam climb",
+        "velocity_scans motions from the scan timestamps (velocity), or plus the motion that registers this scan "
+        "on the previous one alone (scan_to_scan, no map); each settled by the every-beam climb",
     )
     turn_starts: str = param(
         "prediction", choices=("prediction", "translations"),
@@ -194,6 +196,8 @@ class Crsm(SlamMethod):
         self._recent: list[tuple[NDArray[np.float64], float]] = []  # the last matched motions and their intervals
         self._last_time = math.nan
         self._dt = 0.0
+        self._previous_points: NDArray[np.float64] | None = None  # the last scan's endpoints, robot frame
+        self._consecutive = np.zeros(3)  # this scan's pose in the last scan's frame, from the two scans alone
         self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
         self._warm = True
         self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
@@ -218,6 +222,8 @@ class Crsm(SlamMethod):
             self.diagnostics.count("scans_without_returns")
             self._scans += 1
             return {"rays": 0.0}
+        if p.turn_null == "scan_to_scan" and p.turn_sigma > 0:
+            self._register_on_previous(scan, d, laser_max)
         selected, self._parameter, mean_density, _ = critical_rays(
             d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays,
             p.ray_count_control == "proportional",
@@ -322,6 +328,8 @@ class Crsm(SlamMethod):
             pred = se2.compose(self._pose, self._step)
         elif p.turn_null == "velocity":
             pred = se2.compose(self._pose, self._velocity_step())
+        elif p.turn_null == "scan_to_scan":
+            pred = se2.compose(self._pose, self._consecutive)
         else:
             pred = self._pose
         # where the every-beam climb for the prediction's fit starts: the prediction, and (turn_starts=translations)
@@ -354,6 +362,15 @@ class Crsm(SlamMethod):
         values["turn_rejected"] = 1.0
         self.diagnostics.count("turns_rejected")
         return alt
+
+    def _register_on_previous(self, scan, d: NDArray[np.float64], laser_max: float) -> None:
+        """Set ``_consecutive``: this scan registered on the previous one (guess: the last such motion)."""
+        ok = (d > 0) & (d < laser_max)
+        a = scan.angles[ok]
+        points = se2.transform_points(scan.mount, np.stack([d[ok] * np.cos(a), d[ok] * np.sin(a)], axis=-1))
+        if self._previous_points is not None:
+            self._consecutive = consecutive_motion(self._previous_points, points, self._consecutive)
+        self._previous_points = points
 
     def _velocity_step(self, turn: bool = True) -> NDArray[np.float64]:
         """The motion over this scan's interval at the mean velocity of the last ``velocity_scans`` matched motions."""
