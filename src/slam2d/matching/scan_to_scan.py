@@ -32,18 +32,20 @@ from slam2d.matching.gauss_newton import gauss_newton_level
 __all__ = ["consecutive_motion"]
 
 # (cell size m, smear sigma m) of the coarse and the fine field
-_LEVELS = ((0.10, 0.15), (0.04, 0.05))
+_LEVELS = ((0.10, 0.15), (0.05, 0.05))
 _MARGIN = 0.6  # m around the previous scan's points: the current scan may reach a little further
 
 
-def _field(points: NDArray[np.float64], resolution: float, sigma: float):
-    lo = points.min(axis=0) - _MARGIN
-    hi = points.max(axis=0) + _MARGIN
-    shape = (int(math.ceil((hi[1] - lo[1]) / resolution)) + 1, int(math.ceil((hi[0] - lo[0]) / resolution)) + 1)
-    grid = np.zeros(shape, dtype=np.uint8)
-    smear_points(grid, float(lo[0]), float(lo[1]), resolution, np.ascontiguousarray(points[:, 0]),
-                 np.ascontiguousarray(points[:, 1]), np.full(points.shape[0], sigma))
-    return grid.astype(np.float64) / 255.0, float(lo[0]), float(lo[1])
+@njit(cache=True)
+def _field(px, py, resolution, sigma):
+    """The points smeared (a Gaussian of ``sigma`` each) into a 0..1 field: ``(field, origin x, origin y)``."""
+    lo_x = px.min() - _MARGIN
+    lo_y = py.min() - _MARGIN
+    cols = int(math.ceil((px.max() + _MARGIN - lo_x) / resolution)) + 1
+    rows = int(math.ceil((py.max() + _MARGIN - lo_y) / resolution)) + 1
+    grid = np.zeros((rows, cols), dtype=np.uint8)
+    smear_points(grid, lo_x, lo_y, resolution, px, py, np.full(px.shape[0], sigma))
+    return grid.astype(np.float64) / 255.0, lo_x, lo_y
 
 
 @njit(cache=True)
@@ -75,26 +77,36 @@ def _sweep(field, ox, oy, resolution, qx, qy, gx, gy, gt, half_turn, turn_step, 
     return bx, by, bt
 
 
+@njit(cache=True)
+def _register(px, py, qx, qy, current, guess, half_turn):
+    pose = guess.copy()
+    weights = np.ones(qx.shape[0])
+    none = np.zeros((3, 3))
+    for level in range(len(_LEVELS)):
+        resolution, sigma = _LEVELS[level]
+        field, ox, oy = _field(px, py, resolution, sigma)
+        if level == 0:
+            # every second point: the sweep only has to land in the coarse field's basin
+            x, y, t = _sweep(field, ox, oy, resolution, qx[::2].copy(), qy[::2].copy(), pose[0], pose[1], pose[2],
+                             half_turn, 0.02, 0.1)
+            pose = np.array([x, y, t])
+        pose = gauss_newton_level(field, ox, oy, resolution, current, weights, pose, 5, 1e-4, 1e-4, 0.1, 0.2, pose,
+                                  none)[0]
+    return pose
+
+
 def consecutive_motion(previous: NDArray[np.float64], current: NDArray[np.float64], guess: NDArray[np.float64],
-                       half_turn: float = 0.35) -> NDArray[np.float64]:
+                       half_turn: float = 0.25) -> NDArray[np.float64]:
     """The pose of the current scan in the previous scan's frame, ``(x, y, theta)``.
 
     ``previous``, ``current``: (n, 2) endpoints in each scan's robot frame (m);
     ``guess``: the motion to start from (e.g. the last one); ``half_turn``
     (rad): the heading sweep's reach around the guess. Deterministic.
     """
-    pose = np.asarray(guess, dtype=np.float64).copy()
+    guess = np.asarray(guess, dtype=np.float64)
     if previous.shape[0] < 3 or current.shape[0] < 3:
-        return pose
-    qx = np.ascontiguousarray(current[:, 0])
-    qy = np.ascontiguousarray(current[:, 1])
-    weights = np.ones(current.shape[0])
-    none = np.zeros((3, 3))
-    for level, (resolution, sigma) in enumerate(_LEVELS):
-        field, ox, oy = _field(previous, resolution, sigma)
-        if level == 0:
-            x, y, t = _sweep(field, ox, oy, resolution, qx, qy, pose[0], pose[1], pose[2], half_turn, 0.02, 0.1)
-            pose = np.array([x, y, t])
-        pose = gauss_newton_level(field, ox, oy, resolution, np.ascontiguousarray(current), weights, pose, 10,
-                                  1e-4, 1e-4, 0.1, 0.2, pose, none)[0]
-    return pose
+        return guess.copy()
+    current = np.ascontiguousarray(current, dtype=np.float64)
+    return _register(np.ascontiguousarray(previous[:, 0]), np.ascontiguousarray(previous[:, 1]),
+                     np.ascontiguousarray(current[:, 0]), np.ascontiguousarray(current[:, 1]), current, guess,
+                     float(half_turn))

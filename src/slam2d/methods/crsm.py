@@ -121,14 +121,14 @@ class CrsmParams:
     )
     known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
     turn_sigma: float = param(
-        0.07, unit="rad", low=0.0, high=10.0,
+        0.035, unit="rad", low=0.0, high=10.0,
         help="scatter of the turn per scan about the prediction (turn_null): a match whose turn differs from the "
         "prediction's fit is kept only if the paired z of every beam's fitness gain over that fit reaches "
         "|its extra turn| / turn_sigma (a likelihood ratio against a Gaussian turn prior; sparse scans need a "
         "larger gain); otherwise the prediction's fit is taken. 0 = off (the original)",
     )
     turn_null: str = param(
-        "still", choices=("still", "last_motion", "velocity", "scan_to_scan"),
+        "scan_to_scan", choices=("scan_to_scan", "still", "last_motion", "velocity"),
         help="the prediction turn_sigma tests a match against: the last pose (still), the last pose plus the "
         "last matched motion (last_motion), or plus this scan's interval times the mean velocity of the last "
         "velocity_scans motions from the scan timestamps (velocity), or plus the motion that registers this scan "
@@ -181,6 +181,7 @@ class Crsm(SlamMethod):
         "cells_updated": "cells walked by the map update [cells]",
         "turn_z": "paired z of the match's every-beam fitness gain over the prediction's fit when their headings "
                   "differ (turn_sigma) [-]",
+        "consecutive_turn": "the turn registering the scan on the previous one gives (turn_null=scan_to_scan) [rad]",
         "turn_rejected": "1 when the match's turn lacked the evidence and the prediction's fit was taken [-]",
     }
 
@@ -222,8 +223,15 @@ class Crsm(SlamMethod):
             self.diagnostics.count("scans_without_returns")
             self._scans += 1
             return {"rays": 0.0}
+        everywhere = None  # every beam with a return, robot frame (cells as the map marks them)
+        if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
+            everywhere = ray_points(scan, d, np.flatnonzero((d > 0) & (d < laser_max)), p.resolution)
         if p.turn_null == "scan_to_scan" and p.turn_sigma > 0:
-            self._register_on_previous(scan, d, laser_max)
+            # registered on the previous scan alone; the turn test's prediction (kept: the last scan's points)
+            if self._previous_points is not None:
+                self._consecutive = consecutive_motion(self._previous_points, everywhere, self._consecutive)
+                values["consecutive_turn"] = float(self._consecutive[2])
+            self._previous_points = everywhere
         selected, self._parameter, mean_density, _ = critical_rays(
             d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays,
             p.ray_count_control == "proportional",
@@ -252,10 +260,8 @@ class Crsm(SlamMethod):
                 float(centre[0]), float(centre[1]), float(centre[2]),
                 p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
             )
-            dense = None
-            if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
-                every = np.flatnonzero((d > 0) & (d < laser_max))
-                dense = ray_points(scan, d, every, p.resolution)
+            dense = everywhere
+            if dense is not None:
                 if p.unknown_rays == "drop":
                     keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
                                       np.ascontiguousarray(dense[:, 1]), *ahead, p.known_margin)
@@ -362,15 +368,6 @@ class Crsm(SlamMethod):
         values["turn_rejected"] = 1.0
         self.diagnostics.count("turns_rejected")
         return alt
-
-    def _register_on_previous(self, scan, d: NDArray[np.float64], laser_max: float) -> None:
-        """Set ``_consecutive``: this scan registered on the previous one (guess: the last such motion)."""
-        ok = (d > 0) & (d < laser_max)
-        a = scan.angles[ok]
-        points = se2.transform_points(scan.mount, np.stack([d[ok] * np.cos(a), d[ok] * np.sin(a)], axis=-1))
-        if self._previous_points is not None:
-            self._consecutive = consecutive_motion(self._previous_points, points, self._consecutive)
-        self._previous_points = points
 
     def _velocity_step(self, turn: bool = True) -> NDArray[np.float64]:
         """The motion over this scan's interval at the mean velocity of the last ``velocity_scans`` matched motions."""
