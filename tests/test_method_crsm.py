@@ -480,28 +480,44 @@ def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
 HEADING_BOUND_DEG = {"mines-exp1": 12.0, "mines-exp2": 23.0}
 
 
-@pytest.mark.slow
-@pytest.mark.datasets
-@pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: with turn_sigma (the default) crsm's "
-                   "scan_consistency passes on mines-exp2 for seeds 0-2 (0.674 / 0.683 / 0.660, bar 0.624) and on "
-                   "mines-exp1 (0.713 / 0.735 / 0.716, bar 0.650), but its headings stray from hector's by "
-                   "17.0 / 19.5 / 12.4 degrees (p95, bound 12) on mines-exp1 and 14.5 / 24.4 / 26.5 (bound 23) on "
-                   "mines-exp2; docs/methods/crsm.md")
-def test_crsm_mines_maps_are_as_consistent_as_hector(hector_mines_exp1, hector_mines_exp2):
-    """The target, for seeds 0-2 on both logs: scan_consistency within 5 % of hector's, and the headings (aligned as
-    ATE aligns) no further from hector's than the other consistent methods' are (``HEADING_BOUND_DEG``).
-
-    The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
-    pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
-    headings for the rest of the run.
-    """
+def _check_mines_target(log: str, hector) -> list:
+    """Seeds 0-2 of crsm on ``log``: those whose scan_consistency is below 95 % of hector's or whose heading p95 exceeds
+    ``HEADING_BOUND_DEG`` (as ``(log, seed, consistency, heading)``)."""
     from slam2d.eval.trajectory_metrics import heading_agreement
 
     failures = []
-    for log, hector in (("mines-exp1", hector_mines_exp1), ("mines-exp2", hector_mines_exp2)):
-        for seed in (0, 1, 2):
-            consistency, times, poses = _mines_run("crsm", seed, log=log)
-            heading = heading_agreement(times, poses, hector[1], hector[2])["heading_p95_deg"]
-            if consistency < 0.95 * hector[0] or heading > HEADING_BOUND_DEG[log]:
-                failures.append((log, seed, round(consistency, 3), round(heading, 1)))
+    for seed in (0, 1, 2):
+        consistency, times, poses = _mines_run("crsm", seed, log=log)
+        heading = heading_agreement(times, poses, hector[1], hector[2])["heading_p95_deg"]
+        if consistency < 0.95 * hector[0] or heading > HEADING_BOUND_DEG[log]:
+            failures.append((log, seed, round(consistency, 3), round(heading, 1)))
+    return failures
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_crsm_mines_exp1_map_is_as_consistent_as_hector(hector_mines_exp1):
+    """The target on mines-exp1, seeds 0-2: scan_consistency within 5 % of hector's, and the headings (aligned as ATE
+    aligns) no further from hector's than the other consistent methods' are (``HEADING_BOUND_DEG``).
+
+    The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
+    pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
+    headings for the rest of the run. Measured with the defaults (turn_null=scan_to_scan): consistency
+    0.732 / 0.740 / 0.736 (bar 0.650), heading p95 5.0 / 7.0 / 4.4 degrees (bound 12; seeds 3, 4: 9.7, 4.8).
+    """
+    failures = _check_mines_target("mines-exp1", hector_mines_exp1)
+    assert not failures, failures
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+@pytest.mark.xfail(strict=True, reason="issue 8's mines target is met on mines-exp1 but not for every seed on "
+                   "mines-exp2: with turn_null=scan_to_scan (the default) crsm's heading p95 against hector's is "
+                   "18.3 / 18.9 / 27.5 degrees for seeds 0 / 1 / 2 (bound 23; seeds 3, 4: 22.1, 18.2), consistency "
+                   "0.710 / 0.711 / 0.760 (bar 0.624); seed 2 keeps a map-biased 6 degree under-turn at scan 176; "
+                   "docs/methods/crsm.md")
+def test_crsm_mines_exp2_map_is_as_consistent_as_hector(hector_mines_exp2):
+    """The target on mines-exp2, seeds 0-2 (as the mines-exp1 test). About 18 degrees of the bound are hector's own
+    turn at scan 236: hector's trajectory with that turn taken out scores 18.3 against hector's."""
+    failures = _check_mines_target("mines-exp2", hector_mines_exp2)
     assert not failures, failures
