@@ -6,7 +6,11 @@ random-restart hill climbing (:mod:`slam2d.matching.rrhc`), settle it with a
 short neighbour climb scored with every beam (not in the original: a few
 dozen rays leave several near-equal fits), then update the
 8-bit map along every beam (:mod:`slam2d.grids.crsm_map`) with a gain set by
-how jagged the scan is. As in the original, the first scans build the map at
+how jagged the scan is. Between the search and the update a turn test (not in
+the original) keeps the match's turn only if every beam bears it out against
+a prediction: by default the motion that registers the scan on the previous
+scan alone (:mod:`slam2d.matching.scan_to_scan`), which a young map cannot
+bias. As in the original, the first scans build the map at
 the start pose; unlike the original, the warm-up ends early as soon as the
 matcher sees the robot move (the original assumes it stands still).
 """
