@@ -349,6 +349,25 @@ def test_the_measured_turn_options_track_a_drive_and_are_deterministic():
     assert len(a._recent) == 3  # the drive's frames are 0.1 s apart: the velocity is kept
 
 
+@pytest.mark.parametrize("motion", [(0.10, 0.02, 0.05), (0.15, -0.05, 0.22), (0.0, 0.0, -0.2)])
+def test_scan_to_scan_registration_recovers_the_turn_between_two_scans(motion):
+    """turn_null=scan_to_scan: the motion between two scans of a room, found from the scans alone (no map) and from
+    a guess of no motion, including a 0.2 rad turn (far points leave a Gaussian's reach: the heading sweep)."""
+    from slam2d.matching.scan_to_scan import consecutive_motion
+
+    def points(pose):
+        scan = room_scan(pose, n=URG_BEAMS)
+        d = np.nan_to_num(scan.ranges)
+        return np.ascontiguousarray(ray_points(scan, d, np.flatnonzero((d > 0) & (d < scan.range_max)), 0.02))
+
+    truth = np.array(motion)
+    found = consecutive_motion(points(np.zeros(3)), points(truth), np.zeros(3))
+    assert abs(se2.wrap_angle(found[2] - truth[2])) < math.radians(0.5), found
+    assert np.hypot(*(found[:2] - truth[:2])) < 0.05, found
+    # too few points: the guess comes back
+    assert np.array_equal(consecutive_motion(np.zeros((2, 2)), points(truth), truth), truth)
+
+
 def test_crsm_tracks_a_drive_and_is_deterministic():
     frames, truth = _drive()
     a = Crsm(seed=3).run(frames)
