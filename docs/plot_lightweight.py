@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Draw docs/images/coreslam-paper-arena.png and crsm-paper-arena.png (see docs/methods/), and
-crsm-mines.png, crsm-mines-unknown.png and crsm-mines-turn.png when ../shared/datasets is there
-(``docs/plot_lightweight.py mines-unknown`` or ``mines-turn`` draws only that one).
+crsm-mines.png, crsm-mines-unknown.png, crsm-mines-turn.png and crsm-mines-s2s.png when ../shared/datasets is there
+(``docs/plot_lightweight.py mines-unknown``, ``mines-turn`` or ``mines-s2s`` draws only that one).
 
 Each arena picture: the method's map of the simulated paper-arena (no odometry
 used), its trajectory against the true one, and the per-scan match score and
@@ -159,9 +159,11 @@ def draw_mines_unknown() -> None:
     _save(fig, "crsm-mines-unknown.png", 60)
 
 
-def draw_mines_turn() -> None:
-    """crsm-mines-turn.png: hector, crsm without the turn test (turn_sigma=0) and with it (the default) for seeds 0-2
-    on both mines logs, each trajectory turned onto hector's, with scan_consistency and the heading agreement."""
+def draw_mines_turn(scan_to_scan: bool = False) -> None:
+    """crsm-mines-turn.png: hector, crsm without the turn test (turn_sigma=0) and with it against the still
+    prediction (the default then) for seeds 0-2 on both mines logs, each trajectory turned onto hector's, with
+    scan_consistency and the heading agreement. ``scan_to_scan``: crsm-mines-s2s.png, hector, the still
+    prediction (seed 2) and the defaults (the scan-to-scan prediction) for seeds 0-2."""
     from slam2d.eval import scan_consistency
     from slam2d.eval.trajectory_metrics import heading_agreement
     from slam2d.methods.runner import build_method
@@ -170,8 +172,13 @@ def draw_mines_turn() -> None:
     if not (data / "mines-exp2").is_dir():
         print(f"no {data}: crsm-mines-turn.png not drawn")
         return
-    runs = [("hector", {}, 0, "hector")] + [("crsm", {"turn_sigma": "0"}, 2, "crsm, turn_sigma=0, seed 2")] + [
-        ("crsm", {}, seed, f"crsm, default (turn_sigma=0.07), seed {seed}") for seed in (0, 1, 2)]
+    still = {"turn_null": "still", "turn_sigma": "0.07"}
+    if scan_to_scan:
+        runs = [("hector", {}, 0, "hector"), ("crsm", still, 2, "crsm, still prediction, seed 2")] + [
+            ("crsm", {}, seed, f"crsm, default (scan_to_scan), seed {seed}") for seed in (0, 1, 2)]
+    else:
+        runs = [("hector", {}, 0, "hector")] + [("crsm", {"turn_sigma": "0"}, 2, "crsm, turn_sigma=0, seed 2")] + [
+            ("crsm", still, seed, f"crsm, still (turn_sigma=0.07), seed {seed}") for seed in (0, 1, 2)]
     fig, axes = plt.subplots(2, len(runs), figsize=(4.2 * len(runs), 9))
     for row, ds in enumerate(("mines-exp1", "mines-exp2")):
         frames = list(open_recording(data / ds / f"{ds}.clf.gz").frames())
@@ -189,7 +196,7 @@ def draw_mines_turn() -> None:
                 label = f"scan_consistency {score:.3f}, heading p95 {h:.1f} deg"
                 p = se2.compose(align_se2(p[:, :2], reference[1][:, :2]), p)
             _map_panel(axes[row, col], frames, t, p, f"{ds}: {title}\n{label}", path=False)
-    _save(fig, "crsm-mines-turn.png", 60)
+    _save(fig, "crsm-mines-s2s.png" if scan_to_scan else "crsm-mines-turn.png", 60)
 
 
 def main() -> None:
@@ -198,6 +205,9 @@ def main() -> None:
         return
     if sys.argv[1:] == ["mines-turn"]:
         draw_mines_turn()
+        return
+    if sys.argv[1:] == ["mines-s2s"]:
+        draw_mines_turn(scan_to_scan=True)
         return
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate("paper-arena", SimulationParams(seed=1))
@@ -209,6 +219,7 @@ def main() -> None:
     draw_mines()
     draw_mines_unknown()
     draw_mines_turn()
+    draw_mines_turn(scan_to_scan=True)
 
 
 if __name__ == "__main__":

@@ -75,6 +75,31 @@ def test_critical_rays_keep_discontinuities_and_adapt_their_count():
     assert 0.75 * 40 <= counts[-1] <= 1.25 * 40 or abs(counts[-1] - 40) < abs(counts[0] - 40)
 
 
+@pytest.mark.datasets
+def test_proportional_ray_count_control_stops_the_sawtooth_on_mines_exp1():
+    """ray_count_control: with 120 desired rays the original's additive rule drives the threshold factor to or below
+    0 (every beam picked) and back up by hundreds (a few dozen rays for several scans) on the URG-04LX's scans;
+    scaling it by picked / desired keeps the count near the target. Measured: under 60 rays on about a tenth of the
+    scans with the additive rule."""
+    from slam2d.io import open_recording
+    from tests.conftest import dataset_file
+
+    frames = list(open_recording(dataset_file("mines-exp1/mines-exp1.clf.gz")).frames())[:300]
+    counts = {}
+    for proportional in (False, True):
+        p, n = 100.0, []
+        for fr in frames:
+            d = np.nan_to_num(fr.scan.ranges)
+            d[(d > 0) & (d < 0.02)] = 0.0
+            sel, p, _, _ = critical_rays(d, fr.scan.range_max, p, 0.3, 120, proportional)
+            n.append(sel.shape[0])
+        counts[proportional] = np.asarray(n[20:])
+    additive, proportional = counts[False], counts[True]
+    assert np.mean(additive < 60) > 0.05 and np.mean(additive > 300) > 0.01  # the sawtooth
+    assert np.mean(proportional < 60) < 0.02 and np.mean(proportional > 300) == 0.0
+    assert 90 < np.median(proportional) < 150
+
+
 def _room_map(scans=5):
     m = CrsmMap(0.02)
     m.ensure_contains(-5, -5, 5, 5, margin=0)
@@ -297,6 +322,52 @@ def _drive(n=50, step=0.05, turn=0.015):
     return [frame(room_scan(p, n=URG_BEAMS, t=0.1 * i), index=i) for i, p in enumerate(poses)], np.stack(poses)
 
 
+def test_velocity_prediction_scales_the_recent_motion_by_the_scan_interval():
+    """turn_null=velocity: the prediction is the mean velocity of the last matched motions (from the scan timestamps)
+    times this scan's interval; with no interval (first scan, a repeated stamp) it is no motion."""
+    m = Crsm(CrsmParams(turn_null="velocity", velocity_scans=2), seed=0)
+    assert np.array_equal(m._velocity_step(), np.zeros(3))
+    m._recent = [(np.array([0.10, 0.0, 0.02]), 0.1), (np.array([0.30, 0.0, 0.06]), 0.1)]
+    m._dt = 0.05
+    assert np.allclose(m._velocity_step(), [0.10, 0.0, 0.02])  # 2 m/s, 0.4 rad/s over 0.05 s
+    assert np.allclose(m._velocity_step(turn=False), [0.10, 0.0, 0.0])
+
+
+def test_the_measured_turn_options_track_a_drive_and_are_deterministic():
+    """ray_count_control=proportional, turn_null=velocity and turn_starts=translations (not the defaults; measured
+    on the mines logs in docs/methods/crsm.md) still track the simulated drive, and repeat bit for bit."""
+    frames, truth = _drive()
+    params = CrsmParams(ray_count_control="proportional", turn_null="velocity", turn_starts="translations")
+    a = Crsm(params, seed=3).run(frames)
+    b = Crsm(params, seed=3).run(frames)
+    pa = a.trajectory()[1]
+    assert np.array_equal(pa, b.trajectory()[1])
+    aligned = se2.compose(align_se2(pa[:, :2], truth[:, :2]), pa)
+    err = np.hypot(*(aligned[:, :2] - truth[:, :2]).T)
+    assert np.sqrt(np.mean(err**2)) < 0.05, err
+    assert np.abs(se2.wrap_angle(aligned[:, 2] - truth[:, 2])).max() < math.radians(2)
+    assert len(a._recent) == 3  # the drive's frames are 0.1 s apart: the velocity is kept
+
+
+@pytest.mark.parametrize("motion", [(0.10, 0.02, 0.05), (0.15, -0.05, 0.22), (0.0, 0.0, -0.2)])
+def test_scan_to_scan_registration_recovers_the_turn_between_two_scans(motion):
+    """turn_null=scan_to_scan: the motion between two scans of a room, found from the scans alone (no map) and from
+    a guess of no motion, including a 0.2 rad turn (far points leave a Gaussian's reach: the heading sweep)."""
+    from slam2d.matching.scan_to_scan import consecutive_motion
+
+    def points(pose):
+        scan = room_scan(pose, n=URG_BEAMS)
+        d = np.nan_to_num(scan.ranges)
+        return np.ascontiguousarray(ray_points(scan, d, np.flatnonzero((d > 0) & (d < scan.range_max)), 0.02))
+
+    truth = np.array(motion)
+    found = consecutive_motion(points(np.zeros(3)), points(truth), np.zeros(3))
+    assert abs(se2.wrap_angle(found[2] - truth[2])) < math.radians(0.5), found
+    assert np.hypot(*(found[:2] - truth[:2])) < 0.05, found
+    # too few points: the guess comes back
+    assert np.array_equal(consecutive_motion(np.zeros((2, 2)), points(truth), truth), truth)
+
+
 def test_crsm_tracks_a_drive_and_is_deterministic():
     frames, truth = _drive()
     a = Crsm(seed=3).run(frames)
@@ -428,28 +499,44 @@ def test_scan_consistency_ranks_the_mines_exp2_trajectories(hector_mines_exp2):
 HEADING_BOUND_DEG = {"mines-exp1": 12.0, "mines-exp2": 23.0}
 
 
-@pytest.mark.slow
-@pytest.mark.datasets
-@pytest.mark.xfail(strict=True, reason="issue 8's mines target is not met: with turn_sigma (the default) crsm's "
-                   "scan_consistency passes on mines-exp2 for seeds 0-2 (0.674 / 0.683 / 0.660, bar 0.624) and on "
-                   "mines-exp1 (0.713 / 0.735 / 0.716, bar 0.650), but its headings stray from hector's by "
-                   "17.0 / 19.5 / 12.4 degrees (p95, bound 12) on mines-exp1 and 14.5 / 24.4 / 26.5 (bound 23) on "
-                   "mines-exp2; docs/methods/crsm.md")
-def test_crsm_mines_maps_are_as_consistent_as_hector(hector_mines_exp1, hector_mines_exp2):
-    """The target, for seeds 0-2 on both logs: scan_consistency within 5 % of hector's, and the headings (aligned as
-    ATE aligns) no further from hector's than the other consistent methods' are (``HEADING_BOUND_DEG``).
-
-    The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
-    pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
-    headings for the rest of the run.
-    """
+def _check_mines_target(log: str, hector) -> list:
+    """Seeds 0-2 of crsm on ``log``: those whose scan_consistency is below 95 % of hector's or whose heading p95 exceeds
+    ``HEADING_BOUND_DEG`` (as ``(log, seed, consistency, heading)``)."""
     from slam2d.eval.trajectory_metrics import heading_agreement
 
     failures = []
-    for log, hector in (("mines-exp1", hector_mines_exp1), ("mines-exp2", hector_mines_exp2)):
-        for seed in (0, 1, 2):
-            consistency, times, poses = _mines_run("crsm", seed, log=log)
-            heading = heading_agreement(times, poses, hector[1], hector[2])["heading_p95_deg"]
-            if consistency < 0.95 * hector[0] or heading > HEADING_BOUND_DEG[log]:
-                failures.append((log, seed, round(consistency, 3), round(heading, 1)))
+    for seed in (0, 1, 2):
+        consistency, times, poses = _mines_run("crsm", seed, log=log)
+        heading = heading_agreement(times, poses, hector[1], hector[2])["heading_p95_deg"]
+        if consistency < 0.95 * hector[0] or heading > HEADING_BOUND_DEG[log]:
+            failures.append((log, seed, round(consistency, 3), round(heading, 1)))
+    return failures
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_crsm_mines_exp1_map_is_as_consistent_as_hector(hector_mines_exp1):
+    """The target on mines-exp1, seeds 0-2: scan_consistency within 5 % of hector's, and the headings (aligned as ATE
+    aligns) no further from hector's than the other consistent methods' are (``HEADING_BOUND_DEG``).
+
+    The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
+    pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
+    headings for the rest of the run. Measured with the defaults (turn_null=scan_to_scan): consistency
+    0.722 / 0.710 / 0.716 (bar 0.650), heading p95 6.3 / 3.4 / 10.7 degrees (bound 12; seeds 3, 4: 5.7, 13.5).
+    """
+    failures = _check_mines_target("mines-exp1", hector_mines_exp1)
+    assert not failures, failures
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+@pytest.mark.xfail(strict=True, reason="issue 8's mines target is met on mines-exp1 but not for every seed on "
+                   "mines-exp2: with turn_null=scan_to_scan (the default) crsm's heading p95 against hector's is "
+                   "18.4 / 19.0 / 29.1 degrees for seeds 0 / 1 / 2 (bound 23; seeds 3, 4: 22.9, 22.0), consistency "
+                   "0.750 / 0.748 / 0.765 (bar 0.624); seed 2 keeps a map-biased under-turn near scan 176; "
+                   "docs/methods/crsm.md")
+def test_crsm_mines_exp2_map_is_as_consistent_as_hector(hector_mines_exp2):
+    """The target on mines-exp2, seeds 0-2 (as the mines-exp1 test). About 18 degrees of the bound are hector's own
+    turn at scan 236: hector's trajectory with that turn taken out scores 18.3 against hector's."""
+    failures = _check_mines_target("mines-exp2", hector_mines_exp2)
     assert not failures, failures

@@ -6,7 +6,11 @@ random-restart hill climbing (:mod:`slam2d.matching.rrhc`), settle it with a
 short neighbour climb scored with every beam (not in the original: a few
 dozen rays leave several near-equal fits), then update the
 8-bit map along every beam (:mod:`slam2d.grids.crsm_map`) with a gain set by
-how jagged the scan is. As in the original, the first scans build the map at
+how jagged the scan is. Between the search and the update a turn test (not in
+the original) keeps the match's turn only if every beam bears it out against
+a prediction: by default the motion that registers the scan on the previous
+scan alone (:mod:`slam2d.matching.scan_to_scan`), which a young map cannot
+bias. As in the original, the first scans build the map at
 the start pose; unlike the original, the warm-up ends early as soon as the
 matcher sees the robot move (the original assumes it stands still).
 """
@@ -26,6 +30,7 @@ from slam2d.grids.crsm_map import CrsmMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
+from slam2d.matching.scan_to_scan import consecutive_motion
 from slam2d.matching.rrhc import HEADING_STEP, near_known, paired_gain, refine_offset, rrhc_search
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -58,6 +63,12 @@ class CrsmParams:
         120, low=1, high=100_000,
         help="rays the density walk aims to pick per scan (kept within +-25 %); the original's 40 leaves the "
         "URG-04LX's mines maps less consistent (docs/methods/crsm.md)",
+    )
+    ray_count_control: str = param(
+        "additive", choices=("additive", "proportional"),
+        help="how the density walk's threshold factor follows desired_number_of_picked_rays: scaled by picked / "
+        "desired (slam2d's; steady counts) or moved by the excess in rays (the original; with 120 rays it saws "
+        "between ~400 and ~40 rays per scan)",
     )
     scan_density_lower_boundary: float = param(
         0.3, unit="m", low=0.0, help="range jump between neighbouring beams that makes both critical"
@@ -114,16 +125,27 @@ class CrsmParams:
     )
     known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
     turn_sigma: float = param(
-        0.07, unit="rad", low=0.0, high=10.0,
+        0.035, unit="rad", low=0.0, high=10.0,
         help="scatter of the turn per scan about the prediction (turn_null): a match whose turn differs from the "
         "prediction's fit is kept only if the paired z of every beam's fitness gain over that fit reaches "
         "|its extra turn| / turn_sigma (a likelihood ratio against a Gaussian turn prior; sparse scans need a "
         "larger gain); otherwise the prediction's fit is taken. 0 = off (the original)",
     )
     turn_null: str = param(
-        "still", choices=("still", "last_motion"),
-        help="the prediction turn_sigma tests a match against: the last pose (still) or the last pose plus the "
-        "last matched motion (last_motion); either settled by the every-beam climb",
+        "scan_to_scan", choices=("scan_to_scan", "still", "last_motion", "velocity"),
+        help="the prediction turn_sigma tests a match against: the last pose (still), the last pose plus the "
+        "last matched motion (last_motion), or plus this scan's interval times the mean velocity of the last "
+        "velocity_scans motions from the scan timestamps (velocity), or plus the motion that registers this scan "
+        "on the previous one alone (scan_to_scan, no map); each settled by the every-beam climb",
+    )
+    turn_starts: str = param(
+        "prediction", choices=("prediction", "translations"),
+        help="where the every-beam climb for the turn test's alternative starts: the prediction only, or also at the "
+        "match's position and at the last pose plus the mean recent translation, each at the prediction's heading",
+    )
+    velocity_scans: int = param(
+        3, low=1, high=100,
+        help="motions averaged for the velocity of turn_null=velocity and turn_starts=translations",
     )
     max_extent: float = param(
         2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
@@ -163,6 +185,7 @@ class Crsm(SlamMethod):
         "cells_updated": "cells walked by the map update [cells]",
         "turn_z": "paired z of the match's every-beam fitness gain over the prediction's fit when their headings "
                   "differ (turn_sigma) [-]",
+        "consecutive_turn": "the turn registering the scan on the previous one gives (turn_null=scan_to_scan) [rad]",
         "turn_rejected": "1 when the match's turn lacked the evidence and the prediction's fit was taken [-]",
     }
 
@@ -175,6 +198,11 @@ class Crsm(SlamMethod):
         self._map.draw_patch(np.zeros(3), p.robot_length, p.robot_width)
         self._pose = np.zeros(3)
         self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._recent: list[tuple[NDArray[np.float64], float]] = []  # the last matched motions and their intervals
+        self._last_time = math.nan
+        self._dt = 0.0
+        self._previous_points: NDArray[np.float64] | None = None  # the last scan's endpoints, robot frame
+        self._consecutive = np.zeros(3)  # this scan's pose in the last scan's frame, from the two scans alone
         self._parameter = 100.0  # the density walk's threshold factor, adapted scan by scan
         self._warm = True
         self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
@@ -184,6 +212,8 @@ class Crsm(SlamMethod):
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
         scan = frame.scan
+        dt = frame.timestamp - self._last_time
+        self._dt = dt if math.isfinite(dt) and dt > 0.0 else 0.0
         laser_max = scan.range_max if math.isfinite(scan.range_max) else float(np.nanmax(scan.ranges, initial=0.0))
         d = np.nan_to_num(scan.ranges, nan=0.0)
         # error codes as no return: as "returns" at the laser they are critical rays (every one a jump) that
@@ -197,8 +227,18 @@ class Crsm(SlamMethod):
             self.diagnostics.count("scans_without_returns")
             self._scans += 1
             return {"rays": 0.0}
+        everywhere = None  # every beam with a return, robot frame (cells as the map marks them)
+        if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
+            everywhere = ray_points(scan, d, np.flatnonzero((d > 0) & (d < laser_max)), p.resolution)
+        if p.turn_null == "scan_to_scan" and p.turn_sigma > 0:
+            # registered on the previous scan alone; the turn test's prediction (kept: the last scan's points)
+            if self._previous_points is not None:
+                self._consecutive = consecutive_motion(self._previous_points, everywhere, self._consecutive)
+                values["consecutive_turn"] = float(self._consecutive[2])
+            self._previous_points = everywhere
         selected, self._parameter, mean_density, _ = critical_rays(
-            d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays
+            d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays,
+            p.ray_count_control == "proportional",
         )
         values.update(rays=float(selected.shape[0]), mean_density=float(mean_density))
         if self._scans == 0:
@@ -224,10 +264,8 @@ class Crsm(SlamMethod):
                 float(centre[0]), float(centre[1]), float(centre[2]),
                 p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
             )
-            dense = None
-            if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
-                every = np.flatnonzero((d > 0) & (d < laser_max))
-                dense = ray_points(scan, d, every, p.resolution)
+            dense = everywhere
+            if dense is not None:
                 if p.unknown_rays == "drop":
                     keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
                                       np.ascontiguousarray(dense[:, 1]), *ahead, p.known_margin)
@@ -266,6 +304,12 @@ class Crsm(SlamMethod):
             step = se2.relative(self._pose, moved)
         self._step = step
         self._pose = moved
+        self._last_time = frame.timestamp
+        if self._dt > 0.0:
+            self._recent.append((step, self._dt))
+            del self._recent[:-p.velocity_scans]
+        else:
+            self._recent.clear()  # no interval (first scan, repeated or backward stamp): no velocity to keep
         if self._scans < p.warmup_density_scans:
             mean_density = _WARMUP_DENSITY
         gain = min(max(mean_density, _DENSITY_RANGE[0]), _DENSITY_RANGE[1])
@@ -290,11 +334,30 @@ class Crsm(SlamMethod):
         """
         p = self.params
         ox, oy = self._map.origin
-        pred = se2.compose(self._pose, self._step) if p.turn_null == "last_motion" else self._pose
-        ax, ay, ak, _, _ = refine_offset(self._map.values, ox, oy, p.resolution, qx, qy, float(pred[0]),
-                                         float(pred[1]), float(pred[2]), 0, 0, 0, max(p.dense_refine_rounds, 1))
-        alt = np.array([pred[0] + ax * p.resolution, pred[1] + ay * p.resolution,
-                        math.remainder(pred[2] + ak * HEADING_STEP, 2 * math.pi)])
+        if p.turn_null == "last_motion":
+            pred = se2.compose(self._pose, self._step)
+        elif p.turn_null == "velocity":
+            pred = se2.compose(self._pose, self._velocity_step())
+        elif p.turn_null == "scan_to_scan":
+            pred = se2.compose(self._pose, self._consecutive)
+        else:
+            pred = self._pose
+        # where the every-beam climb for the prediction's fit starts: the prediction, and (turn_starts=translations)
+        # also the match's position and the last pose plus the recent mean translation, at the prediction's heading.
+        # Why: the climb moves a cell per round, so from the last pose alone it cannot follow a robot that moved
+        # 15-20 cm, ends on a poor local fit, and a wrong turn then beats it (mines-exp1 scans 702, 711).
+        starts = [pred]
+        if p.turn_starts == "translations":
+            glide = se2.compose(self._pose, self._velocity_step(turn=False))
+            starts += [np.array([moved[0], moved[1], pred[2]]), np.array([glide[0], glide[1], pred[2]])]
+        alt, best = pred, -math.inf
+        for pred in starts:
+            ax, ay, ak, fit, _ = refine_offset(self._map.values, ox, oy, p.resolution, qx, qy, float(pred[0]),
+                                               float(pred[1]), float(pred[2]), 0, 0, 0, max(p.dense_refine_rounds, 1))
+            if fit > best:
+                best = fit
+                alt = np.array([pred[0] + ax * p.resolution, pred[1] + ay * p.resolution,
+                                math.remainder(pred[2] + ak * HEADING_STEP, 2 * math.pi)])
         e_m = math.remainder(moved[2] - pred[2], 2 * math.pi)
         e_a = math.remainder(alt[2] - pred[2], 2 * math.pi)
         needed = (e_m * e_m - e_a * e_a) / (p.turn_sigma * p.turn_sigma)
@@ -309,6 +372,17 @@ class Crsm(SlamMethod):
         values["turn_rejected"] = 1.0
         self.diagnostics.count("turns_rejected")
         return alt
+
+    def _velocity_step(self, turn: bool = True) -> NDArray[np.float64]:
+        """The motion over this scan's interval at the mean velocity of the last ``velocity_scans`` matched motions."""
+        if not self._recent:
+            return np.zeros(3)
+        span = sum(dt for _, dt in self._recent)
+        mean = sum(step for step, _ in self._recent) / span
+        out = mean * self._dt
+        if not turn:
+            out[2] = 0.0
+        return out
 
     def _integrate(self, scan, d: NDArray[np.float64], gain: float) -> float:
         p = self.params
