@@ -65,15 +65,14 @@ def main() -> None:
                      ancestors.get(30, np.nan), ancestors.get(100, np.nan), like.std(), corr))
     r = np.array(rows, dtype=float)
     print(f"seed {a.seed}, settings {settings}")
-    print("| t (s) | updates | resamplings | mean Neff | best particle's error (m) | nearest particle's (m) | "
+    print("| log time (s) | updates | resamplings | mean Neff | best particle's error (m) | nearest particle's (m) | "
           "cloud sd minor / major (m) | ancestors 30 / 100 back | log-lik sd | corr(log-lik, -error) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    t0 = r[0, 0]
-    for lo in np.arange(t0, r[-1, 0] + 1e-9, a.window):
+    for lo in np.arange(a.window * np.floor(r[0, 0] / a.window), r[-1, 0] + 1e-9, a.window):
         w = r[(r[:, 0] >= lo) & (r[:, 0] < lo + a.window)]
         if not len(w):
             continue
-        print(f"| {lo - t0:.0f}-{lo - t0 + a.window:.0f} | {len(w)} | {int(w[:, 2].sum())} | {w[:, 1].mean():.1f} | "
+        print(f"| {lo:.0f}-{lo + a.window:.0f} | {len(w)} | {int(w[:, 2].sum())} | {w[:, 1].mean():.1f} | "
               f"{w[-1, 3]:.2f} | {w[-1, 4]:.2f} | {w[-1, 5]:.2f} / {w[-1, 6]:.2f} | {w[-1, 7]:.0f} / {w[-1, 8]:.0f} | "
               f"{np.median(w[:, 9]):.0f} | {np.nanmean(w[:, 10]):+.2f} |")
     times, poses = m.trajectory()
