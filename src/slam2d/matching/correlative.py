@@ -43,7 +43,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import get_num_threads, njit, prange
 from numpy.typing import NDArray
 
 __all__ = ["CorrelativeMatcher", "GridCache", "MatchResult", "smear_points"]
@@ -62,6 +62,10 @@ _BNB_MIN_STEPS = 31
 _BOUND_BLOCK = 8
 # Response bound: how many times a heading's translation window is quartered where the bound passes.
 _BOUND_SPLITS = 3
+# Exhaustive searches of at least this many lookups share their angles among threads.
+_PARALLEL_LOOKUPS = 200_000
+# Smears of at least this many points are drawn in row bands, one per thread.
+_PARALLEL_POINTS = 2000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -114,6 +118,12 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
     response thresholds mean what they mean in Karto. The kernel is built
     once per distinct sigma (a separable product of exp() rows), then one comparison per cell.
     """
+    _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, 0, grid.shape[0])
+
+
+@njit(cache=True, inline="always")
+def _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, band_lo, band_hi):
+    """:func:`smear_points` writing only the grid rows [band_lo, band_hi) (and reading no other)."""
     rows, cols = grid.shape
     if px.shape[0] == 0:
         return
@@ -132,12 +142,12 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
             n = 2 * half + 1
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
-        if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
+        if skip_drawn and cv >= band_lo and cv < band_hi and cu >= 0 and cu < cols and grid[cv, cu] == 255:
             continue
         r0 = cv - half
         c0 = cu - half
-        i_lo = max(0, -r0)
-        i_hi = min(n, rows - r0)
+        i_lo = max(band_lo - r0, 0)
+        i_hi = min(n, band_hi - r0)
         j_lo = max(0, -c0)
         j_hi = min(n, cols - c0)
         m = j_hi - j_lo
@@ -151,11 +161,11 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
 
 
 @njit(cache=True)
-def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
-    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+def _row_sort(grid, origin_y, resolution, px, py, sigma):
+    """The points in grid-row order (a counting sort, stable) and where each row's points start.
 
-    Row order keeps the smear's writes in cache: many scans overlap in space,
-    not in memory.
+    Key r + 1 for row r, clamped to [0, rows + 1] (0: below the grid, rows + 1: above);
+    ``start[key]`` is the first sorted point of that key, ``start[rows + 2]`` the count.
     """
     n = px.shape[0]
     rows = grid.shape[0]
@@ -168,6 +178,7 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         count[r + 1] += 1
     for r in range(rows + 2):
         count[r + 1] += count[r]
+    start = count.copy()
     sx = np.empty(n)
     sy = np.empty(n)
     ss = np.empty(n)
@@ -177,7 +188,64 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         sx[d] = px[k]
         sy[d] = py[k]
         ss[d] = sigma[k]
+    return sx, sy, ss, start
+
+
+@njit(cache=True)
+def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
+    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+
+    Row order keeps the smear's writes in cache: many scans overlap in space,
+    not in memory.
+    """
+    sx, sy, ss, _ = _row_sort(grid, origin_y, resolution, px, py, sigma)
     smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
+
+
+@njit(cache=True, parallel=True)
+def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
+    """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, one thread each.
+
+    A band gets every point whose kernel reaches it and writes only its own rows, so no
+    two threads write one cell; max-combining is order-free, so the grid is the serial
+    one bit for bit. Bands hold about equal numbers of points.
+    """
+    n = px.shape[0]
+    rows = grid.shape[0]
+    if n == 0:
+        return
+    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
+    widest = int(math.ceil(2.0 * sigma.max() / resolution))
+    # Band b covers rows [edge[b], edge[b + 1]); an edge sits at the row of every n / bands-th point.
+    edge = np.empty(bands + 1, np.int64)
+    edge[0] = 0
+    edge[bands] = rows
+    key = 0
+    for b in range(1, bands):
+        target = (b * n) // bands
+        while start[key + 1] <= target:
+            key += 1
+        edge[b] = min(max(key - 1, edge[b - 1]), rows)
+    for b in prange(bands):
+        lo = edge[b]
+        hi = edge[b + 1]
+        if lo >= hi:
+            continue
+        # Keys (row + 1, clamped) of the points whose kernel can reach rows [lo, hi).
+        k_lo = min(max(lo - widest + 1, 0), rows + 1)
+        k_hi = min(max(hi + widest + 1, 0), rows + 2)
+        a = start[k_lo]
+        z = start[k_hi]
+        _smear_band(grid, origin_x, origin_y, resolution, sx[a:z], sy[a:z], ss[a:z], skip_drawn, lo, hi)
+
+
+def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
+    """:func:`smear_in_row_order`, in row bands on every thread when there are points enough to pay."""
+    threads = get_num_threads()
+    if threads > 1 and px.shape[0] >= _PARALLEL_POINTS:
+        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, threads)
+    else:
+        smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn)
 
 
 @njit(cache=True)
@@ -307,6 +375,24 @@ def _score_all(grid, rows, cols, n_steps, step):
     out = np.zeros((na, n_steps, n_steps))
     buf = np.zeros((n_steps, n_steps), np.int32)
     for a in range(na):
+        _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
+        for i in range(n_steps):
+            for j in range(n_steps):
+                out[a, i, j] = buf[i, j]
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _score_all_parallel(grid, rows, cols, n_steps, step):
+    """:func:`_score_all` with the angles shared among the threads.
+
+    Each angle writes only its own slice of integer sums, so the result is the
+    serial one bit for bit, whatever the threads' order.
+    """
+    na = rows.shape[0]
+    out = np.zeros((na, n_steps, n_steps))
+    for a in prange(na):
+        buf = np.empty((n_steps, n_steps), np.int32)
         _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
         for i in range(n_steps):
             for j in range(n_steps):
@@ -868,7 +954,7 @@ class CorrelativeMatcher:
         grid = np.zeros((rows, cols), dtype=np.uint8)
         origin = (ox, oy)
         if px.size:
-            smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
+            _smear(grid, float(origin[0]), float(origin[1]), res, px, py,
                                np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
 
@@ -968,7 +1054,9 @@ class CorrelativeMatcher:
         # The bound is on the raw response, so it prunes exactly only without a penalty.
         exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
         if exhaustive:
-            sums = _score_all(grid, rows, cols, n_steps, step)
+            # Threads pay only on searches big enough to outweigh waking them (the coarse one).
+            big = n_points * rows.shape[0] * n_steps * n_steps >= _PARALLEL_LOOKUPS
+            sums = (_score_all_parallel if big else _score_all)(grid, rows, cols, n_steps, step)
             lookups = sums.size * n_points
         else:
             block = _BLOCK
@@ -1284,13 +1372,13 @@ class GridCache:
             keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
                                old[0][0] - m, old[0][1] - m, old[1][0] + m, old[1][1] + m)
             if keep.size:
-                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         if e["n_drawn"] < len(parts):
             pts, sig = _concat(parts[e["n_drawn"]:])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
-                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
         return grid
