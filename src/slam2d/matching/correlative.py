@@ -40,10 +40,12 @@ from __future__ import annotations
 
 import copy
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import njit
 from numpy.typing import NDArray
 
 __all__ = ["CorrelativeMatcher", "GridCache", "MatchResult", "smear_points"]
@@ -66,6 +68,8 @@ _BOUND_SPLITS = 3
 _PARALLEL_LOOKUPS = 200_000
 # Smears of at least this many points are drawn in row bands, one per thread.
 _PARALLEL_POINTS = 2000
+# Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
+_THREADS = max(1, int(os.environ.get("SLAM2D_THREADS", min(os.cpu_count() or 1, 4))))
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -202,21 +206,9 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
     smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
 
 
-@njit(cache=True, parallel=True)
-def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
-    """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, one thread each.
-
-    A band gets every point whose kernel reaches it and writes only its own rows, so no
-    two threads write one cell; max-combining is order-free, so the grid is the serial
-    one bit for bit. Bands hold about equal numbers of points.
-    """
-    n = px.shape[0]
-    rows = grid.shape[0]
-    if n == 0:
-        return
-    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
-    widest = int(math.ceil(2.0 * sigma.max() / resolution))
-    # Band b covers rows [edge[b], edge[b + 1]); an edge sits at the row of every n / bands-th point.
+@njit(cache=True)
+def _band_edges(start, n, rows, bands):
+    """Row edges of ``bands`` bands holding about equal numbers of row-sorted points (see :func:`_row_sort`)."""
     edge = np.empty(bands + 1, np.int64)
     edge[0] = 0
     edge[bands] = rows
@@ -226,7 +218,17 @@ def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         while start[key + 1] <= target:
             key += 1
         edge[b] = min(max(key - 1, edge[b - 1]), rows)
-    for b in prange(bands):
+    return edge
+
+
+@njit(cache=True, nogil=True)
+def _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1, skip_drawn):
+    """Smear the row-sorted points into the bands [b0, b1) of rows: band b writes only rows [edge[b], edge[b + 1])."""
+    rows = grid.shape[0]
+    if sx.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * ss.max() / resolution))
+    for b in range(b0, b1):
         lo = edge[b]
         hi = edge[b + 1]
         if lo >= hi:
@@ -239,11 +241,53 @@ def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         _smear_band(grid, origin_x, origin_y, resolution, sx[a:z], sy[a:z], ss[a:z], skip_drawn, lo, hi)
 
 
+def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
+    """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, shared among threads.
+
+    A band gets every point whose kernel reaches it and writes only its own rows, so no
+    two threads write one cell; max-combining is order-free, so the grid is the serial
+    one bit for bit. Bands hold about equal numbers of points.
+    """
+    if px.shape[0] == 0:
+        return
+    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
+    edge = _band_edges(start, px.shape[0], grid.shape[0], bands)
+    _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
+                                       skip_drawn), bands)
+
+
+def _split(work, n) -> None:
+    """Run ``work(i0, i1)`` over [0, n) cut into one piece per worker, this thread doing the first.
+
+    The pieces are compiled ``nogil`` kernels writing disjoint outputs, so Python threads run
+    them side by side; they wait passively (no OpenMP spinning that would steal a busy
+    machine's cores).
+    """
+    parts = min(_THREADS, n)
+    if parts <= 1:
+        work(0, n)
+        return
+    cuts = [(k * n) // parts for k in range(parts + 1)]
+    futures = [_pool().submit(work, cuts[k], cuts[k + 1]) for k in range(1, parts)]
+    work(cuts[0], cuts[1])
+    for f in futures:
+        f.result()
+
+
+_POOL = None
+
+
+def _pool():
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=max(_THREADS - 1, 1), thread_name_prefix="slam2d-match")
+    return _POOL
+
+
 def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
     """:func:`smear_in_row_order`, in row bands on every thread when there are points enough to pay."""
-    threads = get_num_threads()
-    if threads > 1 and px.shape[0] >= _PARALLEL_POINTS:
-        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, threads)
+    if _THREADS > 1 and px.shape[0] >= _PARALLEL_POINTS:
+        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, _THREADS)
     else:
         smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn)
 
@@ -382,21 +426,25 @@ def _score_all(grid, rows, cols, n_steps, step):
     return out
 
 
-@njit(cache=True, parallel=True)
-def _score_all_parallel(grid, rows, cols, n_steps, step):
-    """:func:`_score_all` with the angles shared among the threads.
-
-    Each angle writes only its own slice of integer sums, so the result is the
-    serial one bit for bit, whatever the threads' order.
-    """
-    na = rows.shape[0]
-    out = np.zeros((na, n_steps, n_steps))
-    for a in prange(na):
-        buf = np.empty((n_steps, n_steps), np.int32)
+@njit(cache=True, nogil=True)
+def _score_angles(grid, rows, cols, n_steps, step, a0, a1, out):
+    """:func:`_score_all` of the angles [a0, a1) into ``out`` (angles, n, n)."""
+    buf = np.empty((n_steps, n_steps), np.int32)
+    for a in range(a0, a1):
         _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
         for i in range(n_steps):
             for j in range(n_steps):
                 out[a, i, j] = buf[i, j]
+
+
+def _score_all_parallel(grid, rows, cols, n_steps, step):
+    """:func:`_score_all` with the angles shared among threads.
+
+    Each angle writes only its own slice of integer sums, so the result is the
+    serial one bit for bit, whatever the threads' order.
+    """
+    out = np.zeros((rows.shape[0], n_steps, n_steps))
+    _split(lambda a0, a1: _score_angles(grid, rows, cols, n_steps, step, a0, a1, out), rows.shape[0])
     return out
 
 
@@ -1055,7 +1103,7 @@ class CorrelativeMatcher:
         exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
         if exhaustive:
             # Threads pay only on searches big enough to outweigh waking them (the coarse one).
-            big = n_points * rows.shape[0] * n_steps * n_steps >= _PARALLEL_LOOKUPS
+            big = _THREADS > 1 and n_points * rows.shape[0] * n_steps * n_steps >= _PARALLEL_LOOKUPS
             sums = (_score_all_parallel if big else _score_all)(grid, rows, cols, n_steps, step)
             lookups = sums.size * n_points
         else:
