@@ -65,9 +65,9 @@ _BOUND_BLOCK = 8
 # Response bound: how many times a heading's translation window is quartered where the bound passes.
 _BOUND_SPLITS = 3
 # Exhaustive searches of at least this many lookups share their angles among threads.
-_PARALLEL_LOOKUPS = 200_000
+_PARALLEL_LOOKUPS = 1_000_000
 # Smears of at least this many points are drawn in row bands, one per thread.
-_PARALLEL_POINTS = 2000
+_PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get("SLAM2D_THREADS", min(os.cpu_count() or 1, 4))))
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
