@@ -69,7 +69,8 @@ _PARALLEL_LOOKUPS = 1_000_000
 # Smears of at least this many points are drawn in row bands, one per thread.
 _PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
-_THREADS = max(1, int(os.environ.get("SLAM2D_THREADS", min(os.cpu_count() or 1, 4))))
+_THREADS = max(1, int(os.environ.get(
+    "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
