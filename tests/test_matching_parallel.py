@@ -50,3 +50,24 @@ def test_smear_in_row_bands_of_nothing_draws_nothing():
     grid = np.zeros((50, 50), np.uint8)
     smear_in_row_bands(grid, 0.0, 0.0, 0.01, np.zeros(0), np.zeros(0), np.zeros(0), False, 2)
     assert not grid.any()
+
+
+def test_threads_work_in_a_forked_child():
+    """A process forked after the worker threads started gets its own (a stale pool would hang)."""
+    import multiprocessing
+
+    from slam2d.matching import correlative
+
+    rng = np.random.default_rng(0)
+    grid = rng.integers(0, 256, (200, 200)).astype(np.uint8)
+    rows = rng.integers(0, 160, (8, 100))
+    cols = rng.integers(0, 160, (8, 100))
+    serial = _score_all(grid, rows, cols, 17, 2)
+    if correlative._THREADS < 2:
+        pytest.skip("threads are off (SLAM2D_THREADS=1 or one CPU)")
+    # The parent's worker thread runs before the fork.
+    assert np.array_equal(_score_all_parallel(grid, rows, cols, 17, 2), serial)
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(1) as pool:
+        got = pool.apply_async(_score_all_parallel, (grid, rows, cols, 17, 2)).get(timeout=120)
+    assert np.array_equal(got, serial)

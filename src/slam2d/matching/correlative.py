@@ -275,14 +275,15 @@ def _split(work, n) -> None:
         f.result()
 
 
-_POOL = None
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
 
 
-def _pool():
+def _pool() -> ThreadPoolExecutor:
+    """The worker threads, made once per process (a forked child has none of its parent's threads)."""
     global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=max(_THREADS - 1, 1), thread_name_prefix="slam2d-match")
-    return _POOL
+    if _POOL is None or _POOL[0] != os.getpid():
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=max(_THREADS - 1, 1), thread_name_prefix="slam2d-match"))
+    return _POOL[1]
 
 
 def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
