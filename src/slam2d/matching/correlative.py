@@ -71,6 +71,8 @@ _PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
+# Response bounds of at least this many points x headings share their headings among threads.
+_PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -770,9 +772,17 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     most the largest pooled block that square touches (a range maximum, from a sparse table: a
     few lookups per point). A heading whose bound reaches ``stop`` is split into the four
     quarters of its translation window, ``splits`` times deep (a branch and bound on the bound).
-    Returns early, with a sum of at least ``stop``, once a finest square reaches it (the caller
+    Returns ``stop`` early once a finest square reaches it (the caller
     only asks whether the bound stays below it); otherwise the bound.
     """
+    rng, table = _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta)
+    return _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, 0,
+                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64))
+
+
+@njit(cache=True)
+def _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta):
+    """Per query point its range, and the sparse table of ``pooled`` that :func:`_bound_over` reads."""
     n = qx.shape[0]
     rng = np.empty(n)
     r_max = 0.0
@@ -783,7 +793,15 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     levels = 1
     while (1 << levels) <= widest:
         levels += 1
-    table = _range_max_levels(pooled, levels)
+    return rng, _range_max_levels(pooled, levels)
+
+
+@njit(cache=True, nogil=True)
+def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, a0, a1,
+                trans, slack, delta, stop, splits, reached):
+    """:func:`_pooled_response_bound` over the headings [a0, a1); returns ``stop`` as soon as it is
+    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it."""
+    n = qx.shape[0]
     wx0 = np.empty(n)
     wy0 = np.empty(n)
     sx = np.empty(n)
@@ -791,7 +809,9 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     # Squares to examine: (x offset, y offset, half-width of the translations, depth).
     stack = np.empty((4 * splits + 1, 4))
     best = 0
-    for a in range(angles.shape[0]):
+    for a in range(a0, a1):
+        if reached[0]:
+            return best
         th = theta0 + angles[a]
         c = math.cos(th)
         s = math.sin(th)
@@ -815,7 +835,8 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
                 if total > best:
                     best = total
             elif depth >= splits:
-                return total
+                reached[0] = 1
+                return stop
             else:
                 q = 0.5 * t
                 for i in range(4):
@@ -1079,12 +1100,29 @@ class CorrelativeMatcher:
         if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
             return 0.0
         angles, delta = self._bound_angles()
+        # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
+        # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
+        angles = angles[np.argsort(np.abs(angles), kind="stable")]
         n = q.shape[0] * _SCALE
-        total = _pooled_response_bound(pooled, _BOUND_BLOCK, origin_x, origin_y, self.resolution,
-                                       np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
-                                       float(prior[0]), float(prior[1]), float(prior[2]), angles,
-                                       *self._bound_window(), delta, int(math.ceil(stop * n)), _BOUND_SPLITS)
-        return float(total) / n
+        qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
+        trans, slack = self._bound_window()
+        cut = int(math.ceil(stop * n))
+        rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        reached = np.zeros(1, np.int64)
+        parts = {}
+
+        def over(a0, a1):
+            parts[a0] = _bound_over(table, _BOUND_BLOCK, origin_x, origin_y, self.resolution, qx, qy, rng,
+                                    float(prior[0]), float(prior[1]), float(prior[2]), angles, a0, a1, trans, slack,
+                                    delta, cut, _BOUND_SPLITS, reached)
+
+        # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
+        # result (``stop``, or the best over every heading) does not depend on which did.
+        if q.shape[0] * angles.shape[0] >= _PARALLEL_BOUND:
+            _split(over, angles.shape[0])
+        else:
+            over(0, angles.shape[0])
+        return float(max(parts.values())) / n
 
     def _penalty(self, dx, dy, dth):
         d2 = dx * dx + dy * dy
