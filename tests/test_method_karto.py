@@ -108,6 +108,18 @@ def test_frames_between_nodes_are_matched_not_dead_reckoned(karto_run, loop_sim)
     assert rms(step_old) > 3 * rms(step) and rms(h_old[~node_old]) > 3 * rms(heading[~is_node])
 
 
+def test_a_smaller_window_between_nodes_keeps_the_heading_fix(loop_sim):
+    """Scans that add no node matched over +-8 cm and +-10 deg (a seventh of the default's poses) still get the nodes' heading."""
+    small = _run("karto", loop_sim.frames(), between_nodes_search_dimension=0.16,
+                 between_nodes_angle_offset=float(np.radians(10.0)))
+    assert small.frontend.between.search_size == pytest.approx(0.16)
+    assert small.frontend.sequential.search_size == pytest.approx(0.3)  # the nodes' matches keep Karto's window
+    heading, step, is_node = _heading_errors(small, loop_sim)
+    rms = lambda v: float(np.sqrt(np.mean(v**2)))  # noqa: E731
+    assert rms(heading[~is_node]) < 1.5 * rms(heading[is_node]) + 0.1, (rms(heading[~is_node]), rms(heading[is_node]))
+    assert rms(step) < 0.5, rms(step)
+
+
 def test_prediction_from_the_last_scan_recovers_a_bad_turn():
     """A turn whose odometry heading goes 28 deg wrong between two nodes (office, RPLidar, seed 2, t = 56 s).
 

@@ -90,6 +90,17 @@ class GraphSlamParams(GridParams):
         "trajectory (not in Karto, whose poses between nodes are the odometry's: with noisy odometry "
         "they are degrees off); costs one sequential match per scan",
     )
+    between_nodes_search_dimension: float = param(
+        0.3, unit="m", low=0.001,
+        help="side of the x, y window of the matches of scans that add no node (match_between_nodes; not in Karto): "
+        "their prediction is at most one node's travel from a matched node, so a window smaller than "
+        "correlation_search_space_dimension can do, at a fraction of the cost",
+    )
+    between_nodes_angle_offset: float = param(
+        20.0 * _DEG, unit="rad", low=0.0,
+        help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
+        "see between_nodes_search_dimension)",
+    )
     predict_from_last_scan: bool = param(
         True,
         help="when the last scan's matched pose plus the odometry since it gives a heading more than half "
@@ -369,6 +380,9 @@ class GraphFrontend:
             smear_deviation=p.loop_search_space_smear_deviation,
             **common,
         )
+        # Scans that add no node are matched over their own (smaller) window; its grids are the sequential ones.
+        self.between = self.sequential.with_window(p.between_nodes_search_dimension)
+        self.between.coarse_angle_offset = p.between_nodes_angle_offset
         self.backend = get_backend(p.backend)
         self._seq_cache = GridCache(self.sequential, self._node_reference)
         self._loop_cache = GridCache(self.loop, self._node_reference)
@@ -516,12 +530,14 @@ class GraphFrontend:
         p = self.params
         return last >= 0 and p.use_scan_matching and p.match_between_nodes
 
-    def _degenerate(self, cov: NDArray[np.float64]) -> bool:
+    def _degenerate(self, cov: NDArray[np.float64], matcher: CorrelativeMatcher | None = None) -> bool:
         """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
-        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * self.sequential.search_size**2)
+        size = (matcher or self.sequential).search_size
+        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * size**2)
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
-                             values: dict[str, float] | None = None, last_response: float = math.nan):
+                             values: dict[str, float] | None = None, last_response: float = math.nan,
+                             matcher: CorrelativeMatcher | None = None):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
         With ``values`` (a new node's log) a stuck or weak match is searched again over the
@@ -530,7 +546,7 @@ class GraphFrontend:
         the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
         """
         p = self.params
-        result = self._match(self.sequential, self._seq_cache, self._running, points, predicted,
+        result = self._match(matcher or self.sequential, self._seq_cache, self._running, points, predicted,
                              penalize=True, refine=True)
         recovered = False
         if values is not None:
@@ -619,8 +635,8 @@ class GraphFrontend:
         if not moved:
             # A scan that adds no node is still matched against the running scans, for its own
             # pose in the trajectory: between nodes the odometry alone can be degrees off.
-            pose, fcov, _ = self._sequential_estimate(points, predicted)
-            self._frame_degenerate = self._degenerate(fcov)
+            pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between)
+            self._frame_degenerate = self._degenerate(fcov, self.between)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose

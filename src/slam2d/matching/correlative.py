@@ -40,6 +40,8 @@ from __future__ import annotations
 
 import copy
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +64,15 @@ _BNB_MIN_STEPS = 31
 _BOUND_BLOCK = 8
 # Response bound: how many times a heading's translation window is quartered where the bound passes.
 _BOUND_SPLITS = 3
+# Exhaustive searches of at least this many lookups share their angles among threads.
+_PARALLEL_LOOKUPS = 1_000_000
+# Smears of at least this many points are drawn in row bands, one per thread.
+_PARALLEL_POINTS = 4000
+# Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
+_THREADS = max(1, int(os.environ.get(
+    "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
+# Response bounds of at least this many points x headings share their headings among threads.
+_PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
 
@@ -114,6 +125,12 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
     response thresholds mean what they mean in Karto. The kernel is built
     once per distinct sigma (a separable product of exp() rows), then one comparison per cell.
     """
+    _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, 0, grid.shape[0])
+
+
+@njit(cache=True, inline="always")
+def _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, band_lo, band_hi):
+    """:func:`smear_points` writing only the grid rows [band_lo, band_hi) (and reading no other)."""
     rows, cols = grid.shape
     if px.shape[0] == 0:
         return
@@ -132,12 +149,12 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
             n = 2 * half + 1
         cu = int(math.floor((px[k] - origin_x) / resolution))
         cv = int(math.floor((py[k] - origin_y) / resolution))
-        if skip_drawn and cv >= 0 and cv < rows and cu >= 0 and cu < cols and grid[cv, cu] == 255:
+        if skip_drawn and cv >= band_lo and cv < band_hi and cu >= 0 and cu < cols and grid[cv, cu] == 255:
             continue
         r0 = cv - half
         c0 = cu - half
-        i_lo = max(0, -r0)
-        i_hi = min(n, rows - r0)
+        i_lo = max(band_lo - r0, 0)
+        i_hi = min(n, band_hi - r0)
         j_lo = max(0, -c0)
         j_hi = min(n, cols - c0)
         m = j_hi - j_lo
@@ -151,11 +168,11 @@ def smear_points(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn
 
 
 @njit(cache=True)
-def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
-    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+def _row_sort(grid, origin_y, resolution, px, py, sigma):
+    """The points in grid-row order (a counting sort, stable) and where each row's points start.
 
-    Row order keeps the smear's writes in cache: many scans overlap in space,
-    not in memory.
+    Key r + 1 for row r, clamped to [0, rows + 1] (0: below the grid, rows + 1: above);
+    ``start[key]`` is the first sorted point of that key, ``start[rows + 2]`` the count.
     """
     n = px.shape[0]
     rows = grid.shape[0]
@@ -168,6 +185,7 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         count[r + 1] += 1
     for r in range(rows + 2):
         count[r + 1] += count[r]
+    start = count.copy()
     sx = np.empty(n)
     sy = np.empty(n)
     ss = np.empty(n)
@@ -177,7 +195,105 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
         sx[d] = px[k]
         sy[d] = py[k]
         ss[d] = sigma[k]
+    return sx, sy, ss, start
+
+
+@njit(cache=True)
+def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False):
+    """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
+
+    Row order keeps the smear's writes in cache: many scans overlap in space,
+    not in memory.
+    """
+    sx, sy, ss, _ = _row_sort(grid, origin_y, resolution, px, py, sigma)
     smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
+
+
+@njit(cache=True)
+def _band_edges(start, n, rows, bands):
+    """Row edges of ``bands`` bands holding about equal numbers of row-sorted points (see :func:`_row_sort`)."""
+    edge = np.empty(bands + 1, np.int64)
+    edge[0] = 0
+    edge[bands] = rows
+    key = 0
+    for b in range(1, bands):
+        target = (b * n) // bands
+        while start[key + 1] <= target:
+            key += 1
+        edge[b] = min(max(key - 1, edge[b - 1]), rows)
+    return edge
+
+
+@njit(cache=True, nogil=True)
+def _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1, skip_drawn):
+    """Smear the row-sorted points into the bands [b0, b1) of rows: band b writes only rows [edge[b], edge[b + 1])."""
+    rows = grid.shape[0]
+    if sx.shape[0] == 0:
+        return
+    widest = int(math.ceil(2.0 * ss.max() / resolution))
+    for b in range(b0, b1):
+        lo = edge[b]
+        hi = edge[b + 1]
+        if lo >= hi:
+            continue
+        # Keys (row + 1, clamped) of the points whose kernel can reach rows [lo, hi).
+        k_lo = min(max(lo - widest + 1, 0), rows + 1)
+        k_hi = min(max(hi + widest + 1, 0), rows + 2)
+        a = start[k_lo]
+        z = start[k_hi]
+        _smear_band(grid, origin_x, origin_y, resolution, sx[a:z], sy[a:z], ss[a:z], skip_drawn, lo, hi)
+
+
+def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
+    """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, shared among threads.
+
+    A band gets every point whose kernel reaches it and writes only its own rows, so no
+    two threads write one cell; max-combining is order-free, so the grid is the serial
+    one bit for bit. Bands hold about equal numbers of points.
+    """
+    if px.shape[0] == 0:
+        return
+    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
+    edge = _band_edges(start, px.shape[0], grid.shape[0], bands)
+    _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
+                                       skip_drawn), bands)
+
+
+def _split(work, n) -> None:
+    """Run ``work(i0, i1)`` over [0, n) cut into one piece per worker, this thread doing the first.
+
+    The pieces are compiled ``nogil`` kernels writing disjoint outputs, so Python threads run
+    them side by side; they wait passively (no OpenMP spinning that would steal a busy
+    machine's cores).
+    """
+    parts = min(_THREADS, n)
+    if parts <= 1:
+        work(0, n)
+        return
+    cuts = [(k * n) // parts for k in range(parts + 1)]
+    futures = [_pool().submit(work, cuts[k], cuts[k + 1]) for k in range(1, parts)]
+    work(cuts[0], cuts[1])
+    for f in futures:
+        f.result()
+
+
+_POOL: tuple[int, ThreadPoolExecutor] | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The worker threads, made once per process (a forked child has none of its parent's threads)."""
+    global _POOL
+    if _POOL is None or _POOL[0] != os.getpid():
+        _POOL = (os.getpid(), ThreadPoolExecutor(max_workers=max(_THREADS - 1, 1), thread_name_prefix="slam2d-match"))
+    return _POOL[1]
+
+
+def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
+    """:func:`smear_in_row_order`, in row bands on every thread when there are points enough to pay."""
+    if _THREADS > 1 and px.shape[0] >= _PARALLEL_POINTS:
+        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, _THREADS)
+    else:
+        smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn)
 
 
 @njit(cache=True)
@@ -311,6 +427,28 @@ def _score_all(grid, rows, cols, n_steps, step):
         for i in range(n_steps):
             for j in range(n_steps):
                 out[a, i, j] = buf[i, j]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _score_angles(grid, rows, cols, n_steps, step, a0, a1, out):
+    """:func:`_score_all` of the angles [a0, a1) into ``out`` (angles, n, n)."""
+    buf = np.empty((n_steps, n_steps), np.int32)
+    for a in range(a0, a1):
+        _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
+        for i in range(n_steps):
+            for j in range(n_steps):
+                out[a, i, j] = buf[i, j]
+
+
+def _score_all_parallel(grid, rows, cols, n_steps, step):
+    """:func:`_score_all` with the angles shared among threads.
+
+    Each angle writes only its own slice of integer sums, so the result is the
+    serial one bit for bit, whatever the threads' order.
+    """
+    out = np.zeros((rows.shape[0], n_steps, n_steps))
+    _split(lambda a0, a1: _score_angles(grid, rows, cols, n_steps, step, a0, a1, out), rows.shape[0])
     return out
 
 
@@ -634,9 +772,17 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     most the largest pooled block that square touches (a range maximum, from a sparse table: a
     few lookups per point). A heading whose bound reaches ``stop`` is split into the four
     quarters of its translation window, ``splits`` times deep (a branch and bound on the bound).
-    Returns early, with a sum of at least ``stop``, once a finest square reaches it (the caller
+    Returns ``stop`` early once a finest square reaches it (the caller
     only asks whether the bound stays below it); otherwise the bound.
     """
+    rng, table = _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta)
+    return _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, 0,
+                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64))
+
+
+@njit(cache=True)
+def _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta):
+    """Per query point its range, and the sparse table of ``pooled`` that :func:`_bound_over` reads."""
     n = qx.shape[0]
     rng = np.empty(n)
     r_max = 0.0
@@ -647,7 +793,15 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     levels = 1
     while (1 << levels) <= widest:
         levels += 1
-    table = _range_max_levels(pooled, levels)
+    return rng, _range_max_levels(pooled, levels)
+
+
+@njit(cache=True, nogil=True)
+def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, a0, a1,
+                trans, slack, delta, stop, splits, reached):
+    """:func:`_pooled_response_bound` over the headings [a0, a1); returns ``stop`` as soon as it is
+    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it."""
+    n = qx.shape[0]
     wx0 = np.empty(n)
     wy0 = np.empty(n)
     sx = np.empty(n)
@@ -655,7 +809,9 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     # Squares to examine: (x offset, y offset, half-width of the translations, depth).
     stack = np.empty((4 * splits + 1, 4))
     best = 0
-    for a in range(angles.shape[0]):
+    for a in range(a0, a1):
+        if reached[0]:
+            return best
         th = theta0 + angles[a]
         c = math.cos(th)
         s = math.sin(th)
@@ -679,7 +835,8 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
                 if total > best:
                     best = total
             elif depth >= splits:
-                return total
+                reached[0] = 1
+                return stop
             else:
                 q = 0.5 * t
                 for i in range(4):
@@ -868,7 +1025,7 @@ class CorrelativeMatcher:
         grid = np.zeros((rows, cols), dtype=np.uint8)
         origin = (ox, oy)
         if px.size:
-            smear_in_row_order(grid, float(origin[0]), float(origin[1]), res, px, py,
+            _smear(grid, float(origin[0]), float(origin[1]), res, px, py,
                                np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
 
@@ -943,12 +1100,29 @@ class CorrelativeMatcher:
         if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
             return 0.0
         angles, delta = self._bound_angles()
+        # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
+        # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
+        angles = angles[np.argsort(np.abs(angles), kind="stable")]
         n = q.shape[0] * _SCALE
-        total = _pooled_response_bound(pooled, _BOUND_BLOCK, origin_x, origin_y, self.resolution,
-                                       np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
-                                       float(prior[0]), float(prior[1]), float(prior[2]), angles,
-                                       *self._bound_window(), delta, int(math.ceil(stop * n)), _BOUND_SPLITS)
-        return float(total) / n
+        qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
+        trans, slack = self._bound_window()
+        cut = int(math.ceil(stop * n))
+        rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        reached = np.zeros(1, np.int64)
+        parts = {}
+
+        def over(a0, a1):
+            parts[a0] = _bound_over(table, _BOUND_BLOCK, origin_x, origin_y, self.resolution, qx, qy, rng,
+                                    float(prior[0]), float(prior[1]), float(prior[2]), angles, a0, a1, trans, slack,
+                                    delta, cut, _BOUND_SPLITS, reached)
+
+        # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
+        # result (``stop``, or the best over every heading) does not depend on which did.
+        if q.shape[0] * angles.shape[0] >= _PARALLEL_BOUND:
+            _split(over, angles.shape[0])
+        else:
+            over(0, angles.shape[0])
+        return float(max(parts.values())) / n
 
     def _penalty(self, dx, dy, dth):
         d2 = dx * dx + dy * dy
@@ -968,7 +1142,9 @@ class CorrelativeMatcher:
         # The bound is on the raw response, so it prunes exactly only without a penalty.
         exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
         if exhaustive:
-            sums = _score_all(grid, rows, cols, n_steps, step)
+            # Threads pay only on searches big enough to outweigh waking them (the coarse one).
+            big = _THREADS > 1 and n_points * rows.shape[0] * n_steps * n_steps >= _PARALLEL_LOOKUPS
+            sums = (_score_all_parallel if big else _score_all)(grid, rows, cols, n_steps, step)
             lookups = sums.size * n_points
         else:
             block = _BLOCK
@@ -1284,13 +1460,13 @@ class GridCache:
             keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
                                old[0][0] - m, old[0][1] - m, old[1][0] + m, old[1][1] + m)
             if keep.size:
-                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         if e["n_drawn"] < len(parts):
             pts, sig = _concat(parts[e["n_drawn"]:])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
-                smear_in_row_order(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
         return grid
