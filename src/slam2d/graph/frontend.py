@@ -127,7 +127,7 @@ class GraphSlamParams(GridParams):
         help="a sequential match whose unpenalised response is this much below the last matched scan's is "
         "searched again over sequential_recovery_window too (not in Karto): consecutive scans overlap almost "
         "wholly, so a sudden drop means the odometry prediction is off by more than the window (wheel slip); "
-        "1 turns it off",
+        "smear_beam_spacing compresses responses, so with it this rarely fires; 1 turns it off",
     )
     sequential_recovery_margin: float = param(
         0.3, low=0.0, high=1.0,
