@@ -139,8 +139,8 @@ class GraphSlamParams(GridParams):
         1.6, unit="m", low=0.0,
         help="when the sequential match's best pose lies within a coarse step of its window's edge, or its "
         "unpenalised response is below sequential_recovery_response, search again without the penalty over "
-        "this x, y window (on the loop grid's 5 cm cells, then the 1 cm match there) and keep that match if its "
-        "response is higher by sequential_recovery_margin (not in Karto: fr079's odometry logs reversing as "
+        "this x, y window (on the loop grid's 5 cm cells, then the 1 cm match there) and keep that match if it "
+        "removes sequential_recovery_margin of the first match's misfit (not in Karto: fr079's odometry logs reversing as "
         "forward); 0 turns it off",
     )
     sequential_recovery_response: float = param(
@@ -153,12 +153,13 @@ class GraphSlamParams(GridParams):
         help="a sequential match whose unpenalised response is this much below the last matched scan's is "
         "searched again over sequential_recovery_window too (not in Karto): consecutive scans overlap almost "
         "wholly, so a sudden drop means the odometry prediction is off by more than the window (wheel slip); "
-        "1 turns it off",
+        "smear_beam_spacing compresses responses, so with it this rarely fires; 1 turns it off",
     )
     sequential_recovery_margin: float = param(
-        0.1, low=0.0, high=1.0,
-        help="how much higher the recovery's response must be than the first match's unpenalised response "
-        "to replace it (not in Karto)",
+        0.3, low=0.0, high=1.0,
+        help="the share of the first match's misfit (1 - its unpenalised response) the recovery must remove "
+        "to replace it (not in Karto): a point d off a wall of smear sigma scores about 1 - d^2 / 2 sigma^2, "
+        "so misfits scale with the smear and their ratio does not",
     )
     sequential_recovery_angle: float = param(
         45.0 * _DEG, unit="rad", low=0.0,
@@ -749,8 +750,11 @@ class GraphFrontend:
         coarse = wide.match(None, None, points, predicted, penalize=False, refine=True, grid=grid)
         alt = self._match(m, self._seq_cache, self._running, points, coarse.pose, penalize=False, refine=True)
         # It must fit clearly better, and not be a weak match itself (a 0.4 match 1 m away
-        # on intel was a wrong one).
-        floor = max(result.raw_response + p.sequential_recovery_margin, p.sequential_recovery_response)
+        # on intel was a wrong one). "Better" is a share of the first match's misfit: a wider
+        # smear (smear_beam_spacing) lifts every response towards 1 and shrinks differences in
+        # response, not their ratio (corridor loop, RPLidar: 0.91 -> 0.95 found a 0.25 m slip).
+        misfit = (1.0 - result.raw_response) * (1.0 - p.sequential_recovery_margin)
+        floor = max(1.0 - misfit, p.sequential_recovery_response)
         values["recovery_response"] = alt.response
         if alt.response < floor:
             return result, False
