@@ -46,8 +46,12 @@ def test_closes_the_loop_correctly_and_beats_odometry(karto_run, loop_sim):
     assert s["loop_closures"], "no loop closed"
     prec = loop_closure_precision(s["loop_closures"], loop_sim.scan_times, loop_sim.scan_truth)
     assert prec["closures"] == len(s["loop_closures"]) and prec["precision"] == 1.0, prec
+    p = karto_run.params
     for c in s["loop_closures"]:
-        assert c["response_fine"] >= 0.8 and c["cost_after"] <= c["cost_before"]
+        # Karto's 0.8 alone, or a weak match confirmed by a consistent partner
+        assert c["response_fine"] >= (p.loop_match_minimum_response_fine if c["confirmed_by"] < 0
+                                      else p.loop_match_minimum_response_confirmed)
+        assert c["cost_after"] <= c["cost_before"]
     odo = absolute_trajectory_error(associate(loop_sim.scan_times, loop_sim.odometry[loop_sim.scan_indices],
                                               loop_sim.scan_times, loop_sim.scan_truth))["translation_m"]["rmse"]
     ate = _ate(karto_run, loop_sim)
@@ -267,8 +271,12 @@ def test_sequential_recovery_leaves_a_corridor_alone():
     frames = _reversed_odometry(sim.frames(), 40, 60)
     on = _run("karto", frames)
     off = _run("karto", frames, sequential_recovery_window=0.0)
-    assert on.diagnostics.counters["sequential_recoveries"] == 0
-    assert np.array_equal(on.trajectory()[1], off.trajectory()[1])
+    # A wide fit along the corridor may be taken only fused with the odometry (which decides along
+    # it), so nothing jumps: the trajectory moves by centimetres and fits the truth no worse.
+    assert on.diagnostics.counters.get("sequential_recoveries", 0) == 0
+    moved = np.abs(on.trajectory()[1][:, :2] - off.trajectory()[1][:, :2]).max()
+    assert moved < 0.05, moved
+    assert _ate(on, sim) <= _ate(off, sim) + 0.001
 
 
 def test_sequential_recovery_needs_a_clear_and_good_fit():
