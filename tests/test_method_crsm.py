@@ -522,7 +522,7 @@ def test_crsm_mines_exp1_map_is_as_consistent_as_hector(hector_mines_exp1):
     The consistency alone is necessary, not sufficient: settings whose maps have rooms turned by 20-40 degrees
     pass it (docs/methods/crsm.md, "Unknown space and the lag"); a part turned against the rest shows in the
     headings for the rest of the run. Measured with the defaults (turn_null=scan_to_scan): consistency
-    0.722 / 0.710 / 0.716 (bar 0.650), heading p95 6.3 / 3.4 / 10.7 degrees (bound 12; seeds 3, 4: 5.7, 13.5).
+    0.722 / 0.723 / 0.714 (bar 0.650), heading p95 6.3 / 3.5 / 7.9 degrees (bound 12; seeds 3, 4: 5.7, 12.4).
     """
     failures = _check_mines_target("mines-exp1", hector_mines_exp1)
     assert not failures, failures
@@ -530,13 +530,11 @@ def test_crsm_mines_exp1_map_is_as_consistent_as_hector(hector_mines_exp1):
 
 @pytest.mark.slow
 @pytest.mark.datasets
-@pytest.mark.xfail(strict=True, reason="issue 8's mines target is met on mines-exp1 but not for every seed on "
-                   "mines-exp2: with turn_null=scan_to_scan (the default) crsm's heading p95 against hector's is "
-                   "18.4 / 19.0 / 29.1 degrees for seeds 0 / 1 / 2 (bound 23; seeds 3, 4: 22.9, 22.0), consistency "
-                   "0.750 / 0.748 / 0.765 (bar 0.624); seed 2 keeps a map-biased under-turn near scan 176; "
-                   "docs/methods/crsm.md")
 def test_crsm_mines_exp2_map_is_as_consistent_as_hector(hector_mines_exp2):
     """The target on mines-exp2, seeds 0-2 (as the mines-exp1 test). About 18 degrees of the bound are hector's own
-    turn at scan 236: hector's trajectory with that turn taken out scores 18.3 against hector's."""
+    turn at scan 236: hector's trajectory with that turn taken out scores 18.3 against hector's. Measured with the
+    defaults: heading p95 20.5 / 17.2 / 20.9 degrees (bound 23), consistency 0.707 / 0.756 / 0.702 (bar 0.624).
+    Not met for every seed: seed 3 21.8, seed 4 24.0 (the runs are chaotic; before the cheaper sweep seed 2 failed
+    at 29.1 and seeds 3, 4 passed), so this passes on the test's three seeds, not on all: docs/methods/crsm.md."""
     failures = _check_mines_target("mines-exp2", hector_mines_exp2)
     assert not failures, failures

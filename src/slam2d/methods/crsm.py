@@ -228,8 +228,10 @@ class Crsm(SlamMethod):
             self._scans += 1
             return {"rays": 0.0}
         everywhere = None  # every beam with a return, robot frame (cells as the map marks them)
+        beams = None  # every beam's endpoint, computed once when both the dense and the critical rays need them
         if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
-            everywhere = ray_points(scan, d, np.flatnonzero((d > 0) & (d < laser_max)), p.resolution)
+            beams = ray_points(scan, d, np.arange(d.shape[0]), p.resolution)
+            everywhere = beams[(d > 0) & (d < laser_max)]
         if p.turn_null == "scan_to_scan" and p.turn_sigma > 0:
             # registered on the previous scan alone; the turn test's prediction (kept: the last scan's points)
             if self._previous_points is not None:
@@ -244,7 +246,7 @@ class Crsm(SlamMethod):
         if self._scans == 0:
             moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
         elif selected.shape[0] >= _MIN_RAYS:
-            pts = ray_points(scan, d, selected, p.resolution)
+            pts = beams[selected] if beams is not None else ray_points(scan, d, selected, p.resolution)
             centre = self._pose
             if p.motion_model == "constant_velocity":
                 centre = se2.compose(self._pose, self._step)
