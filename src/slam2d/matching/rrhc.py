@@ -93,30 +93,44 @@ def _restart_table(values, cells_r, cells_c, lo, width):
     once over the region the windows cover, then each ray adds its
     ``width x width`` window of it: the same integers :func:`_fitness` sums,
     for every restart candidate at once.
+
+    Speed (most of a scan's CPU time is here): int32 cells and sums, and rows
+    walked through slices, so both loops compile to SIMD adds (int64 sums and
+    indexed rows took three times as long). A cell's fitness is at most 3570,
+    so int32 sums hold for up to 600 000 rays.
     """
     nk, n = cells_r.shape
+    if n > 600_000:
+        raise ValueError("too many rays for the int32 restart table")
     rmax, cmax = values.shape
     r0 = cells_r.min() + lo
     c0 = cells_c.min() + lo
     r1 = cells_r.max() + lo + width
     c1 = cells_c.max() + lo + width
     g = np.zeros((r1 - r0, c1 - c0), dtype=np.int32)
+    ca = max(c0, 1)
+    cb = min(c1, cmax - 1)
     for r in range(max(r0, 1), min(r1, rmax - 1)):
-        for c in range(max(c0, 1), min(c1, cmax - 1)):
-            v = np.int32(values[r, c])
-            if v != 127:
-                g[r - r0, c - c0] = 10 * (255 - v) + (1020 - np.int32(values[r - 1, c]) - np.int32(values[r + 1, c])
-                                                      - np.int32(values[r, c - 1]) - np.int32(values[r, c + 1]))
-    table = np.zeros((nk, width, width), dtype=np.int64)
+        up = values[r - 1, ca:cb]
+        mid = values[r, ca:cb]
+        left = values[r, ca - 1:cb - 1]
+        right = values[r, ca + 1:cb + 1]
+        down = values[r + 1, ca:cb]
+        out = g[r - r0, ca - c0:cb - c0]
+        for c in range(cb - ca):
+            v = np.int32(mid[c])
+            f = 3570 - 10 * v - np.int32(up[c]) - np.int32(down[c]) - np.int32(left[c]) - np.int32(right[c])
+            out[c] = np.int32(f) if v != 127 else np.int32(0)
+    table = np.zeros((nk, width, width), dtype=np.int32)
     for i in range(nk):
-        t = table[i]
         for j in range(n):
             br = cells_r[i, j] + lo - r0
             bc = cells_c[i, j] + lo - c0
             for a in range(width):
-                row = g[br + a]
+                src = g[br + a, bc:bc + width]
+                dst = table[i, a]
                 for b in range(width):
-                    t[a, b] += row[bc + b]
+                    dst[b] += src[b]
     return table
 
 
