@@ -12,7 +12,7 @@ from slam2d.core import se2
 from slam2d.eval.trajectory_metrics import align_se2
 from slam2d.core import make_scan
 from slam2d.errors import InputError
-from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap
+from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap, first_beam_per_cell, marked_endpoints
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
 from slam2d.matching.rrhc import (
@@ -197,6 +197,72 @@ def test_the_restart_table_equals_the_direct_fitness():
         for a in range(width):
             for b in range(width):
                 assert table[i, a, b] == _fitness(m.values, cr[i], cc[i], b + lo, a + lo)
+
+
+def test_the_restart_table_equals_the_direct_fitness_where_rays_leave_the_map():
+    """Windows reaching past the map's edge (and its border cells) score 0 there, as the direct score skips them."""
+    m = CrsmMap(0.02)
+    m.ensure_contains(-1.2, -0.8, 1.0, 0.9, margin=0)  # smaller than the room: many endpoints fall outside
+    scan = room_scan(np.array([0.2, -0.1, 0.3]), n=URG_BEAMS)
+    rng = np.random.default_rng(5)
+    m.values[:] = rng.integers(0, 256, m.values.shape)  # known cells everywhere, up to the border
+    m.values[rng.random(m.values.shape) < 0.3] = UNKNOWN
+    qx, qy = _rays(scan)
+    inv = 1.0 / m.resolution
+    ox, oy = m.origin
+    d_ = 12
+    n = len(qx)
+    kmax = 6 * d_
+    rows_k = np.empty((2 * kmax + 1, n), np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), np.int64)
+    ready = np.zeros(2 * kmax + 1, np.bool_)
+    tmp = np.empty(n, np.int64), np.empty(n, np.int64)
+    lo, width = -(d_ // 4), (d_ - 1) // 2 + 1
+    cr = np.empty((d_, n), np.int64)
+    cc = np.empty((d_, n), np.int64)
+    args = (0.2 - ox) * inv, (-0.1 - oy) * inv, 0.3, qx * inv, qy * inv
+    for i in range(d_):
+        cr[i], cc[i] = _cells_at(4 * i - 2 * d_, rows_k, cols_k, ready, kmax, *args, *tmp)
+    rows, cols = m.values.shape
+    assert ((cr < 1) | (cr >= rows - 1) | (cc < 1) | (cc >= cols - 1)).mean() > 0.2
+    table = _restart_table(m.values, cr, cc, lo, width)
+    assert table.max() > 0
+    for i in range(d_):
+        for a in range(width):
+            for b in range(width):
+                assert table[i, a, b] == _fitness(m.values, cr[i], cc[i], b + lo, a + lo)
+
+
+def test_marked_endpoints_equal_ray_points_bit_for_bit():
+    """The per-scan kernel gives exactly the endpoints ray_points does (a mounted laser, beams without returns)."""
+    rng = np.random.default_rng(3)
+    r = rng.uniform(0.05, 5.0, URG_BEAMS)
+    r[rng.random(URG_BEAMS) < 0.1] = np.nan
+    scan = make_scan(0.0, r, -2.1, 4.2 / (URG_BEAMS - 1), 0.02, 5.6, mount=[0.12, -0.03, 0.2])
+    d = np.nan_to_num(scan.ranges)
+    m = scan.mount
+    x, y = marked_endpoints(d, np.cos(scan.angles), np.sin(scan.angles), 0.02, m[0], m[1], np.cos(m[2]), np.sin(m[2]))
+    ref = ray_points(scan, d, np.arange(URG_BEAMS), 0.02)
+    assert np.array_equal(x, ref[:, 0]) and np.array_equal(y, ref[:, 1])
+
+
+def test_first_beam_per_cell_keeps_each_endpoint_cells_first_beam():
+    """As a set of laser-frame endpoint cells would: later beams ending in a cell already seen are not walked."""
+    rng = np.random.default_rng(4)
+    n = 500
+    angles = np.linspace(-2.0, 2.0, n)
+    d = np.where(rng.random(n) < 0.3, rng.uniform(0.01, 0.1, n), rng.uniform(0.5, 3.0, n))  # short: shared cells
+    d[rng.random(n) < 0.1] = 0.0
+    use = first_beam_per_cell(d, np.cos(angles), np.sin(angles), 0.02)
+    seen = set()
+    expected = np.zeros(n, bool)
+    for i in range(n):
+        cell = (int(np.trunc(d[i] * np.cos(angles[i]) / 0.02)), int(np.trunc(d[i] * np.sin(angles[i]) / 0.02)))
+        if d[i] > 0 and cell not in seen:
+            expected[i] = True
+            seen.add(cell)
+    assert expected.sum() < (d > 0).sum()  # the case has shared cells
+    assert np.array_equal(use, expected)
 
 
 @pytest.mark.parametrize("offset", [(0.1, -0.06, 0.06), (-0.08, 0.12, -0.1)])

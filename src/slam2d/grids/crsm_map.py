@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from slam2d.grids.value_grid import ValueGrid
 
-__all__ = ["CrsmMap", "UNKNOWN", "crsm_update", "GAIN_TABLE"]
+__all__ = ["CrsmMap", "UNKNOWN", "crsm_update", "GAIN_TABLE", "first_beam_per_cell", "marked_endpoints"]
 
 UNKNOWN = 127
 
@@ -68,6 +68,51 @@ def crsm_update(values, origin_x, origin_y, resolution, lx, ly, ltheta, ranges, 
             values[row, col] = min(max(tt, 0), 255)
             walked += 1
     return walked
+
+
+@njit(cache=True)
+def first_beam_per_cell(d, cos_a, sin_a, resolution):
+    """The beams the update walks: those with a return (``d > 0``) whose laser-frame endpoint cell
+    (``trunc(d cos / resolution)``, ``trunc(d sin / resolution)``) no earlier beam's is (the original keeps a set).
+
+    ``cos_a``, ``sin_a``: the beam angles' cosines and sines. A stable sort of the cell keys finds each cell's
+    first beam without a Python-level set.
+    """
+    n = d.shape[0]
+    low = np.iinfo(np.int64).min
+    keys = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        if d[i] > 0:
+            keys[i] = np.int64(np.trunc(d[i] * cos_a[i] / resolution)) * 1_000_003 + np.int64(
+                np.trunc(d[i] * sin_a[i] / resolution))
+        else:
+            keys[i] = low
+    order = np.argsort(keys, kind="mergesort")
+    use = np.zeros(n, dtype=np.bool_)
+    for j in range(n):
+        i = order[j]
+        if d[i] > 0 and (j == 0 or keys[i] != keys[order[j - 1]]):
+            use[i] = True
+    return use
+
+
+@njit(cache=True)
+def marked_endpoints(d, cos_a, sin_a, resolution, mount_x, mount_y, mount_cos, mount_sin):
+    """Robot-frame endpoints ``(x, y)`` of every beam, truncated to whole cells in the laser frame as the update
+    marks them (``trunc(d / resolution * cos) * resolution``, then the laser's mount pose applied).
+
+    The same floating-point steps as :func:`slam2d.methods.crsm.ray_points`, in one pass over the beams.
+    """
+    n = d.shape[0]
+    x = np.empty(n)
+    y = np.empty(n)
+    for i in range(n):
+        r = d[i] / resolution
+        px = np.trunc(r * cos_a[i]) * resolution
+        py = np.trunc(r * sin_a[i]) * resolution
+        x[i] = mount_x + mount_cos * px - mount_sin * py
+        y[i] = mount_y + mount_sin * px + mount_cos * py
+    return x, y
 
 
 class CrsmMap(ValueGrid):

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from slam2d.core import se2
 from slam2d.core.frames import Frame
-from slam2d.grids.crsm_map import CrsmMap
+from slam2d.grids.crsm_map import CrsmMap, first_beam_per_cell, marked_endpoints
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.critical_rays import critical_rays
 from slam2d.matching.random_numbers import new_state
@@ -208,6 +208,7 @@ class Crsm(SlamMethod):
         self._moves_seen = 0  # consecutive warm-up scans whose match moved the robot
         self._scans = 0
         self._random = new_state(self.rng)
+        self._directions = None  # (layout key, cos, sin, angles) of the beams: see _beam_directions
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
@@ -227,13 +228,16 @@ class Crsm(SlamMethod):
             self.diagnostics.count("scans_without_returns")
             self._scans += 1
             return {"rays": 0.0}
-        everywhere = None  # every beam with a return, robot frame (cells as the map marks them)
-        beams = None  # every beam's endpoint, computed once when both the dense and the critical rays need them
+        cos_a, sin_a, angles = self._beam_directions(scan)
+        # every beam's endpoint, robot frame, cells as the map marks them: once per scan for all the uses below
+        bx, by = marked_endpoints(d, cos_a, sin_a, p.resolution, *self._mount_frame(scan))
+        ex = ey = None  # every beam with a return short of the maximum range, for the dense climb and the turn test
         if p.dense_refine_rounds > 0 or p.turn_sigma > 0:
-            beams = ray_points(scan, d, np.arange(d.shape[0]), p.resolution)
-            everywhere = beams[(d > 0) & (d < laser_max)]
+            with_return = (d > 0) & (d < laser_max)
+            ex, ey = bx[with_return], by[with_return]
         if p.turn_null == "scan_to_scan" and p.turn_sigma > 0:
             # registered on the previous scan alone; the turn test's prediction (kept: the last scan's points)
+            everywhere = np.stack([ex, ey], axis=-1)
             if self._previous_points is not None:
                 self._consecutive = consecutive_motion(self._previous_points, everywhere, self._consecutive)
                 values["consecutive_turn"] = float(self._consecutive[2])
@@ -246,7 +250,7 @@ class Crsm(SlamMethod):
         if self._scans == 0:
             moved = self._pose  # nothing to match against yet: the first scan starts the map at the origin
         elif selected.shape[0] >= _MIN_RAYS:
-            pts = beams[selected] if beams is not None else ray_points(scan, d, selected, p.resolution)
+            qx, qy = bx[selected], by[selected]
             centre = self._pose
             if p.motion_model == "constant_velocity":
                 centre = se2.compose(self._pose, self._step)
@@ -255,25 +259,23 @@ class Crsm(SlamMethod):
             ox, oy = self._map.origin
             if p.unknown_rays == "drop":
                 ahead = se2.compose(self._pose, self._step)
-                keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(pts[:, 0]),
-                                  np.ascontiguousarray(pts[:, 1]), *ahead, p.known_margin)
-                values["rays_on_unknown"] = float(keep.shape[0] - keep.sum())
-                if keep.sum() >= _MIN_RAYS:
-                    pts = pts[keep]
+                keep = near_known(self._map.values, ox, oy, p.resolution, qx, qy, *ahead, p.known_margin)
+                kept = int(np.count_nonzero(keep))
+                values["rays_on_unknown"] = float(keep.shape[0] - kept)
+                if kept >= _MIN_RAYS:
+                    qx, qy = qx[keep], qy[keep]
             dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
-                self._map.values, ox, oy, p.resolution,
-                np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]),
+                self._map.values, ox, oy, p.resolution, qx, qy,
                 float(centre[0]), float(centre[1]), float(centre[2]),
                 p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
             )
-            dense = everywhere
-            if dense is not None:
+            dqx = dqy = None  # the dense points, contiguous
+            if ex is not None:
+                dqx, dqy = ex, ey
                 if p.unknown_rays == "drop":
-                    keep = near_known(self._map.values, ox, oy, p.resolution, np.ascontiguousarray(dense[:, 0]),
-                                      np.ascontiguousarray(dense[:, 1]), *ahead, p.known_margin)
-                    if keep.sum() >= _MIN_RAYS:
-                        dense = dense[keep]
-                dqx, dqy = np.ascontiguousarray(dense[:, 0]), np.ascontiguousarray(dense[:, 1])
+                    keep = near_known(self._map.values, ox, oy, p.resolution, ex, ey, *ahead, p.known_margin)
+                    if np.count_nonzero(keep) >= _MIN_RAYS:
+                        dqx, dqy = ex[keep], ey[keep]
             if p.dense_refine_rounds > 0:
                 dx, dy, dk, _, moved_rounds = refine_offset(
                     self._map.values, ox, oy, p.resolution, dqx, dqy, float(centre[0]), float(centre[1]),
@@ -286,7 +288,7 @@ class Crsm(SlamMethod):
                 centre[1] + dy * p.resolution,
                 math.remainder(centre[2] + dk * HEADING_STEP, 2 * math.pi),
             ])
-            if p.turn_sigma > 0 and dense is not None:
+            if p.turn_sigma > 0 and dqx is not None:
                 moved = self._check_turn(moved, dqx, dqy, values)
         else:
             self.diagnostics.count("scans_too_few_rays")
@@ -315,7 +317,7 @@ class Crsm(SlamMethod):
         if self._scans < p.warmup_density_scans:
             mean_density = _WARMUP_DENSITY
         gain = min(max(mean_density, _DENSITY_RANGE[0]), _DENSITY_RANGE[1])
-        values["cells_updated"] = self._integrate(scan, d, gain)
+        values["cells_updated"] = self._integrate(scan, d, angles, cos_a, sin_a, gain)
         self._scans += 1
         return values
 
@@ -386,19 +388,26 @@ class Crsm(SlamMethod):
             out[2] = 0.0
         return out
 
-    def _integrate(self, scan, d: NDArray[np.float64], gain: float) -> float:
+    def _beam_directions(self, scan) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(cos, sin, angle)`` of every beam, laser frame; kept while the scans' layout stays the same."""
+        key = (scan.num_beams, scan.angle_min, scan.angle_increment)
+        if self._directions is None or self._directions[0] != key:
+            angles = scan.angles
+            self._directions = (key, np.cos(angles), np.sin(angles), angles)
+        return self._directions[1:]
+
+    @staticmethod
+    def _mount_frame(scan) -> tuple[float, float, float, float]:
+        """The laser's mount as ``(x, y, cos, sin)``, as :func:`slam2d.core.se2.transform_points` applies it."""
+        m = scan.mount
+        return float(m[0]), float(m[1]), float(np.cos(m[2])), float(np.sin(m[2]))
+
+    def _integrate(self, scan, d: NDArray[np.float64], angles: NDArray[np.float64], cos_a: NDArray[np.float64],
+                   sin_a: NDArray[np.float64], gain: float) -> float:
         p = self.params
         laser = se2.compose(self._pose, scan.mount)
-        angles = scan.angles
-        use = d > 0
         # the original walks a beam once per laser-frame endpoint cell
-        cx = np.trunc(d * np.cos(angles) / p.resolution).astype(np.int64)
-        cy = np.trunc(d * np.sin(angles) / p.resolution).astype(np.int64)
-        key = np.where(use, cx * 1_000_003 + cy, np.iinfo(np.int64).min)
-        _, first = np.unique(key, return_index=True)
-        keep = np.zeros(d.shape[0], dtype=bool)
-        keep[first] = True
-        use &= keep
+        use = first_beam_per_cell(d, cos_a, sin_a, p.resolution)
         return float(self._map.update(
             laser, d, angles, use, mean_density=gain, density=p.map_update_density,
             obstacle_density=p.map_update_obstacle_density,
