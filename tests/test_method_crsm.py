@@ -14,7 +14,7 @@ from slam2d.core import make_scan
 from slam2d.errors import InputError
 from slam2d.grids.crsm_map import GAIN_TABLE, UNKNOWN, CrsmMap, first_beam_per_cell, marked_endpoints
 from slam2d.matching.critical_rays import critical_rays
-from slam2d.matching.random_numbers import new_state
+from slam2d.matching.random_numbers import new_state, next_u64, randint, skip
 from slam2d.matching.rrhc import (
     HEADING_STEP, _cells_at, _fitness, _restart_table, near_known, paired_gain, refine_offset, rrhc_search,
 )
@@ -278,6 +278,74 @@ def test_rrhc_recovers_a_known_offset(offset):
     assert math.hypot(x, y) <= 1.5 * m.resolution, (x, y)
     assert abs(t) <= 2.5 * HEADING_STEP, t
     assert n == 40002 and restarts + better == n and better >= 1 and 0 < fit <= 1 and refined == 0
+
+
+def test_skip_advances_the_generator_as_drawing_does():
+    for steps in (0, 1, 2, 63, 64, 65, 1000, 120_006):
+        drawn = new_state(np.random.default_rng(steps))
+        skipped = drawn.copy()
+        for _ in range(steps):
+            next_u64(drawn)
+        skip(skipped, steps)
+        assert drawn[0] == skipped[0], steps
+
+
+def _rrhc_without_early_stop(values, ox, oy, res, qx, qy, x, y, theta, disparity, max_iter, state):
+    """rrhc_search's loop candidate by candidate (Python), with no early stop: the reference for the stop."""
+    n = len(qx)
+    kmax = 6 * disparity
+    rows_k = np.empty((2 * kmax + 1, n), np.int64)
+    cols_k = np.empty((2 * kmax + 1, n), np.int64)
+    ready = np.zeros(2 * kmax + 1, np.bool_)
+    tmp = np.empty(n, np.int64), np.empty(n, np.int64)
+    inv = 1.0 / res
+    args = (x - ox) * inv, (y - oy) * inv, theta, qx * inv, qy * inv
+    lo, width = -(disparity // 4), (disparity - 1) // 2 + 1
+    cr = np.empty((disparity, n), np.int64)
+    cc = np.empty((disparity, n), np.int64)
+    for i in range(disparity):
+        cr[i], cc[i] = _cells_at(4 * i - 2 * disparity, rows_k, cols_k, ready, kmax, *args, *tmp)
+    table = _restart_table(values, cr, cc, lo, width)
+    best = bdx = bdy = bk = dx = dy = k = 0
+    restart_index, restarts, better, settled_at = -1, 0, 0, None
+    for counter in range(max_iter + 2):
+        if restart_index >= 0:
+            f = table[restart_index, dy - lo, dx - lo]
+            if settled_at is None and best >= table.max():
+                settled_at = counter
+        else:
+            f = _fitness(values, *_cells_at(k, rows_k, cols_k, ready, kmax, *args, *tmp), dx, dy)
+        if f > best:
+            best, bdx, bdy, bk = f, dx, dy, k
+            better += 1
+            dx += randint(state, disparity) // 4 - disparity // 8
+            dy += randint(state, disparity) // 4 - disparity // 8
+            k += 2 * randint(state, disparity) - disparity
+            restart_index = -1
+        else:
+            dx = randint(state, disparity) // 2 - disparity // 4
+            dy = randint(state, disparity) // 2 - disparity // 4
+            restart_index = randint(state, disparity)
+            k = 4 * restart_index - 2 * disparity
+            restarts += 1
+    return (bdx, bdy, bk, best / (255.0 * 14.0 * n), max_iter + 2, restarts, better, 0), settled_at
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rrhc_stops_early_with_the_same_result_counts_and_generator_state(seed):
+    """Once no restart can beat the best, the search stops: the same result and counts, and the generator left where
+    the full loop leaves it (the next scan's numbers depend on it)."""
+    m, scan = _room_map()
+    qx, qy = _rays(scan)
+    ox, oy = m.origin
+    start = (0.06, -0.04, 0.05)
+    state = new_state(np.random.default_rng(seed))
+    ref_state = state.copy()
+    got = rrhc_search(m.values, ox, oy, m.resolution, qx, qy, *start, 16, 5000, state)
+    ref, settled_at = _rrhc_without_early_stop(m.values, ox, oy, m.resolution, qx, qy, *start, 16, 5000, ref_state)
+    assert settled_at is not None and settled_at < 4000  # the case does stop early
+    assert tuple(got) == ref
+    assert state[0] == ref_state[0]
 
 
 def test_the_final_neighbour_climb_walks_to_the_fit_from_near_it():

@@ -23,7 +23,12 @@ the current pose and the budget is fixed, so the two stay separate.
 Speed: because x and y move by whole cells, a ray's cell is its cell at the
 candidate's heading plus ``(dy, dx)``. The cells of every ray at each heading
 the search visits are computed once per scan and reused, so scoring a
-candidate is integer additions and five lookups per ray.
+candidate is integer additions and five lookups per ray. Every restart
+candidate's fitness is tabulated once per scan (:func:`_restart_table`), and
+once the best beats the whole table no later candidate can change anything:
+the loop stops there and skips the generator past the draws it would have
+made (on mines-exp1 after a fifth of the budget in the median scan), so
+results stay bit for bit those of the full loop.
 """
 
 from __future__ import annotations
@@ -33,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from slam2d.matching.random_numbers import randint
+from slam2d.matching.random_numbers import randint, skip
 
 __all__ = ["rrhc_search", "refine_offset", "near_known", "paired_gain", "HEADING_STEP"]
 
@@ -181,8 +186,18 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
     improvements = 0
     evaluations = 0
     counter = 0
+    top = table.max()
     while True:
         if restart_index >= 0:
+            if best >= top:
+                # No restart can beat the best any more, so no climb starts again: every remaining candidate is a
+                # failed restart. Count them and advance the generator past their draws (3 each) as drawing would:
+                # the result, the counts and the next scan's numbers are the same, at a fraction of the time.
+                remaining = max_iter + 2 - counter
+                evaluations += remaining
+                restarts += remaining
+                skip(state, 3 * remaining)
+                break
             f = table[restart_index, dy - lo, dx - lo]
         else:
             r_k, c_k = _cells_at(k, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc, tmp_r, tmp_c)
