@@ -173,30 +173,38 @@ def test_the_turn_test_rejects_an_unsupported_turn_and_keeps_a_supported_one():
     assert np.array_equal(kept, np.zeros(3)) and values["turn_rejected"] == 0.0 and values["turn_z"] > 5
 
 
+def _restart_search(m, qx, qy, pose, d):
+    """What rrhc_search sets up around ``pose`` for disparity ``d``: the heading cache (``_cells_at``'s arguments
+    after ``k``), the rays' cells at the restart headings, and the restart window ``(lo, width)``."""
+    inv = 1.0 / m.resolution
+    ox, oy = m.origin
+    n = len(qx)
+    kmax = 6 * d
+    cache = (np.empty((2 * kmax + 1, n), np.int64), np.empty((2 * kmax + 1, n), np.int64),
+             np.zeros(2 * kmax + 1, np.bool_), kmax, (pose[0] - ox) * inv, (pose[1] - oy) * inv, pose[2],
+             qx * inv, qy * inv, np.empty(n, np.int64), np.empty(n, np.int64))
+    cr = np.empty((d, n), np.int64)
+    cc = np.empty((d, n), np.int64)
+    for i in range(d):
+        cr[i], cc[i] = _cells_at(4 * i - 2 * d, *cache)
+    return cache, cr, cc, -(d // 4), (d - 1) // 2 + 1
+
+
+def _assert_table_is_the_direct_fitness(values, cr, cc, lo, width):
+    table = _restart_table(values, cr, cc, lo, width)
+    for i in range(cr.shape[0]):
+        for a in range(width):
+            for b in range(width):
+                assert table[i, a, b] == _fitness(values, cr[i], cc[i], b + lo, a + lo)
+    return table
+
+
 def test_the_restart_table_equals_the_direct_fitness():
     """The per-scan table of restart fitnesses holds exactly what scoring each candidate directly gives."""
     m, scan = _room_map()
     qx, qy = _rays(scan)
-    inv = 1.0 / m.resolution
-    ox, oy = m.origin
-    d = 16
-    n = len(qx)
-    kmax = 6 * d
-    rows_k = np.empty((2 * kmax + 1, n), np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), np.int64)
-    ready = np.zeros(2 * kmax + 1, np.bool_)
-    tmp = np.empty(n, np.int64), np.empty(n, np.int64)
-    lo, width = -(d // 4), (d - 1) // 2 + 1
-    cr = np.empty((d, n), np.int64)
-    cc = np.empty((d, n), np.int64)
-    args = (0.3 - ox) * inv, (-0.2 - oy) * inv, 0.1, qx * inv, qy * inv
-    for i in range(d):
-        cr[i], cc[i] = _cells_at(4 * i - 2 * d, rows_k, cols_k, ready, kmax, *args, *tmp)
-    table = _restart_table(m.values, cr, cc, lo, width)
-    for i in range(d):
-        for a in range(width):
-            for b in range(width):
-                assert table[i, a, b] == _fitness(m.values, cr[i], cc[i], b + lo, a + lo)
+    _, cr, cc, lo, width = _restart_search(m, qx, qy, (0.3, -0.2, 0.1), 16)
+    _assert_table_is_the_direct_fitness(m.values, cr, cc, lo, width)
 
 
 def test_the_restart_table_equals_the_direct_fitness_where_rays_leave_the_map():
@@ -208,29 +216,10 @@ def test_the_restart_table_equals_the_direct_fitness_where_rays_leave_the_map():
     m.values[:] = rng.integers(0, 256, m.values.shape)  # known cells everywhere, up to the border
     m.values[rng.random(m.values.shape) < 0.3] = UNKNOWN
     qx, qy = _rays(scan)
-    inv = 1.0 / m.resolution
-    ox, oy = m.origin
-    d_ = 12
-    n = len(qx)
-    kmax = 6 * d_
-    rows_k = np.empty((2 * kmax + 1, n), np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), np.int64)
-    ready = np.zeros(2 * kmax + 1, np.bool_)
-    tmp = np.empty(n, np.int64), np.empty(n, np.int64)
-    lo, width = -(d_ // 4), (d_ - 1) // 2 + 1
-    cr = np.empty((d_, n), np.int64)
-    cc = np.empty((d_, n), np.int64)
-    args = (0.2 - ox) * inv, (-0.1 - oy) * inv, 0.3, qx * inv, qy * inv
-    for i in range(d_):
-        cr[i], cc[i] = _cells_at(4 * i - 2 * d_, rows_k, cols_k, ready, kmax, *args, *tmp)
+    _, cr, cc, lo, width = _restart_search(m, qx, qy, (0.2, -0.1, 0.3), 12)
     rows, cols = m.values.shape
     assert ((cr < 1) | (cr >= rows - 1) | (cc < 1) | (cc >= cols - 1)).mean() > 0.2
-    table = _restart_table(m.values, cr, cc, lo, width)
-    assert table.max() > 0
-    for i in range(d_):
-        for a in range(width):
-            for b in range(width):
-                assert table[i, a, b] == _fitness(m.values, cr[i], cc[i], b + lo, a + lo)
+    assert _assert_table_is_the_direct_fitness(m.values, cr, cc, lo, width).max() > 0
 
 
 def test_marked_endpoints_equal_ray_points_bit_for_bit():
@@ -290,21 +279,11 @@ def test_skip_advances_the_generator_as_drawing_does():
         assert drawn[0] == skipped[0], steps
 
 
-def _rrhc_without_early_stop(values, ox, oy, res, qx, qy, x, y, theta, disparity, max_iter, state):
+def _rrhc_without_early_stop(m, qx, qy, pose, disparity, max_iter, state):
     """rrhc_search's loop candidate by candidate (Python), with no early stop: the reference for the stop."""
     n = len(qx)
-    kmax = 6 * disparity
-    rows_k = np.empty((2 * kmax + 1, n), np.int64)
-    cols_k = np.empty((2 * kmax + 1, n), np.int64)
-    ready = np.zeros(2 * kmax + 1, np.bool_)
-    tmp = np.empty(n, np.int64), np.empty(n, np.int64)
-    inv = 1.0 / res
-    args = (x - ox) * inv, (y - oy) * inv, theta, qx * inv, qy * inv
-    lo, width = -(disparity // 4), (disparity - 1) // 2 + 1
-    cr = np.empty((disparity, n), np.int64)
-    cc = np.empty((disparity, n), np.int64)
-    for i in range(disparity):
-        cr[i], cc[i] = _cells_at(4 * i - 2 * disparity, rows_k, cols_k, ready, kmax, *args, *tmp)
+    values = m.values
+    cache, cr, cc, lo, width = _restart_search(m, qx, qy, pose, disparity)
     table = _restart_table(values, cr, cc, lo, width)
     best = bdx = bdy = bk = dx = dy = k = 0
     restart_index, restarts, better, settled_at = -1, 0, 0, None
@@ -314,7 +293,7 @@ def _rrhc_without_early_stop(values, ox, oy, res, qx, qy, x, y, theta, disparity
             if settled_at is None and best >= table.max():
                 settled_at = counter
         else:
-            f = _fitness(values, *_cells_at(k, rows_k, cols_k, ready, kmax, *args, *tmp), dx, dy)
+            f = _fitness(values, *_cells_at(k, *cache), dx, dy)
         if f > best:
             best, bdx, bdy, bk = f, dx, dy, k
             better += 1
@@ -342,7 +321,7 @@ def test_rrhc_stops_early_with_the_same_result_counts_and_generator_state(seed):
     state = new_state(np.random.default_rng(seed))
     ref_state = state.copy()
     got = rrhc_search(m.values, ox, oy, m.resolution, qx, qy, *start, 16, 5000, state)
-    ref, settled_at = _rrhc_without_early_stop(m.values, ox, oy, m.resolution, qx, qy, *start, 16, 5000, ref_state)
+    ref, settled_at = _rrhc_without_early_stop(m, qx, qy, start, 16, 5000, ref_state)
     assert settled_at is not None and settled_at < 4000  # the case does stop early
     assert tuple(got) == ref
     assert state[0] == ref_state[0]
