@@ -220,6 +220,9 @@ def test_the_restart_table_equals_the_direct_fitness_where_rays_leave_the_map():
     rows, cols = m.values.shape
     assert ((cr < 1) | (cr >= rows - 1) | (cc < 1) | (cc >= cols - 1)).mean() > 0.2
     assert _assert_table_is_the_direct_fitness(m.values, cr, cc, lo, width).max() > 0
+    for far in ((40.0, 0.0, 0.0), (-40.0, 0.0, 0.0), (0.0, 40.0, 0.0), (0.0, -40.0, 0.0)):  # every ray off the map
+        _, cr, cc, lo, width = _restart_search(m, qx, qy, far, 12)
+        assert not _restart_table(m.values, cr, cc, lo, width).any()
 
 
 def test_marked_endpoints_equal_ray_points_bit_for_bit():

@@ -112,10 +112,17 @@ def _restart_table(values, cells_r, cells_c, lo, width):
     c0 = cells_c.min() + lo
     r1 = cells_r.max() + lo + width
     c1 = cells_c.max() + lo + width
-    g = np.zeros((r1 - r0, c1 - c0), dtype=np.int32)
+    # zeroed only where the loop below does not write (off the map and its border): the region is ~0.4 MB
+    g = np.empty((r1 - r0, c1 - c0), dtype=np.int32)
     ca = max(c0, 1)
-    cb = min(c1, cmax - 1)
-    for r in range(max(r0, 1), min(r1, rmax - 1)):
+    cb = max(min(c1, cmax - 1), ca)
+    ra = max(r0, 1)
+    rb = max(min(r1, rmax - 1), ra)
+    g[: min(ra - r0, r1 - r0)] = 0
+    g[max(rb - r0, 0):] = 0
+    g[:, : min(ca - c0, c1 - c0)] = 0
+    g[:, max(cb - c0, 0):] = 0
+    for r in range(ra, rb):
         up = values[r - 1, ca:cb]
         mid = values[r, ca:cb]
         left = values[r, ca - 1:cb - 1]
