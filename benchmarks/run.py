@@ -80,6 +80,13 @@ def _fmt(v: float | None, digits: int = 2) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
+def _fmt_seconds(v: float | None) -> str:
+    """Seconds with two decimals, or three significant digits below 0.1 s (a per-scan median of 1.2 ms is not 0.00)."""
+    if v is not None and 0 < v < 0.1:
+        return f"{v:.3g}"
+    return _fmt(v)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", help="run only cases whose name contains this text (no rewrite)")
@@ -140,7 +147,7 @@ def main() -> int:
     for r in rows:
         c = r["case"]
         lines.append(
-            f"| `{c.name}` | {c.what} | {r['runs']} | {_fmt(r['seconds'])} | {_fmt(r['peak'], 0)} | "
+            f"| `{c.name}` | {c.what} | {r['runs']} | {_fmt_seconds(r['seconds'])} | {_fmt(r['peak'], 0)} | "
             f"{c.target or '-'} | {r['verdict']} | {r['extra']} |"
         )
     lines += [
