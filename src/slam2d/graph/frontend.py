@@ -314,7 +314,7 @@ class GraphSlamParams(GridParams):
         "window is half a coarse step each way) [FineSearchAngleOffset]",
     )
     fine_search_recentre: int = param(
-        0, low=0, unit="searches",
+        3, low=0, unit="searches",
         help="while the sequential fine search's best pose lies on the edge of its +-1 cell, +-half a "
         "coarse step window and responds better, search again around it, at most this many times (not "
         "in Karto: at a coarse angle up to 1 deg off, the coarse x, y of a long-range scan is off by "
