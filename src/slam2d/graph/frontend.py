@@ -315,8 +315,9 @@ class GraphSlamParams(GridParams):
     )
     fine_search_recentre: int = param(
         3, low=0, unit="searches",
-        help="while the sequential fine search's best pose lies on the edge of its +-1 cell, +-half a "
-        "coarse step window and responds better, search again around it, at most this many times (not "
+        help="while the 1 cm matcher's fine search (sequential matches, near chains, loop refinement) finds "
+        "its best pose on the edge of its +-1 cell, +-half a coarse step window, responding better, search "
+        "again around it, at most this many times (not "
         "in Karto: at a coarse angle up to 1 deg off, the coarse x, y of a long-range scan is off by "
         "more than the fine step can reach); 0 = Karto's single fine search",
     )
