@@ -686,7 +686,7 @@ def karto_sim_bound(_: Path) -> tuple[None, str]:
     import numpy as np
 
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
-    from slam2d.graph.evaluation import closure_bound, sequential_bound
+    from slam2d.graph.evaluation import closure_bound, sequential_bound, sequential_edge_errors
     from slam2d.methods import get_method
     from slam2d.sim.simulate import SimulationParams, simulate
 
@@ -703,14 +703,34 @@ def karto_sim_bound(_: Path) -> tuple[None, str]:
         b = sequential_bound(fe, truth)
         cb = closure_bound(fe, truth)
         deg = b["degenerate"]
+        # The same, with the sequential edges' error along the true step (then across it and
+        # in heading) replaced by the truth: which component the error left comes from.
+        cb_along = closure_bound(fe, truth, exact=("along",))
+        cb_turn = closure_bound(fe, truth, exact=("cross", "heading"))
+        e = sequential_edge_errors(fe, truth)
+        d = e["degenerate"]
+
+        def rms(v):
+            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
         notes.append(
             f"{world}: ATE karto {ates['karto']:.3f} m, lago {ates['lago']:.3f} m, "
             f"{len(fe.loop_closures)} closures; perfect-map sequential chain {b['chained_rmse_m']:.3f} m; "
             f"karto's sequential edges with a perfect closure at each of {cb['closures']} returns "
-            f"{cb['ate_m']:.3f} m; "
+            f"{cb['ate_m']:.3f} m ({cb_along['ate_m']:.3f} m with their along-track error removed, "
+            f"{cb_turn['ate_m']:.3f} m with their cross-track and heading error removed); "
             f"{deg.mean():.0%} of steps degenerate (match error {b['match_error_m'][deg].mean() * 100:.1f} cm "
             f"vs {b['match_error_m'][~deg].mean() * 100:.1f} cm elsewhere, odometry prediction "
-            f"{b['prediction_error_m'].mean() * 100:.1f} cm)"
+            f"{b['prediction_error_m'].mean() * 100:.1f} cm); karto's sequential edges, flat / the rest: "
+            f"along-track rms {rms(e['along_m'][d]) * 1000:.0f} / {rms(e['along_m'][~d]) * 1000:.0f} mm "
+            f"(odometry {rms(e['odometry_along_m'][d]) * 1000:.0f} / {rms(e['odometry_along_m'][~d]) * 1000:.0f} mm, "
+            f"correlation with it {np.corrcoef(e['along_m'][d], e['odometry_along_m'][d])[0, 1]:.2f} / "
+            f"{np.corrcoef(e['along_m'][~d], e['odometry_along_m'][~d])[0, 1]:.2f}), "
+            f"cross-track {rms(e['cross_m'][d]) * 1000:.1f} / {rms(e['cross_m'][~d]) * 1000:.1f} mm, "
+            f"heading {np.degrees(rms(e['heading_rad'][d])):.2f} / {np.degrees(rms(e['heading_rad'][~d])):.2f} deg; "
+            f"error / claimed sigma (rms) along {rms(e['along_m'][d] / e['sigma_along_m'][d]):.2f} / "
+            f"{rms(e['along_m'][~d] / e['sigma_along_m'][~d]):.2f}, across "
+            f"{rms(e['cross_m'] / e['sigma_cross_m']):.2f}, heading {rms(e['heading_rad'] / e['sigma_heading_rad']):.2f}"
         )
     return None, "; ".join(notes)
 

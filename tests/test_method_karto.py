@@ -437,3 +437,87 @@ def test_flat_near_links_can_be_freed_along_the_corridor(karto_run, loop_sim):
     weakest = [float(np.linalg.eigvalsh(np.linalg.inv(m)[:2, :2])[-1]) for m in info]
     assert max(weakest) >= 99.0  # the flat ones are free along the corridor
     assert min(weakest) < 1.0  # the others keep the match's covariance
+
+
+def _edge_graph(truth, errors, info):
+    """A front end stand-in whose sequential edges are the true steps plus ``errors`` (along, across, heading)."""
+    from types import SimpleNamespace
+
+    from slam2d.backends import PoseGraph
+
+    steps = []
+    for k in range(len(truth) - 1):
+        z = se2.relative(truth[k], truth[k + 1])
+        u = z[:2] / np.hypot(*z[:2])
+        steps.append(np.array([*(z[:2] + errors[k, 0] * u + errors[k, 1] * np.array([-u[1], u[0]])),
+                               z[2] + errors[k, 2]]))
+    poses = [truth[0]]
+    for z in steps:
+        poses.append(se2.compose(poses[-1], z))
+    g = PoseGraph()
+    g.add_nodes(np.asarray(poses))
+    n = len(poses)
+    g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), info)
+    odom = np.asarray(poses).copy()  # the odometry: the edges' own chain
+    return SimpleNamespace(graph=g, node_times=lambda n=n: np.arange(n, dtype=float),
+                           odometry_at_nodes=lambda: odom, sequential=SimpleNamespace(search_size=0.3))
+
+
+def test_sequential_edge_errors_split_along_across_and_heading():
+    from slam2d.graph.evaluation import closure_bound, sequential_edge_errors
+
+    truth = _square_loop()
+    rng = np.random.default_rng(3)
+    err = rng.normal(0.0, [0.03, 0.005, 0.002], size=(len(truth) - 1, 3))
+    info = np.diag([1 / 0.3**2, 1 / 0.02**2, 1 / 0.01**2])  # flat along the step, which is the x axis
+    fe = _edge_graph(truth, err, info)
+    e = sequential_edge_errors(fe, truth)
+    assert np.array_equal(e["node"], np.arange(len(truth) - 1))
+    np.testing.assert_allclose(e["along_m"], err[:, 0], atol=1e-9)
+    np.testing.assert_allclose(e["cross_m"], err[:, 1], atol=1e-9)
+    np.testing.assert_allclose(e["heading_rad"], err[:, 2], atol=1e-9)
+    np.testing.assert_allclose(e["sigma_along_m"], 0.3, rtol=1e-6)
+    np.testing.assert_allclose(e["sigma_cross_m"], 0.02, rtol=1e-6)
+    np.testing.assert_allclose(e["sigma_heading_rad"], 0.01, rtol=1e-6)
+    assert e["degenerate"].all()
+    # The odometry here is the edges' own chain: the same steps, so the same errors.
+    np.testing.assert_allclose(e["odometry_along_m"], err[:, 0], atol=1e-9)
+    # The closure bound splits the budget: with the along-track error made exact nothing is left
+    # but the small across / heading part, with those exact the along-track part stays.
+    whole = closure_bound(fe, truth, radius=0.3)["ate_m"]
+    no_along = closure_bound(fe, truth, radius=0.3, exact=("along",))["ate_m"]
+    no_turn = closure_bound(fe, truth, radius=0.3, exact=("cross", "heading"))["ate_m"]
+    assert closure_bound(fe, truth, radius=0.3, exact=("along", "cross", "heading"))["ate_m"] < 1e-9
+    assert no_along < 0.5 * whole and no_turn > 0.5 * whole, (whole, no_along, no_turn)
+    with pytest.raises(ValueError):
+        closure_bound(fe, truth, exact=("x",))
+    with pytest.raises(ValueError):
+        sequential_edge_errors(fe, truth[:-1])
+
+
+def test_fine_recentre_follows_a_best_pose_off_the_fine_window():
+    """With the coarse angle a degree off, the long-range points move the best x, y beyond the fine
+    step's +-1 cell; re-centred searches reach a better response and a closer pose, never a worse one."""
+    from slam2d.matching.correlative import CorrelativeMatcher
+
+    sim = simulate("office", SimulationParams(duration=8.0, seed=1))
+    scan = sim.scans[40]
+    ok = scan.valid & (scan.ranges < 5.5)
+    b = scan.angle_min + scan.angle_increment * np.arange(scan.ranges.size)
+    pts = np.stack([scan.ranges * np.cos(b), scan.ranges * np.sin(b)], axis=1)[ok]
+    truth = np.array([2.0, 1.0, 0.3])
+    ref = se2.transform_points(truth, pts)
+    plain = CorrelativeMatcher()
+    climb = CorrelativeMatcher()
+    climb.fine_recentre = 3
+    gained = 0
+    for dth in np.radians([0.9, -0.95, 1.0, 3.1]):
+        prior = truth + np.array([0.035, -0.025, dth])
+        r0 = plain.match(ref, None, pts, prior)
+        r1 = climb.match(ref, None, pts, prior)
+        assert r1.response >= r0.response - 1e-12
+        e0 = abs(se2.wrap_angle(r0.pose[2] - truth[2]))
+        e1 = abs(se2.wrap_angle(r1.pose[2] - truth[2]))
+        gained += r1.response > r0.response + 1e-9
+        assert e1 <= e0 + np.radians(0.2) + 1e-9
+    assert gained >= 1

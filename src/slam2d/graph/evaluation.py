@@ -9,7 +9,11 @@
   (a corridor longer than the laser's range) are where that chain drifts.
 * :func:`closure_bound`: the front end's own sequential edges plus a perfect loop
   closure (the true relative pose) at every return to a place: what loop closing
-  could reach at best with these sequential matches.
+  could reach at best with these sequential matches; ``exact`` replaces components
+  of those edges by the truth, which splits the error budget.
+* :func:`sequential_edge_errors`: each sequential edge's error against the truth along
+  the true step, across it and in heading, with the sigmas the edge claims and the
+  odometry step's error split the same way.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from slam2d.core import se2
 from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
 from slam2d.io.tum import by_time, interpolate_poses
 
-__all__ = ["closure_bound", "loop_closure_precision", "sequential_bound"]
+__all__ = ["closure_bound", "loop_closure_precision", "sequential_bound", "sequential_edge_errors"]
 
 
 def loop_closure_precision(
@@ -121,6 +125,68 @@ def sequential_bound(frontend: Any, node_truth: ArrayLike, *, window: int = 10) 
     }
 
 
+def _sequential_edges(graph: Any) -> NDArray[np.int64]:
+    """Per node k < n - 1, the index of the first edge k -> k + 1 (the sequential match's), -1 if none."""
+    ei, ej = np.asarray(graph.edge_i), np.asarray(graph.edge_j)
+    out = np.full(max(graph.num_nodes - 1, 0), -1, dtype=np.int64)
+    for k in np.nonzero(ej == ei + 1)[0][::-1]:  # reversed: the first edge of a pair is written last
+        out[ei[k]] = k
+    return out
+
+
+def _step_axes(truth_step: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit vectors along and across true steps (in the first node's frame); a step under 1 mm (a turn on
+    the spot) takes the robot's own x axis as along."""
+    length = np.hypot(truth_step[:, 0], truth_step[:, 1])
+    along = np.where(length[:, None] > 1e-3, truth_step[:, :2] / np.maximum(length, 1e-12)[:, None], [1.0, 0.0])
+    return along, np.stack([-along[:, 1], along[:, 0]], axis=1)
+
+
+def sequential_edge_errors(frontend: Any, node_truth: ArrayLike) -> dict[str, Any]:
+    """Error of every sequential edge of a finished run against the truth, split along / across / heading.
+
+    The sequential edge of node k is the first edge k -> k + 1 (the sequential match, measured
+    from node k's pose when node k + 1 was added). Its error is the measurement minus the true
+    relative pose, in node k's frame, projected on the true step's direction (``along_m``,
+    positive: too long), across it (``cross_m``, positive: to the left) and in heading
+    (``heading_rad``). ``sigma_*`` are the standard deviations the edge's information matrix
+    claims in those directions, ``odometry_*`` the odometry step's errors split the same way,
+    ``degenerate`` marks edges whose x, y covariance has the sequential window's size (a match
+    flat along a corridor), and ``node`` is k. Nodes without a sequential edge are left out.
+    """
+    truth = np.asarray(node_truth, dtype=np.float64).reshape(-1, 3)
+    g = frontend.graph
+    n = g.num_nodes
+    if truth.shape[0] != n:
+        raise ValueError(f"node_truth has {truth.shape[0]} poses for {n} nodes")
+    seq = _sequential_edges(g)
+    node = np.nonzero(seq >= 0)[0]
+    k = seq[node]
+    z = np.asarray(g.measurements, dtype=np.float64).reshape(-1, 3)[k]
+    info = np.asarray(g.information, dtype=np.float64).reshape(-1, 3, 3)[k]
+    true_step = se2.relative(truth[node], truth[node + 1])
+    odom = frontend.odometry_at_nodes()
+    odom_step = se2.relative(odom[node], odom[node + 1])
+    u, v = _step_axes(true_step)
+    cov = np.linalg.inv(info)
+    d = z[:, :2] - true_step[:, :2]
+    do = odom_step[:, :2] - true_step[:, :2]
+    size = frontend.sequential.search_size
+    return {
+        "node": node,
+        "along_m": (d * u).sum(axis=1),
+        "cross_m": (d * v).sum(axis=1),
+        "heading_rad": se2.wrap_angle(z[:, 2] - true_step[:, 2]),
+        "sigma_along_m": np.sqrt(np.einsum("ni,nij,nj->n", u, cov[:, :2, :2], u)),
+        "sigma_cross_m": np.sqrt(np.einsum("ni,nij,nj->n", v, cov[:, :2, :2], v)),
+        "sigma_heading_rad": np.sqrt(cov[:, 2, 2]),
+        "odometry_along_m": (do * u).sum(axis=1),
+        "odometry_cross_m": (do * v).sum(axis=1),
+        "odometry_heading_rad": se2.wrap_angle(odom_step[:, 2] - true_step[:, 2]),
+        "degenerate": np.linalg.eigvalsh(cov[:, :2, :2])[:, -1] >= 0.99 * size**2,
+    }
+
+
 def closure_bound(
     frontend: Any,
     node_truth: ArrayLike,
@@ -129,6 +195,7 @@ def closure_bound(
     min_separation: int = 30,
     all_edges: bool = False,
     backend: str = "spa",
+    exact: Iterable[str] = (),
 ) -> dict[str, Any]:
     """The ATE a finished front end's graph reaches with a perfect loop closure at every return.
 
@@ -140,8 +207,14 @@ def closure_bound(
     the front end's poses. Returns ``{"closures", "ate_m"}`` (node RMSE after the rigid
     alignment ATE uses) and ``"ate_before_m"``, the same for the front end's own poses.
     Where this stays above a target, no loop closing can reach it: the sequential
-    edges' error between the returns is what is left.
+    edges' error between the returns is what is left. ``exact`` names components of the
+    sequential edges to replace by the truth before optimising (``"along"``, ``"cross"``:
+    the step's error along / across the true step, as :func:`sequential_edge_errors` splits
+    it; ``"heading"``): which of them the remaining error comes from.
     """
+    exact = set(exact)
+    if exact - {"along", "cross", "heading"}:
+        raise ValueError(f"exact takes along, cross, heading; got {sorted(exact)}")
     truth = np.asarray(node_truth, dtype=np.float64).reshape(-1, 3)
     g = frontend.graph
     n = g.num_nodes
@@ -149,10 +222,23 @@ def closure_bound(
         raise ValueError(f"node_truth has {truth.shape[0]} poses for {n} nodes")
     ei, ej = np.asarray(g.edge_i), np.asarray(g.edge_j)
     keep = np.ones(ei.size, dtype=bool) if all_edges else ej == ei + 1
+    z = np.array(g.measurements, dtype=np.float64).reshape(-1, 3)
+    if exact:
+        seq = _sequential_edges(g)
+        node = np.nonzero(seq >= 0)[0]
+        k = seq[node]
+        true_step = se2.relative(truth[node], truth[node + 1])
+        u, v = _step_axes(true_step)
+        d = z[k, :2] - true_step[:, :2]
+        a = np.zeros(node.size) if "along" in exact else (d * u).sum(axis=1)
+        c = np.zeros(node.size) if "cross" in exact else (d * v).sum(axis=1)
+        z[k, :2] = true_step[:, :2] + a[:, None] * u + c[:, None] * v
+        if "heading" in exact:
+            z[k, 2] = true_step[:, 2]
     h = PoseGraph()
     h.add_nodes(g.poses)
     if keep.any():
-        h.add_edges(ei[keep], ej[keep], np.asarray(g.measurements)[keep], np.asarray(g.information)[keep])
+        h.add_edges(ei[keep], ej[keep], z[keep], np.asarray(g.information)[keep])
     closures = 0
     info = np.diag([1e4, 1e4, 1e5])
     for j in range(min_separation, n):  # one check per node: an evaluation, not a per-scan path

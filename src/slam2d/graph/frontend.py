@@ -313,6 +313,14 @@ class GraphSlamParams(GridParams):
         help="the fine search's angle STEP (Karto's name; Karto uses it as the step, the fine "
         "window is half a coarse step each way) [FineSearchAngleOffset]",
     )
+    fine_search_recentre: int = param(
+        3, low=0, unit="searches",
+        help="while the 1 cm matcher's fine search (sequential matches, near chains, loop refinement) finds "
+        "its best pose on the edge of its +-1 cell, +-half a coarse step window, responding better, search "
+        "again around it, at most this many times (not "
+        "in Karto: at a coarse angle up to 1 deg off, the coarse x, y of a long-range scan is off by "
+        "more than the fine step can reach); 0 = Karto's single fine search",
+    )
     coarse_search_angle_offset: float = param(
         20.0 * _DEG, unit="rad", low=0.0, help="half-width of the coarse angle window [CoarseSearchAngleOffset]"
     )
@@ -397,6 +405,7 @@ class GraphFrontend:
             smear_deviation=p.loop_search_space_smear_deviation,
             **common,
         )
+        self.sequential.fine_recentre = p.fine_search_recentre
         # Scans that add no node are matched over their own (smaller) window; its grids are the sequential ones.
         self.between = self.sequential.with_window(p.between_nodes_search_dimension)
         self.between.coarse_angle_offset = p.between_nodes_angle_offset

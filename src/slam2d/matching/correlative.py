@@ -947,6 +947,8 @@ class CorrelativeMatcher:
         # Coarse translations: two cells per step, covering half the window each way.
         self._coarse_half = max(1, int(round(0.5 * self.search_size / (2.0 * self.resolution))))
         self.branch_and_bound = True
+        # Extra fine searches re-centred on a best pose that lies on the fine window's edge.
+        self.fine_recentre = 0
 
     def with_window(self, search_size: float) -> "CorrelativeMatcher":
         """The same matcher over a smaller (or larger) x, y window; its grids are interchangeable."""
@@ -1271,6 +1273,20 @@ class CorrelativeMatcher:
                 g, origin, q, pose, prior, angles, 1, 1, penalize, False
             )
             lookups += n
+            for _ in range(self.fine_recentre):
+                # The coarse pose is 1-2 cells and up to half a coarse angle step off; at the
+                # wrong angle the best x, y is off too (far points move r * dtheta), and the
+                # fine step cannot leave its +-1 cell: re-centre while the best is on its edge.
+                a_b, i_b, j_b = np.unravel_index(int(np.argmax(resp_f)), resp_f.shape)
+                if 0 < i_b < 2 and 0 < j_b < 2 and 0 < a_b < angles.size - 1:
+                    break
+                pose2, best2, raw2, resp2, _, n = self._search(
+                    g, origin, q, pose, prior, angles, 1, 1, penalize, False
+                )
+                lookups += n
+                if best2 <= best + 1e-12:
+                    break
+                pose, best, raw, resp_f = pose2, best2, raw2, resp2
             # Angular spread at the best x, y of the fine search.
             _, i_b, j_b = np.unravel_index(int(np.argmax(resp_f)), resp_f.shape)
             a_curve = resp_f[:, i_b, j_b]
