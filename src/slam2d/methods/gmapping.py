@@ -371,8 +371,8 @@ class GMapping(SlamMethod):
 
         The motion model's standard deviations for the whole odometry increment since the last
         update (``since``: the odometry where the climb's start was last matched, for the scans
-        between updates), as one draw of ``drawFromMotion`` would have them, floored at 1 cm and 0.01 rad so
-        standing still does not pin the climb to a point.
+        between updates), as one draw of ``drawFromMotion`` would have them, floored at 1 cm and 0.01 rad
+        (standing still gives a finite prior, not a pose pinned to its start).
         """
         p = self.params
         info = np.zeros((self._n, 3))
