@@ -183,7 +183,7 @@ def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
         out, score, like, ok = np.empty((1, 3)), np.empty(1), np.empty(1), np.empty(1, bool)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                         np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                        0.05, 0.05, 5, search, 1, 0.0, 0.0, 0.0, out, score, like, ok)
+                        0.05, 0.05, 5, search, 1, 0.0, 0.0, np.zeros((1, 3)), 0.0, out, score, like, ok)
         found[search] = out[0].copy()
     assert abs(found[1.0][2]) < 0.01 and np.hypot(found[1.0][0], found[1.0][1]) < 0.02
     assert abs(found[0.0][2]) > 0.1  # the greedy climb alone does not get there
@@ -203,11 +203,58 @@ def test_hill_climb_recovers_a_displaced_pose():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     assert ok.all()
     assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
     assert np.all(score > 600)  # most of the 720 beams match
     assert like[2] >= like[0] - 1e-9 or like[2] > -720 * 0.5 / 0.075
+
+
+def _corridor(angles):
+    """Ranges from the origin to two endless walls at y = +-1 (a corridor with nothing along it)."""
+    s = np.sin(angles)
+    with np.errstate(divide="ignore"):
+        r = np.where(np.abs(s) > 1e-9, 1.0 / np.abs(s), np.inf)
+    return np.where(r < 4.0, r, np.nan)
+
+
+def test_odometry_prior_holds_the_climb_where_the_scan_does_not_constrain_it():
+    """Along an endless corridor the score is flat but for the cells' ripple, on which GMapping's climb slides.
+
+    With the prior (the motion model's 10 cm / 3 cm / 0.2 rad over 1 m) the climb stays near its start
+    along the corridor, and still corrects the offset across it and in heading, which the scan constrains.
+    """
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor(angles)
+    n = 4
+    maps = TiledMaps(n, 0.05, (-6, -6, 6, 6))
+    for x in (-0.4, -0.2, 0.0, 0.2, 0.4):  # the walls mapped from a few poses along the corridor
+        maps.register(np.arange(n), np.tile([x, 0.0, 0.0], (n, 1)), np.broadcast_to(ranges, (n, 682)), angles,
+                      max_range=4.0, usable_range=4.0, generate_map=False)
+    use = np.isfinite(ranges)
+    beams = BeamSet(np.nan_to_num(ranges), angles, use, np.full(682, 0.05), np.full(682, 0.075))
+    start = np.array([[0.013, 0.06, 0.04], [-0.021, -0.06, -0.04], [0.032, 0.05, 0.0], [0.0, -0.05, 0.03]])
+    slide = {}
+    for weight in (0.0, 1.0):
+        info = weight * np.tile(1.0 / np.array([0.1, 0.03, 0.2]) ** 2, (n, 1))
+        out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
+        match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
+                        np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
+                        0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, info, 0.0, out, score, like, ok)
+        assert ok.all()
+        assert np.all(np.abs(out[:, 1]) < 0.01) and np.all(np.abs(out[:, 2]) < 0.005)  # across and heading
+        assert np.all(score > 0.8 * use.sum())  # the plain score is returned, not score - prior
+        slide[weight] = np.abs(out[:, 0] - start[:, 0]).max()
+    assert slide[0.0] > 0.1  # GMapping's climb rides the ripple along the corridor
+    assert slide[1.0] < 0.05
+
+
+def test_tracking_prior_leaves_the_filter_alone(arena):
+    """tracking_prior only changes the poses reported between updates; the filter's nodes are the same."""
+    frames = recording_frames(arena / "recording.log.gz")[:120]
+    runs = [GMapping(GMappingParams(particles=6, tracking_prior=w), seed=2).run(frames) for w in (0.0, 1.0)]
+    assert np.array_equal(runs[0].best_nodes(), runs[1].best_nodes())
+    assert not np.array_equal(runs[0].trajectory()[1], runs[1].trajectory()[1])
 
 
 # --------------------------------------------------------------------------- the method
@@ -248,9 +295,10 @@ def test_same_seed_same_trajectory_bit_for_bit(arena):
     c = GMapping(params, seed=8).run(frames).trajectory()[1]
     assert np.array_equal(a, b)
     assert not np.array_equal(a, c)
-    guided = GMappingParams(particles=8, between_updates="guided")
-    assert np.array_equal(GMapping(guided, seed=7).run(frames).trajectory()[1],
-                          GMapping(guided, seed=7).run(frames).trajectory()[1])
+    for guided in (GMappingParams(particles=8, between_updates="guided"),
+                   GMappingParams(particles=8, between_updates="guided", odometry_prior=1.0, tracking_prior=1.0)):
+        assert np.array_equal(GMapping(guided, seed=7).run(frames).trajectory()[1],
+                              GMapping(guided, seed=7).run(frames).trajectory()[1])
 
 
 def test_matched_poses_between_updates_leave_the_filter_alone_and_beat_odometry(arena):
@@ -286,7 +334,7 @@ def test_angular_search_every_splits_the_particles():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                     np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 1.0, 2, 0.0, 0.0, 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 1.0, 2, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     assert np.all(np.abs(out[0::2, 2]) < 0.01)
     assert np.all(np.abs(out[1::2, 2]) > 0.1)
 

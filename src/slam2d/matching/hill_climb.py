@@ -154,7 +154,7 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
 
 @njit(cache=True)
 def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
-           lstep, astep, iterations, angular_search, lin_rel, ang_rel):
+           lstep, astep, iterations, angular_search, lin_rel, ang_rel, prior_info):
     """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``.
 
     With ``angular_search`` > 0 the climb starts from the best of the headings
@@ -168,10 +168,24 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
     ``exp(-lin_rel d^2 - ang_rel dtheta^2)``, ``d`` and ``dtheta`` its distance
     from the start pose, so the climb does not wander where the scan does not
     constrain it (along a corridor).
+
+    ``prior_info`` (not in GMapping; zeros: off): the information ``(1/sx^2,
+    1/sy^2, 1/stheta^2)`` of the odometry prior around ``start`` (x, y in
+    ``start``'s own frame). The climb then maximises ``score - prior``, ``prior``
+    half the squared Mahalanobis distance from ``start``: near its optimum the
+    score falls like a log-likelihood (``sum d^2 / sigma``), so this is the mode
+    of likelihood times motion prior, the centre of Grisetti et al.'s improved
+    proposal. Where the scan constrains the pose the score's curvature is far
+    larger and the prior changes nothing; where it does not (along a corridor
+    longer than the laser's range) the prior keeps the climb from sliding on
+    the score's lattice ripple. The returned score is the plain score.
     """
     x, y, th = start[0], start[1], start[2]
+    c0, s0 = math.cos(start[2]), math.sin(start[2])
+    use_prior = prior_info[0] > 0.0 or prior_info[1] > 0.0 or prior_info[2] > 0.0
     current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                         False)[0]
+    raw = current
     steps = int(angular_search / astep)
     th0 = th
     for k in range(-steps, steps + 1):
@@ -179,10 +193,17 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
             continue
         sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th0 + k * astep, mount, ex, ey, ux,
                        uy, div_s, div_l, False)[0]
-        if sc > current:
-            current = sc
+        if use_prior:
+            dth = (k * astep + math.pi) % (2.0 * math.pi) - math.pi
+            sc_obj = sc - 0.5 * prior_info[2] * dth * dth
+        else:
+            sc_obj = sc
+        if sc_obj > current:
+            current = sc_obj
+            raw = sc
             th = th0 + k * astep
     best_score = -1.0
+    cand_raw = raw
     ldelta, adelta = lstep, astep
     refinement = 0
     while True:
@@ -212,19 +233,29 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
                 ddx, ddy = cx - start[0], cy - start[1]
                 dth = (cth - start[2] + math.pi) % (2.0 * math.pi) - math.pi
                 sc *= math.exp(-lin_rel * (ddx * ddx + ddy * ddy) - ang_rel * dth * dth)
-            if sc > current:
-                current = sc
+            obj = sc
+            if use_prior:
+                ddx, ddy = cx - start[0], cy - start[1]
+                fx = c0 * ddx + s0 * ddy
+                fy = -s0 * ddx + c0 * ddy
+                dth = (cth - start[2] + math.pi) % (2.0 * math.pi) - math.pi
+                obj = sc - 0.5 * (prior_info[0] * fx * fx + prior_info[1] * fy * fy + prior_info[2] * dth * dth)
+            if obj > current:
+                current = obj
+                cand_raw = sc
                 bx, by, bth = cx, cy, cth
+        if bx != x or by != y or bth != th:
+            raw = cand_raw
         x, y, th = bx, by, bth
         if not (current > best_score or refinement < iterations):
             break
-    return x, y, th, best_score
+    return x, y, th, (raw if use_prior else best_score)
 
 
 @njit(cache=True, parallel=True)
 def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
-                    lstep, astep, iterations, angular_search, search_every, lin_rel, ang_rel, minimum_score, out_poses,
-                    out_score, out_like, out_ok):
+                    lstep, astep, iterations, angular_search, search_every, lin_rel, ang_rel, prior_info, minimum_score,
+                    out_poses, out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
 
     A particle whose best score is not above ``minimum_score`` keeps its pose
@@ -233,12 +264,13 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mo
     multiple of ``search_every`` search, the others climb as GMapping does (a
     mixture proposal: a wrong wide-search heading does not take every particle
     with it, the weights of the following scans choose). ``out_like`` is the
-    log-likelihood at the pose kept.
+    log-likelihood at the pose kept. ``prior_info``: see :func:`_climb`, one
+    row per particle (``(N, 3)``; zeros: GMapping's climb).
     """
     for p in prange(poses.shape[0]):
         wide = angular_search if p % search_every == 0 else 0.0
         x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
-                              div_s, div_l, lstep, astep, iterations, wide, lin_rel, ang_rel)
+                              div_s, div_l, lstep, astep, iterations, wide, lin_rel, ang_rel, prior_info[p])
         ok = sc > minimum_score
         if not ok:
             x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]
@@ -252,13 +284,13 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mo
 
 @njit(cache=True)
 def match_one(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy, div_s, div_l,
-              lstep, astep, iterations, lin_rel, ang_rel, minimum_score):
+              lstep, astep, iterations, lin_rel, ang_rel, prior_info, minimum_score):
     """Hill-climb one pose on map ``p`` (GMapping's climb): ``(x, y, theta, score, ok)``.
 
     ``ok`` False (score not above ``minimum_score``): the pose returned is ``pose``.
     """
     x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy,
-                          div_s, div_l, lstep, astep, iterations, 0.0, lin_rel, ang_rel)
+                          div_s, div_l, lstep, astep, iterations, 0.0, lin_rel, ang_rel, prior_info)
     if not sc > minimum_score:
         return pose[0], pose[1], pose[2], sc, False
     return x, y, (th + math.pi) % (2.0 * math.pi) - math.pi, sc, True

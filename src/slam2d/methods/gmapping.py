@@ -46,6 +46,7 @@ __all__ = ["GMappingParams", "GMapping"]
 
 # maxRange when the laser reports no finite range_max (the ROS wiki's maxUrange default)
 _FALLBACK_MAX_RANGE = 80.0
+_PRIOR_FLOOR = np.array([0.01, 0.01, 0.01])  # m, m, rad: the prior's smallest standard deviations
 
 
 @dataclass
@@ -76,6 +77,14 @@ class GMappingParams:
         "score by exp(-this * d^2), d its distance from where the climb started; 0: off")
     angularOdometryReliability: float = param(
         0.0, unit="1/rad^2", low=0.0, help="GMapping core: the same for the heading change")
+    odometry_prior: float = param(
+        0.0, low=0.0, help="not in GMapping: the particles' climb maximises score - this * half the squared "
+        "Mahalanobis distance from the particle's predicted pose, with the motion model's (srr...stt) covariance of "
+        "the odometry increment since the last update (the mode of likelihood x motion prior); 0: the original's climb")
+    tracking_prior: float = param(
+        0.0, low=0.0, help="not in GMapping: the same odometry prior for the climbs of the scans between updates "
+        "(between_updates=matched or guided), with the covariance of the odometry increment since the last matched "
+        "scan; 0: off")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -291,7 +300,8 @@ class GMapping(SlamMethod):
                                     np.asarray(frame.scan.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux,
                                     beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations,
                                     p.linearOdometryReliability,
-                                    p.angularOdometryReliability, p.minimumScore)
+                                    p.angularOdometryReliability, self._prior_info(p.tracking_prior, last_odom)[0],
+                                    p.minimumScore)
         if not ok:
             self.diagnostics.count("tracking_failures")
             self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
@@ -319,7 +329,7 @@ class GMapping(SlamMethod):
                         beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search,
                         p.angular_search_every,
                         p.linearOdometryReliability, p.angularOdometryReliability,
-                        p.minimumScore,
+                        self._prior_info(p.odometry_prior), p.minimumScore,
                         out_poses, score, like, ok)
         failures = int(n - ok.sum())
         if failures:
@@ -355,6 +365,22 @@ class GMapping(SlamMethod):
             "best_score": best_score,
             "tiles": float(maps.tiles_in_use),
         }
+
+    def _prior_info(self, weight: float, since: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Per particle, ``weight`` times the information of the odometry prior a climb weighs (zeros: off).
+
+        The motion model's standard deviations for the whole odometry increment since the last
+        update (``since``: the odometry where the climb's start was last matched, for the scans
+        between updates), as one draw of ``drawFromMotion`` would have them, floored at 1 cm and 0.01 rad
+        (standing still gives a finite prior, not a pose pinned to its start).
+        """
+        p = self.params
+        info = np.zeros((self._n, 3))
+        if weight > 0.0:
+            origin = self._update_odom if since is None else since
+            std = gmapping_motion_std(se2.relative(origin, self._odom), p.srr, p.srt, p.str, p.stt)
+            info[:] = weight / np.maximum(std, _PRIOR_FLOOR) ** 2
+        return info
 
     def _gaussian(self, common, optima, like, ok, mount, beams):
         """Improved proposal for the particles whose match succeeded."""
