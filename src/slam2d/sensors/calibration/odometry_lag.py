@@ -1,0 +1,221 @@
+"""How far a recording's odometry leads (or lags) its scans in time, from the recording alone.
+
+Why: a robot that stamps its laser late (or its odometry early) hands every
+scan an odometry pose taken some time after the scan. A method that predicts
+or de-skews with the odometry then turns too early; coreslam's
+``odometry_delay`` reads the odometry that long before each scan's stamp, but
+a user cannot guess the number (the mines logs' is ~0.15 s).
+
+How: the heading increment from each scan to the next is measured twice, by
+registering the two scans on each other (:func:`slam2d.matching.scan_to_scan.
+consecutive_motion`, no map, no odometry) and from the odometry heading
+interpolated ``D`` seconds before each of the two stamps. Over a grid of
+``D`` the odometry increments are fitted to the scan increments with a free
+scale (scan-to-scan under-turns by a few percent, and a wheel-base error
+scales the odometry's turns: the lag is about timing, not size), and the ``D``
+with the smallest rms residual wins, refined between grid points by a
+parabola. Turns that start and stop are what fix ``D``: a recording that never
+turns, or turns at one constant rate, has no timing in it, and is refused
+rather than given a number. Scan pairs the registration got wrong (residual
+beyond 5 robust sigmas at a first estimate) are left out of the second pass.
+
+The 95 % interval is where ``n log(rms(D)^2 / rms_min^2)`` stays below 3.84
+(the likelihood-ratio profile for Gaussian residuals, ``n`` the scan pairs
+used); neighbouring residuals are not independent, so read it as a lower bound
+on the uncertainty. The estimate is *confident* when the best rms is clearly
+below the rms at ``D = 0`` or ``D = 0`` is inside the interval, the interval
+is narrower than 0.1 s, and the minimum is not at the edge of the grid.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core.frames import Frame
+from slam2d.errors import InputError
+from slam2d.matching.scan_to_scan import consecutive_motion
+
+__all__ = ["OdometryLag", "scan_turns", "estimate_odometry_lag", "odometry_lag"]
+
+_MIN_PAIRS = 20  # scan pairs with odometry at both read-back times
+_MIN_TURN = 1.0  # rad: the odometry must turn at least this much in all over the pairs used
+_MIN_POINTS = 20  # endpoints a scan needs to be registered
+_CHI2_95 = 3.841458820694124  # one degree of freedom
+_CONFIDENT_WIDTH = 0.1  # s
+
+
+@dataclass
+class OdometryLag:
+    """The estimate: ``lag`` > 0 when the odometry leads the scans (use ``odometry_delay=lag``)."""
+
+    lag: float  # s
+    interval: tuple[float, float]  # 95 % (s), from the rms profile
+    rms_at_zero: float  # deg per scan pair: odometry read at the stamps
+    rms_at_lag: float  # deg per scan pair: odometry read back by ``lag``
+    scale: float  # scan turn / odometry turn at ``lag``
+    pairs: int  # scan pairs used
+    outliers: int  # scan pairs left out (registration failures)
+    turn: float  # rad the odometry turned over the pairs used
+    confident: bool
+    delays: NDArray[np.float64] = field(repr=False)
+    rms: NDArray[np.float64] = field(repr=False)  # deg, per delay
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def improvement(self) -> float:
+        """How many times smaller the rms is at the lag than at ``D = 0``."""
+        return self.rms_at_zero / self.rms_at_lag if self.rms_at_lag > 0 else math.inf
+
+    def setting(self) -> str | None:
+        """The ``--set`` for coreslam, or None when there is nothing usable (not confident, or odometry late)."""
+        if not self.confident or self.lag <= 0.0:
+            return None
+        return f"odometry_delay={self.lag:.2f}"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"lag_s": self.lag, "ci95_s": list(self.interval), "rms_at_zero_deg": self.rms_at_zero,
+                "rms_at_lag_deg": self.rms_at_lag, "improvement": self.improvement, "scale": self.scale,
+                "pairs": self.pairs, "outliers": self.outliers, "turn_rad": self.turn,
+                "confident": self.confident, "setting": self.setting(), "notes": self.notes}
+
+
+def scan_turns(frames: Iterable[Frame]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """``(stamps (N,), odometry heading (N,) NaN where none, scan turn (N - 1,) NaN where not registered)``.
+
+    The scan turn ``k`` is the heading of scan ``k + 1`` in scan ``k``'s frame from registering the two scans
+    alone, each started from the last pair's motion.
+    """
+    stamps, heading, turns = [], [], []
+    previous = None
+    guess = np.zeros(3)
+    for f in frames:
+        stamps.append(float(f.timestamp))
+        odom = f.odometry
+        heading.append(float(odom[2]) if odom is not None and np.all(np.isfinite(odom)) else math.nan)
+        points = f.scan.points_in_base()
+        points = points if points.shape[0] >= _MIN_POINTS else None
+        if len(stamps) > 1:
+            if previous is None or points is None:
+                turns.append(math.nan)
+                guess = np.zeros(3)
+            else:
+                guess = consecutive_motion(previous, points, guess)
+                turns.append(float(guess[2]))
+        previous = points
+    return np.array(stamps), np.array(heading), np.array(turns)
+
+
+def _rms_profile(s, t0, t1, ts, th, delays):
+    """Per delay: rms of the scan turns ``s`` about the best scaled odometry turns, and that scale."""
+    o = np.interp(t1[None, :] - delays[:, None], ts, th) - np.interp(t0[None, :] - delays[:, None], ts, th)
+    oo = np.einsum("ij,ij->i", o, o)
+    k = np.where(oo > 0, (o @ s) / np.where(oo > 0, oo, 1.0), 0.0)
+    r = s[None, :] - k[:, None] * o
+    return np.sqrt(np.mean(r * r, axis=1)), k, r
+
+
+def estimate_odometry_lag(
+    stamps: NDArray[np.float64], odometry_heading: NDArray[np.float64], scan_turn: NDArray[np.float64], *,
+    max_lag: float = 0.5, step: float = 0.01,
+) -> OdometryLag:
+    """The lag from :func:`scan_turns`' output (see the module doc); raises InputError when it cannot be told."""
+    if not (max_lag > 0 and 0 < step <= max_lag):
+        raise InputError(f"max lag {max_lag} s and step {step} s: both must be positive, the step the smaller",
+                         field="--max-lag")
+    stamps = np.asarray(stamps, dtype=np.float64)
+    heading = np.asarray(odometry_heading, dtype=np.float64)
+    scan_turn = np.asarray(scan_turn, dtype=np.float64)
+    has = np.isfinite(heading)
+    if has.sum() < _MIN_PAIRS:
+        raise InputError(f"{int(has.sum())} scans with odometry: no odometry to time "
+                         f"(at least {_MIN_PAIRS} are needed)", field="odometry")
+    ts, th = stamps[has], np.unwrap(heading[has])
+    if np.any(np.diff(ts) <= 0):
+        order = np.argsort(ts, kind="stable")
+        ts, th = ts[order], th[order]
+        keep = np.concatenate([[True], np.diff(ts) > 0])
+        ts, th = ts[keep], th[keep]
+    t0, t1 = stamps[:-1], stamps[1:]
+    dt = t1 - t0
+    ok = np.isfinite(scan_turn) & (dt > 0)
+    if ok.any():
+        ok &= dt <= 3.0 * np.median(dt[ok])  # a gap: the scans are too far apart to register reliably
+    # odometry on both sides of every read-back time (no extrapolation), the same pairs for every delay
+    ok &= (t0 - max_lag >= ts[0]) & (t1 + max_lag <= ts[-1])
+    # and no odometry gap inside the pair's window
+    gap = 3.0 * float(np.median(np.diff(ts))) if len(ts) > 1 else math.inf
+    i0 = np.searchsorted(ts, t0 - max_lag, side="right") - 1
+    i1 = np.searchsorted(ts, t1 + max_lag, side="left")
+    big = np.concatenate([[0], np.cumsum(np.diff(ts) > max(gap, 2.0 * max_lag))])
+    ok &= big[np.clip(i1, 0, len(ts) - 1)] == big[np.clip(i0, 0, len(ts) - 1)]
+    if ok.sum() < _MIN_PAIRS:
+        raise InputError(f"{int(ok.sum())} consecutive scan pairs with odometry around them and a registration; "
+                         f"at least {_MIN_PAIRS} are needed", field="odometry")
+    s, t0, t1 = scan_turn[ok], t0[ok], t1[ok]
+    n_grid = int(round(max_lag / step))
+    delays = step * np.arange(-n_grid, n_grid + 1)
+    turn = float(np.abs(np.interp(t1, ts, th) - np.interp(t0, ts, th)).sum())
+    if turn < _MIN_TURN:
+        raise InputError(f"the odometry turns {math.degrees(turn):.0f} deg in all over {len(s)} scan pairs: "
+                         f"no turning, so no timing to measure (at least {math.degrees(_MIN_TURN):.0f} deg of "
+                         "turns that start and stop are needed)", field="odometry")
+    rms, _, r = _rms_profile(s, t0, t1, ts, th, delays)
+    first = int(np.argmin(rms))
+    dev = np.abs(r[first] - np.median(r[first]))
+    mad = 1.4826 * float(np.median(dev))
+    inlier = dev <= 5.0 * max(mad, 1e-6)
+    s, t0, t1 = s[inlier], t0[inlier], t1[inlier]
+    rms, _, _ = _rms_profile(s, t0, t1, ts, th, delays)
+    n = len(s)
+    best = int(np.argmin(rms))
+
+    def excess(profile: NDArray[np.float64]) -> NDArray[np.float64]:
+        # the likelihood-ratio statistic above its 95 % level (<= 0: inside the interval)
+        return n * np.log(np.maximum(profile, 1e-300) ** 2 / max(float(profile.min()), 1e-300) ** 2) - _CHI2_95
+
+    inside = excess(rms) <= 0
+    lo, hi = best, best
+    while lo > 0 and inside[lo - 1]:
+        lo -= 1
+    while hi < len(delays) - 1 and inside[hi + 1]:
+        hi += 1
+    # the grid's step is coarse next to the interval on a clear recording: the same profile a tenth as fine there
+    fine = np.linspace(delays[max(lo - 1, 0)], delays[min(hi + 1, len(delays) - 1)],
+                       10 * (min(hi + 1, len(delays) - 1) - max(lo - 1, 0)) + 1)
+    rms_fine, k_fine, _ = _rms_profile(s, t0, t1, ts, th, fine)
+    j = int(np.argmin(rms_fine))
+    lag, rms_best, scale = float(fine[j]), float(rms_fine[j]), float(k_fine[j])
+    within = fine[excess(rms_fine) <= 0]
+    interval = (float(within.min()), float(within.max()))
+    zero = int(np.argmin(np.abs(delays)))
+    notes = []
+    at_edge = best in (0, len(delays) - 1)
+    if at_edge:
+        notes.append(f"the best delay is at the edge of the searched range (+-{max_lag:g} s): widen it")
+    wide = interval[1] - interval[0] > _CONFIDENT_WIDTH
+    if wide:
+        notes.append(f"the 95 % interval is {interval[1] - interval[0]:.2f} s wide: the turns do not fix the timing")
+    confident = not at_edge and not wide
+    if confident and interval[0] <= 0.0 <= interval[1]:
+        notes.append("no lag measurable: D = 0 is inside the 95 % interval")
+    elif confident and lag < 0:
+        notes.append("the odometry lags the scans; odometry_delay reads the past only and cannot take it")
+    out_count = int((~inlier).sum())
+    if out_count:
+        notes.append(f"{out_count} scan pairs left out as registration failures (residual beyond 5 robust sigmas)")
+    return OdometryLag(lag, interval, float(np.degrees(rms[zero])), float(np.degrees(rms_best)), scale, n,
+                       out_count, turn, confident, delays, np.degrees(rms), notes)
+
+
+def odometry_lag(frames: Iterable[Frame], *, max_lag: float = 0.5, step: float = 0.01) -> OdometryLag:
+    """The odometry's lead over the scans of a recording's frames (registration of every scan pair, then
+    :func:`estimate_odometry_lag`)."""
+    stamps, heading, turns = scan_turns(frames)
+    if len(stamps) < 2:
+        raise InputError(f"{len(stamps)} scan(s): at least two are needed", field="scans")
+    return estimate_odometry_lag(stamps, heading, turns, max_lag=max_lag, step=step)
