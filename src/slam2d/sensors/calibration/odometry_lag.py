@@ -9,7 +9,8 @@ a user cannot guess the number (the mines logs' is ~0.15 s).
 How: the heading increment from each scan to the next is measured twice, by
 registering the two scans on each other (:func:`slam2d.matching.scan_to_scan.
 consecutive_motion`, no map, no odometry) and from the odometry heading
-interpolated ``D`` seconds before each of the two stamps. Over a grid of
+read ``D`` seconds before each of the two stamps (the readings joined by lines
+and smoothed over one reading period: see :func:`_smoothed_heading`). Over a grid of
 ``D`` the odometry increments are fitted to the scan increments with a free
 scale (scan-to-scan under-turns by a few percent, and a wheel-base error
 scales the odometry's turns: the lag is about timing, not size), and the ``D``
@@ -17,14 +18,16 @@ with the smallest rms residual wins, refined between grid points by a
 parabola. Turns that start and stop are what fix ``D``: a recording that never
 turns, or turns at one constant rate, has no timing in it, and is refused
 rather than given a number. Scan pairs the registration got wrong (residual
-beyond 5 robust sigmas at a first estimate) are left out of the second pass.
+beyond 5 robust sigmas and 2 degrees at a first estimate) are left out of the
+second pass.
 
 The 95 % interval is where ``n log(rms(D)^2 / rms_min^2)`` stays below 3.84
 (the likelihood-ratio profile for Gaussian residuals, ``n`` the scan pairs
 used); neighbouring residuals are not independent, so read it as a lower bound
-on the uncertainty. The estimate is *confident* when the best rms is clearly
-below the rms at ``D = 0`` or ``D = 0`` is inside the interval, the interval
-is narrower than 0.1 s, and the minimum is not at the edge of the grid.
+on the uncertainty. The estimate is *confident* when the interval
+is narrower than 0.1 s, the minimum is not at the edge of the grid, and the
+scale is near one (0.7-1.4: else the registration failed wholesale, e.g. on
+scans seconds apart, or the odometry's noise per scan swamps the turns).
 """
 
 from __future__ import annotations
@@ -43,10 +46,14 @@ from slam2d.matching.scan_to_scan import consecutive_motion
 __all__ = ["OdometryLag", "scan_turns", "estimate_odometry_lag", "odometry_lag"]
 
 _MIN_PAIRS = 20  # scan pairs with odometry at both read-back times
-_MIN_TURN = 1.0  # rad: the odometry must turn at least this much in all over the pairs used
+_MIN_TURN = 1.0  # rad: the scans must turn at least this much in all over the pairs used...
+_MIN_TURN_RATE = math.radians(5.0)  # rad/s: ...counting pairs that turn faster than this
 _MIN_POINTS = 20  # endpoints a scan needs to be registered
 _CHI2_95 = 3.841458820694124  # one degree of freedom
 _CONFIDENT_WIDTH = 0.1  # s
+_OUTLIER_FLOOR = math.radians(2.0)  # a scan pair is only a registration failure beyond this residual
+_SCALE_RANGE = (0.7, 1.4)
+_MIN_IMPROVEMENT = 1.05  # rms at D = 0 / rms at the lag below which the odometry counts as on time  # scan turn / odometry turn that a working registration gives
 
 
 @dataclass
@@ -60,7 +67,7 @@ class OdometryLag:
     scale: float  # scan turn / odometry turn at ``lag``
     pairs: int  # scan pairs used
     outliers: int  # scan pairs left out (registration failures)
-    turn: float  # rad the odometry turned over the pairs used
+    turn: float  # rad the scans turned (faster than 5 deg/s) over the pairs used
     confident: bool
     delays: NDArray[np.float64] = field(repr=False)
     rms: NDArray[np.float64] = field(repr=False)  # deg, per delay
@@ -72,8 +79,9 @@ class OdometryLag:
         return self.rms_at_zero / self.rms_at_lag if self.rms_at_lag > 0 else math.inf
 
     def setting(self) -> str | None:
-        """The ``--set`` for coreslam, or None when there is nothing usable (not confident, or odometry late)."""
-        if not self.confident or self.lag <= 0.0:
+        """The ``--set`` for coreslam, or None when there is nothing to set: not confident, the odometry late, or
+        on time (reading it back improves the rms by less than 5 %)."""
+        if not self.confident or self.lag <= 0.0 or self.improvement < _MIN_IMPROVEMENT:
             return None
         return f"odometry_delay={self.lag:.2f}"
 
@@ -110,13 +118,37 @@ def scan_turns(frames: Iterable[Frame]) -> tuple[NDArray[np.float64], NDArray[np
     return np.array(stamps), np.array(heading), np.array(turns)
 
 
-def _rms_profile(s, t0, t1, ts, th, delays):
+def _smoothed_heading(query: NDArray[np.float64], ts: NDArray[np.float64], th: NDArray[np.float64],
+                      sigma: float) -> NDArray[np.float64]:
+    """The odometry heading at ``query`` times: the readings joined by straight lines, smoothed by a Gaussian of
+    ``sigma`` s (quadrature over +-3 sigma).
+
+    Why not the straight lines alone: between two noisy readings they average the readings' noise, so an
+    increment read half way between readings is quieter than one read at them, and the rms profile dips at every
+    half reading period (a simulated lag of 0 came out as 0.05 s at 10 Hz). A Gaussian one reading period wide
+    evens that out. Why not a Gaussian over the readings themselves (kernel regression): where the readings come
+    unevenly (fr079: 0.1-0.5 s apart) it leans toward the denser side, which moves turns in time; the lines do
+    not, and the symmetric smoothing of them moves no turn either.
+    """
+    u = np.linspace(-3.0, 3.0, 25)
+    w = np.exp(-0.5 * u * u)
+    w /= w.sum()
+    out = np.zeros(query.shape)
+    for uk, wk in zip(u * sigma, w, strict=True):  # 25 whole-array interpolations
+        out += wk * np.interp(query - uk, ts, th)
+    return out
+
+
+def _rms_profile(s, t0, t1, ts, th, delays, sigma):
     """Per delay: rms of the scan turns ``s`` about the best scaled odometry turns, and that scale."""
-    o = np.interp(t1[None, :] - delays[:, None], ts, th) - np.interp(t0[None, :] - delays[:, None], ts, th)
-    oo = np.einsum("ij,ij->i", o, o)
-    k = np.where(oo > 0, (o @ s) / np.where(oo > 0, oo, 1.0), 0.0)
-    r = s[None, :] - k[:, None] * o
-    return np.sqrt(np.mean(r * r, axis=1)), k, r
+    rms, scale, res = np.empty(len(delays)), np.empty(len(delays)), np.empty((len(delays), len(s)))
+    for j, d in enumerate(delays):  # one whole-array pass per delay (a few hundred delays at most)
+        o = _smoothed_heading(t1 - d, ts, th, sigma) - _smoothed_heading(t0 - d, ts, th, sigma)
+        oo = float(o @ o)
+        scale[j] = float(o @ s) / oo if oo > 0 else 0.0
+        res[j] = s - scale[j] * o
+        rms[j] = math.sqrt(float(np.mean(res[j] ** 2)))
+    return rms, scale, res
 
 
 def estimate_odometry_lag(
@@ -146,7 +178,8 @@ def estimate_odometry_lag(
     if ok.any():
         ok &= dt <= 3.0 * np.median(dt[ok])  # a gap: the scans are too far apart to register reliably
     # odometry on both sides of every read-back time (no extrapolation), the same pairs for every delay
-    ok &= (t0 - max_lag >= ts[0]) & (t1 + max_lag <= ts[-1])
+    sigma = max(float(np.median(np.diff(ts))), 1e-6)  # the smoothing of the odometry heading (s)
+    ok &= (t0 - max_lag - 3 * sigma >= ts[0]) & (t1 + max_lag + 3 * sigma <= ts[-1])
     # and no odometry gap inside the pair's window
     gap = 3.0 * float(np.median(np.diff(ts))) if len(ts) > 1 else math.inf
     i0 = np.searchsorted(ts, t0 - max_lag, side="right") - 1
@@ -159,18 +192,29 @@ def estimate_odometry_lag(
     s, t0, t1 = scan_turn[ok], t0[ok], t1[ok]
     n_grid = int(round(max_lag / step))
     delays = step * np.arange(-n_grid, n_grid + 1)
-    turn = float(np.abs(np.interp(t1, ts, th) - np.interp(t0, ts, th)).sum())
+    # turning as the scans see it (the odometry's noise would add up to turns on a straight drive), and only at
+    # more than 5 deg/s (the registration's own noise stays below that)
+    turning = np.abs(s) > _MIN_TURN_RATE * (t1 - t0)
+    turn = float(np.abs(s[turning]).sum())
     if turn < _MIN_TURN:
-        raise InputError(f"the odometry turns {math.degrees(turn):.0f} deg in all over {len(s)} scan pairs: "
-                         f"no turning, so no timing to measure (at least {math.degrees(_MIN_TURN):.0f} deg of "
-                         "turns that start and stop are needed)", field="odometry")
-    rms, _, r = _rms_profile(s, t0, t1, ts, th, delays)
+        raise InputError(f"the scans turn {math.degrees(turn):.0f} deg in all (at more than "
+                         f"{math.degrees(_MIN_TURN_RATE):.0f} deg/s) over {len(s)} scan pairs: no turning, so no "
+                         f"timing to measure (at least {math.degrees(_MIN_TURN):.0f} deg of turns that start and stop "
+                         "are needed)", field="odometry")
+    o = np.interp(t1, ts, th) - np.interp(t0, ts, th)
+    odometry_turn = float(np.abs(o[np.abs(o) > _MIN_TURN_RATE * (t1 - t0)]).sum())
+    if odometry_turn < _MIN_TURN:
+        raise InputError(f"the odometry turns {math.degrees(odometry_turn):.0f} deg in all (at more than "
+                         f"{math.degrees(_MIN_TURN_RATE):.0f} deg/s) while the scans turn {math.degrees(turn):.0f} "
+                         "deg: no turning in the odometry, so no timing to measure", field="odometry")
+    rms, _, r = _rms_profile(s, t0, t1, ts, th, delays, sigma)
     first = int(np.argmin(rms))
     dev = np.abs(r[first] - np.median(r[first]))
     mad = 1.4826 * float(np.median(dev))
-    inlier = dev <= 5.0 * max(mad, 1e-6)
+    # the floor: on a drive mostly straight the MAD is the straight stretches' and would cut every turn
+    inlier = dev <= max(5.0 * mad, _OUTLIER_FLOOR)
     s, t0, t1 = s[inlier], t0[inlier], t1[inlier]
-    rms, _, _ = _rms_profile(s, t0, t1, ts, th, delays)
+    rms, _, _ = _rms_profile(s, t0, t1, ts, th, delays, sigma)
     n = len(s)
     best = int(np.argmin(rms))
 
@@ -187,7 +231,7 @@ def estimate_odometry_lag(
     # the grid's step is coarse next to the interval on a clear recording: the same profile a tenth as fine there
     fine = np.linspace(delays[max(lo - 1, 0)], delays[min(hi + 1, len(delays) - 1)],
                        10 * (min(hi + 1, len(delays) - 1) - max(lo - 1, 0)) + 1)
-    rms_fine, k_fine, _ = _rms_profile(s, t0, t1, ts, th, fine)
+    rms_fine, k_fine, _ = _rms_profile(s, t0, t1, ts, th, fine, sigma)
     j = int(np.argmin(rms_fine))
     lag, rms_best, scale = float(fine[j]), float(rms_fine[j]), float(k_fine[j])
     within = fine[excess(rms_fine) <= 0]
@@ -200,14 +244,25 @@ def estimate_odometry_lag(
     wide = interval[1] - interval[0] > _CONFIDENT_WIDTH
     if wide:
         notes.append(f"the 95 % interval is {interval[1] - interval[0]:.2f} s wide: the turns do not fix the timing")
-    confident = not at_edge and not wide
+    # scan-to-scan under-turns by a few percent; a scale far from 1 means the registration failed wholesale
+    # (scans too far apart, turns beyond its reach) or odometry noise swamps the turns per scan (it pulls the
+    # fitted scale down): either way the profile is mostly noise
+    off_scale = not (_SCALE_RANGE[0] <= scale <= _SCALE_RANGE[1])
+    if off_scale:
+        notes.append(f"the scans turn {scale:.2f} x the odometry's: the scan-to-scan registration failed (median "
+                     f"{float(np.median(t1 - t0)):.2f} s and {math.degrees(float(np.median(np.abs(s)))):.1f} deg "
+                     "between scans) or the odometry is too noisy per scan; the estimate is not usable")
+    confident = not at_edge and not wide and not off_scale
     if confident and interval[0] <= 0.0 <= interval[1]:
         notes.append("no lag measurable: D = 0 is inside the 95 % interval")
+    elif confident and float(rms[zero]) < _MIN_IMPROVEMENT * rms_best:
+        notes.append(f"the odometry is on time: reading it back by {lag:.3f} s improves the rms by less than "
+                     f"{100 * (_MIN_IMPROVEMENT - 1):.0f} %")
     elif confident and lag < 0:
         notes.append("the odometry lags the scans; odometry_delay reads the past only and cannot take it")
     out_count = int((~inlier).sum())
     if out_count:
-        notes.append(f"{out_count} scan pairs left out as registration failures (residual beyond 5 robust sigmas)")
+        notes.append(f"{out_count} scan pairs left out as registration failures (residual beyond 5 robust sigmas and 2 deg)")
     return OdometryLag(lag, interval, float(np.degrees(rms[zero])), float(np.degrees(rms_best)), scale, n,
                        out_count, turn, confident, delays, np.degrees(rms), notes)
 
