@@ -775,7 +775,7 @@ def _add_sensor_model_option(p: argparse.ArgumentParser) -> None:
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="calibrate the laser's range noise or the odometry's noise from data",
+        help="calibrate the laser's range noise, the odometry's noise or its timing from data",
         description="Estimate sensor and motion models from data: 'laser' fits sigma against distance (and "
         "incidence) from repeated range measurements and writes a model file every method accepts "
         "(--sensor-model); 'verify' checks a model against new measurements; 'odometry' estimates GMapping's "
@@ -998,7 +998,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
         for note in est.notes:
             out.print(f"  note: {note}", markup=False)
         if setting is not None:
-            out.print(f"  use: slam2d run coreslam {args.data} --set use_odometry=true --set {setting}", markup=False)
+            out.print(f"  use with coreslam: --set use_odometry=true --set {setting}", markup=False)
         elif est.confident:
             out.print("  nothing to set: keep odometry_delay=0", markup=False)
         else:

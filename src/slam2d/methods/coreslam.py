@@ -69,7 +69,8 @@ class CoreSlamParams:
     odometry_delay: float = param(
         0.0, unit="s", low=0.0, high=10.0,
         help="how much later than its scan each odometry reading was taken (a laser stamped late): the "
-        "prediction and the de-skew use the odometry interpolated this long before each scan's stamp",
+        "prediction and the de-skew use the odometry interpolated this long before each scan's stamp "
+        "('slam2d calibrate odometry-lag' measures it)",
     )
     motion_model: str = param(
         "none", choices=("none", "constant_velocity"),
