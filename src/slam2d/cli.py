@@ -859,7 +859,8 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
         "heading change read D seconds before the two stamps, fitted with a free scale over a grid of D. Prints "
         "the best D with its 95 %% interval, the rms per scan pair at D = 0 and at D, and the '--set "
         "odometry_delay=D' for coreslam. Refuses (exit 2) a recording without odometry or without turns; exits "
-        "1 when the turns do not fix the timing.",
+        "1 when the estimate is not reliable (the turns do not fix the timing, the registration failed, or the lag "
+        "moves when the odometry's smoothing is halved or doubled).",
     )
     lag.add_argument("data", type=Path, help="a recording with odometry (CARMEN log, ROS 1 or 2 bag)")
     lag.add_argument("--max-lag", type=float, default=0.5, metavar="S",

@@ -23,9 +23,11 @@ second pass.
 
 The 95 % interval is where ``n log(rms(D)^2 / rms_min^2)`` stays below 3.84
 (the likelihood-ratio profile for Gaussian residuals, ``n`` the scan pairs
-used); neighbouring residuals are not independent, so read it as a lower bound
-on the uncertainty. The estimate is *confident* when the interval
-is narrower than 0.1 s, the minimum is not at the edge of the grid, and the
+used), widened to take in the lags found with the odometry's smoothing halved
+and doubled; neighbouring residuals are not independent, so read it as a lower
+bound on the uncertainty. The estimate is *confident* when the interval
+is narrower than 0.1 s, the lag moves by at most 0.02 s with the smoothing,
+the minimum is not at the edge of the grid, and the
 scale is near one (0.7-1.4: else the registration failed wholesale, e.g. on
 scans seconds apart, or the odometry's noise per scan swamps the turns).
 """
@@ -53,6 +55,7 @@ _CHI2_95 = 3.841458820694124  # one degree of freedom
 _CONFIDENT_WIDTH = 0.1  # s
 _OUTLIER_FLOOR = math.radians(2.0)  # a scan pair is only a registration failure beyond this residual
 _SCALE_RANGE = (0.7, 1.4)
+_MAX_SPREAD = 0.02  # s: how far the lag may move when the odometry's smoothing is halved or doubled
 _MIN_IMPROVEMENT = 1.05  # rms at D = 0 / rms at the lag below which the odometry counts as on time  # scan turn / odometry turn that a working registration gives
 
 
@@ -151,6 +154,32 @@ def _rms_profile(s, t0, t1, ts, th, delays, sigma):
     return rms, scale, res
 
 
+def _best_delay(s, t0, t1, ts, th, delays, sigma):
+    """``(rms per delay, best grid index, lag, rms at it, scale at it, 95 % interval)`` for one smoothing."""
+    rms, _, _ = _rms_profile(s, t0, t1, ts, th, delays, sigma)
+    n = len(s)
+    best = int(np.argmin(rms))
+
+    def excess(profile: NDArray[np.float64]) -> NDArray[np.float64]:
+        # the likelihood-ratio statistic above its 95 % level (<= 0: inside the interval)
+        return n * np.log(np.maximum(profile, 1e-300) ** 2 / max(float(profile.min()), 1e-300) ** 2) - _CHI2_95
+
+    inside = excess(rms) <= 0
+    lo, hi = best, best
+    while lo > 0 and inside[lo - 1]:
+        lo -= 1
+    while hi < len(delays) - 1 and inside[hi + 1]:
+        hi += 1
+    # the grid's step is coarse next to the interval on a clear recording: the same profile a tenth as fine there
+    fine = np.linspace(delays[max(lo - 1, 0)], delays[min(hi + 1, len(delays) - 1)],
+                       10 * (min(hi + 1, len(delays) - 1) - max(lo - 1, 0)) + 1)
+    rms_fine, k_fine, _ = _rms_profile(s, t0, t1, ts, th, fine, sigma)
+    j = int(np.argmin(rms_fine))
+    within = fine[excess(rms_fine) <= 0]
+    return (rms, best, float(fine[j]), float(rms_fine[j]), float(k_fine[j]),
+            (float(within.min()), float(within.max())))
+
+
 def estimate_odometry_lag(
     stamps: NDArray[np.float64], odometry_heading: NDArray[np.float64], scan_turn: NDArray[np.float64], *,
     max_lag: float = 0.5, step: float = 0.01,
@@ -179,7 +208,7 @@ def estimate_odometry_lag(
         ok &= dt <= 3.0 * np.median(dt[ok])  # a gap: the scans are too far apart to register reliably
     # odometry on both sides of every read-back time (no extrapolation), the same pairs for every delay
     sigma = max(float(np.median(np.diff(ts))), 1e-6)  # the smoothing of the odometry heading (s)
-    ok &= (t0 - max_lag - 3 * sigma >= ts[0]) & (t1 + max_lag + 3 * sigma <= ts[-1])
+    ok &= (t0 - max_lag - 6 * sigma >= ts[0]) & (t1 + max_lag + 6 * sigma <= ts[-1])  # 3 sigma of the doubled smoothing
     # and no odometry gap inside the pair's window
     gap = 3.0 * float(np.median(np.diff(ts))) if len(ts) > 1 else math.inf
     i0 = np.searchsorted(ts, t0 - max_lag, side="right") - 1
@@ -214,28 +243,13 @@ def estimate_odometry_lag(
     # the floor: on a drive mostly straight the MAD is the straight stretches' and would cut every turn
     inlier = dev <= max(5.0 * mad, _OUTLIER_FLOOR)
     s, t0, t1 = s[inlier], t0[inlier], t1[inlier]
-    rms, _, _ = _rms_profile(s, t0, t1, ts, th, delays, sigma)
     n = len(s)
-    best = int(np.argmin(rms))
-
-    def excess(profile: NDArray[np.float64]) -> NDArray[np.float64]:
-        # the likelihood-ratio statistic above its 95 % level (<= 0: inside the interval)
-        return n * np.log(np.maximum(profile, 1e-300) ** 2 / max(float(profile.min()), 1e-300) ** 2) - _CHI2_95
-
-    inside = excess(rms) <= 0
-    lo, hi = best, best
-    while lo > 0 and inside[lo - 1]:
-        lo -= 1
-    while hi < len(delays) - 1 and inside[hi + 1]:
-        hi += 1
-    # the grid's step is coarse next to the interval on a clear recording: the same profile a tenth as fine there
-    fine = np.linspace(delays[max(lo - 1, 0)], delays[min(hi + 1, len(delays) - 1)],
-                       10 * (min(hi + 1, len(delays) - 1) - max(lo - 1, 0)) + 1)
-    rms_fine, k_fine, _ = _rms_profile(s, t0, t1, ts, th, fine, sigma)
-    j = int(np.argmin(rms_fine))
-    lag, rms_best, scale = float(fine[j]), float(rms_fine[j]), float(k_fine[j])
-    within = fine[excess(rms_fine) <= 0]
-    interval = (float(within.min()), float(within.max()))
+    rms, best, lag, rms_best, scale, interval = _best_delay(s, t0, t1, ts, th, delays, sigma)
+    # the same with the odometry's smoothing halved and doubled: a lag that is in the data stays put; one that
+    # comes from how the readings are joined moves (fr079: 0.09 / 0.118 / 0.118 s, the mines logs within 0.004 s)
+    others = [_best_delay(s, t0, t1, ts, th, delays, f * sigma)[2] for f in (0.5, 2.0)]
+    spread = max(others + [lag]) - min(others + [lag])
+    interval = (min([interval[0], *others]), max([interval[1], *others]))
     zero = int(np.argmin(np.abs(delays)))
     notes = []
     at_edge = best in (0, len(delays) - 1)
@@ -252,7 +266,11 @@ def estimate_odometry_lag(
         notes.append(f"the scans turn {scale:.2f} x the odometry's: the scan-to-scan registration failed (median "
                      f"{float(np.median(t1 - t0)):.2f} s and {math.degrees(float(np.median(np.abs(s)))):.1f} deg "
                      "between scans) or the odometry is too noisy per scan; the estimate is not usable")
-    confident = not at_edge and not wide and not off_scale
+    unstable = spread > _MAX_SPREAD
+    if unstable:
+        notes.append(f"the lag moves by {spread:.3f} s when the odometry's smoothing is halved or doubled: it "
+                     "depends on how the readings are joined: the data do not fix it")
+    confident = not at_edge and not wide and not off_scale and not unstable
     if confident and interval[0] <= 0.0 <= interval[1]:
         notes.append("no lag measurable: D = 0 is inside the 95 % interval")
     elif confident and float(rms[zero]) < _MIN_IMPROVEMENT * rms_best:
