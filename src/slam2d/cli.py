@@ -775,11 +775,12 @@ def _add_sensor_model_option(p: argparse.ArgumentParser) -> None:
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="calibrate the laser's range noise or the odometry's noise from data",
+        help="calibrate the laser's range noise, the odometry's noise or its timing from data",
         description="Estimate sensor and motion models from data: 'laser' fits sigma against distance (and "
         "incidence) from repeated range measurements and writes a model file every method accepts "
         "(--sensor-model); 'verify' checks a model against new measurements; 'odometry' estimates GMapping's "
-        "srr, srt, str, stt and the systematic scale errors against a reference trajectory.",
+        "srr, srt, str, stt and the systematic scale errors against a reference trajectory; 'odometry-lag' "
+        "how far the odometry leads the scans in time (coreslam's odometry_delay).",
     )
     csub = p.add_subparsers(dest="calibrate_command", metavar="WHAT", required=True)
     laser = csub.add_parser(
@@ -850,6 +851,25 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     odo.add_argument("--max-gap", type=float, default=0.5, metavar="S",
                      help="longest gap between reference poses to interpolate across [s] (default: 0.5)")
     odo.set_defaults(handler=cmd_calibrate_odometry)
+    lag = csub.add_parser(
+        "odometry-lag",
+        help="how far the odometry leads the scans in time, and the odometry_delay to set",
+        description="Estimate from DATA alone (no reference) how far its odometry leads (or lags) its scans: "
+        "the heading change from each scan to the next by registering the two scans, against the odometry's "
+        "heading change read D seconds before the two stamps, fitted with a free scale over a grid of D. Prints "
+        "the best D with its 95 %% interval, the rms per scan pair at D = 0 and at D, and the '--set "
+        "odometry_delay=D' for coreslam. Refuses (exit 2) a recording without odometry or without turns; exits "
+        "1 when the estimate is not reliable (the turns do not fix the timing, the registration failed, or the lag "
+        "moves when the odometry's smoothing is halved or doubled).",
+    )
+    lag.add_argument("data", type=Path, help="a recording with odometry (CARMEN log, ROS 1 or 2 bag)")
+    lag.add_argument("--max-lag", type=float, default=0.5, metavar="S",
+                     help="search D from -S to +S [s] (default: 0.5)")
+    lag.add_argument("--step", type=float, default=0.01, metavar="S",
+                     help="grid step of D [s] (default: 0.01; refined tenfold around the best)")
+    lag.add_argument("--json", action="store_true", help="print the estimate as JSON")
+    add_arguments(lag.add_argument_group("reading"), ReadOptions)
+    lag.set_defaults(handler=cmd_calibrate_odometry_lag)
 
 
 def _degree(text: str) -> int | None:
@@ -945,6 +965,46 @@ def cmd_calibrate_odometry(args: argparse.Namespace) -> int:
     for path in written[:4]:
         out.print(f"  wrote {path}", markup=False)
     return 0
+
+
+def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
+    import math
+
+    from slam2d.io import open_recording
+    from slam2d.sensors.calibration.odometry_lag import odometry_lag
+
+    if not args.data.exists():
+        raise InputError("no such file or folder", path=args.data)
+    recording = open_recording(args.data, _read_options(args))
+    with progress_bar(f"reading {args.data.name}") as progress:
+        frames = list(recording.frames(progress))
+    try:
+        est = odometry_lag(frames, max_lag=args.max_lag, step=args.step)
+    except InputError as exc:
+        if exc.path is None:
+            raise InputError(exc.message, path=args.data, where=exc.where, field=exc.field) from None
+        raise
+    out = _console()
+    setting = est.setting()
+    if args.json:
+        out.print(json.dumps({**est.as_dict(), "data": str(args.data)}, indent=2), markup=False)
+    else:
+        lo, hi = est.interval
+        word = "leads" if est.lag >= 0 else "lags"
+        out.print(f"odometry {word} the scans by {abs(est.lag):.3f} s (95 %: {lo:.3f} to {hi:.3f} s; positive = "
+                  f"leads), from {est.pairs} scan pairs turning {math.degrees(est.turn):.0f} deg in all", markup=False)
+        out.print(f"  heading change per scan pair, scans against scaled odometry: {est.rms_at_zero:.3f} deg rms "
+                  f"read at the stamps, {est.rms_at_lag:.3f} deg read back by {est.lag:.3f} s "
+                  f"({est.improvement:.2f} x smaller); scan turn / odometry turn {est.scale:.3f}", markup=False)
+        for note in est.notes:
+            out.print(f"  note: {note}", markup=False)
+        if setting is not None:
+            out.print(f"  use with coreslam: --set use_odometry=true --set {setting}", markup=False)
+        elif est.confident:
+            out.print("  nothing to set: keep odometry_delay=0", markup=False)
+        else:
+            out.print("  no odometry_delay recommended: the estimate is not reliable", markup=False)
+    return 0 if est.confident else 1
 
 
 # --------------------------------------------------------------------------- sweep

@@ -66,6 +66,12 @@ class CoreSlamParams:
     use_odometry: bool = param(
         False, help="predict each pose with the odometry increment (else: the last pose, BreezySLAM's default)"
     )
+    odometry_delay: float = param(
+        0.0, unit="s", low=0.0, high=10.0,
+        help="how much later than its scan each odometry reading was taken (a laser stamped late): the "
+        "prediction and the de-skew use the odometry interpolated this long before each scan's stamp "
+        "('slam2d calibrate odometry-lag' measures it)",
+    )
     motion_model: str = param(
         "none", choices=("none", "constant_velocity"),
         help="prediction without odometry: the last pose (BreezySLAM) or the last pose plus the last matched motion",
@@ -122,14 +128,36 @@ class CoreSlam(SlamMethod):
         p = self.params
         self._map = HoleMap(p.resolution, grow_margin=p.grow_margin, max_extent=p.max_extent)
         self._pose: NDArray[np.float64] | None = None
-        self._last_odom: NDArray[np.float64] | None = None
+        self._last_odom: NDArray[np.float64] | None = None  # the odometry at the last scan (delay applied)
+        self._odom_times: list[float] = []  # recent odometry readings, for ``odometry_delay``
+        self._odom_poses: list[NDArray[np.float64]] = []
         self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
         self._sweep_step = np.zeros(3)  # the motion over one scan period used to de-skew this scan
         self._scans_in_map = 0
         self._random = new_state(self.rng)
 
-    def _predict(self, frame: Frame) -> NDArray[np.float64]:
+    def _delayed_odometry(self, frame: Frame) -> NDArray[np.float64] | None:
+        """The frame's odometry, or with ``odometry_delay`` the odometry interpolated at its stamp minus the delay."""
         odom = self.usable_odometry(frame)
+        delay = self.params.odometry_delay
+        if odom is None or delay <= 0.0:
+            return odom
+        times, poses = self._odom_times, self._odom_poses
+        if times and frame.timestamp <= times[-1]:  # time went back or stood still: start the history again
+            times.clear()
+            poses.clear()
+        times.append(float(frame.timestamp))
+        poses.append(odom)
+        when = frame.timestamp - delay
+        while len(times) > 2 and times[1] <= when:  # keep one reading at or before the wanted time
+            del times[0], poses[0]
+        if when <= times[0]:
+            return poses[0]  # the history starts later (the first scans): its oldest reading
+        k = int(np.searchsorted(times, when)) - 1
+        return se2.interpolate(poses[k], poses[k + 1], (when - times[k]) / (times[k + 1] - times[k]))
+
+    def _predict(self, frame: Frame) -> NDArray[np.float64]:
+        odom = self._delayed_odometry(frame)
         if self._pose is None:
             start = odom if (self.params.use_odometry and odom is not None) else np.zeros(3)
             pred = np.array(start, dtype=np.float64)

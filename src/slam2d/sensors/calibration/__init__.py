@@ -8,6 +8,9 @@
 * :mod:`~slam2d.sensors.calibration.odometry` — maximum-likelihood odometry
   noise (GMapping's srr, srt, str, stt) and scale errors against a reference
   trajectory (``slam2d calibrate odometry``);
+* :mod:`~slam2d.sensors.calibration.odometry_lag` — how far the odometry leads
+  (or lags) the scans in time, from the recording alone (``slam2d calibrate
+  odometry-lag``; coreslam's ``odometry_delay``);
 * :mod:`~slam2d.sensors.calibration.fits` — polynomial fits with the degree
   chosen by cross-validation.
 """
