@@ -484,6 +484,43 @@ def test_scan_to_scan_registration_recovers_the_turn_between_two_scans(motion):
     assert np.array_equal(consecutive_motion(np.zeros((2, 2)), points(truth), truth), truth)
 
 
+# a room with a lattice of small pillars: many wall segments end inside the scan, where a registration on the
+# smeared previous scan pulled the points past a segment's end back along the wall, against the turn
+_PILLARS = [(x, y, x + 0.2, y + 0.2) for x in np.arange(-2.5, 3.6, 0.9) for y in np.arange(-1.5, 3.1, 0.9)]
+
+
+def _pillar_points(pose, n=URG_BEAMS, fov=math.radians(240)):
+    from tests._room import ROOM, _box_hits
+
+    a = -fov / 2 + fov * np.arange(n) / (n - 1)
+    dx, dy = np.cos(pose[2] + a), np.sin(pose[2] + a)
+    r = _box_hits(pose[0], pose[1], dx, dy, ROOM, True)
+    for box in _PILLARS:
+        r = np.fmin(r, _box_hits(pose[0], pose[1], dx, dy, box, False))
+    scan = make_scan(0.0, np.where(r < 20.0, r, np.nan), -fov / 2, fov / (n - 1), 0.02, 20.0)
+    d = np.nan_to_num(scan.ranges)
+    return np.ascontiguousarray(ray_points(scan, d, np.flatnonzero(d > 0), 0.02))
+
+
+@pytest.mark.parametrize("sign", [1, -1])
+def test_scan_to_scan_recovers_a_3_degree_turn_without_shrinking_it(sign):
+    """A 3 degree turn (and 5 cm forward) between two scans among pillars, from six poses: every estimate within 4 %
+    of the turn. The Gauss-Newton on the smeared previous scan (before the point-to-line step) missed it by up to
+    9 % (0.906 and 1.068 of it at two of these poses)."""
+    from slam2d.matching.scan_to_scan import consecutive_motion
+
+    rng = np.random.default_rng(0)
+    motion = np.array([0.05, 0.0, sign * math.radians(3)])
+    ratios = []
+    for i in range(6):
+        base = np.array([0.9 * i - 1.95, -1.05 + 0.9 * (i % 4), rng.uniform(-3, 3)])  # between the pillars
+        found = consecutive_motion(_pillar_points(base), _pillar_points(se2.compose(base, motion)), motion * [1, 0, 0])
+        ratios.append(found[2] / motion[2])
+        assert np.hypot(*(found[:2] - motion[:2])) < 0.02, found
+    assert np.all(np.abs(np.array(ratios) - 1.0) < 0.04), ratios
+    assert abs(np.mean(ratios) - 1.0) < 0.01, ratios
+
+
 def test_crsm_tracks_a_drive_and_is_deterministic():
     frames, truth = _drive()
     a = Crsm(seed=3).run(frames)
