@@ -8,13 +8,24 @@ equally mature and overlap almost wholly, so their relative motion carries
 no such bias; it is noisier per scan, but its errors do not build into the
 map when it only serves as a prediction the map match is tested against.
 
-How: the previous scan's endpoints are smeared into a small field
-(:func:`slam2d.matching.correlative.smear_points`, a Gaussian per point),
-coarse and fine. On the coarse field a sweep over headings (with a few
-translations around the guess) picks the start; Gauss-Newton
-(:func:`slam2d.matching.gauss_newton.gauss_newton_level`, Hector's step on a
-bilinearly interpolated field) then refines it on the fine field. The sweep is what lets a 15 degree turn be found from a guess of
-none: far points move out of a Gaussian's reach after a few degrees.
+How: the previous scan's endpoints are smeared into a coarse field
+(:func:`slam2d.matching.correlative.smear_points`, a Gaussian per point); a
+sweep over headings (with a few translations around the guess) on it picks
+the start. The sweep is what lets a 15 degree turn be found from a guess of
+none: far points move out of a Gaussian's reach after a few degrees. Then
+Gauss-Newton on point-to-line distances (each current point to the local line
+through its nearest previous point, the pairs re-found every step, a Cauchy
+weight) refines it until the step is below 1e-5 rad and 0.1 mm.
+
+Why lines for the refinement: the earlier Gauss-Newton on a smeared fine
+field shrank turns by 3-4 % on mines-exp1 (-0.12 degrees per left-turning
+scan against hector's; 40.8 degrees net where hector turns 64.5). A smeared
+point falls off along a wall as well as across it, so where the current scan
+sees a wall a little further than the previous one did (each segment's end on
+the side the robot turns to) the field pulls the point back along the wall.
+More iterations (3, 10, 30), other starts or the field's cell size did not
+remove it; a narrower Gaussian shrank it, the line distance, which has no
+component along the wall, does (49.2 degrees net, -0.07 / +0.02 per scan).
 """
 
 from __future__ import annotations
