@@ -168,14 +168,21 @@ def _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn,
 
 
 @njit(cache=True)
-def _row_sort(grid, origin_y, resolution, px, py, sigma):
-    """The points in grid-row order (a counting sort, stable) and where each row's points start.
+def _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma):
+    """The points in grid-row order (a counting sort, stable), one per cell, and where each row's points start.
+
+    Points sharing a cell are merged into the first of them with the largest of their
+    sigmas: the smear snaps a point to its cell, and at one centre a wider kernel is at
+    least the narrower one everywhere (its exp() of a smaller argument, reaching further),
+    so the merged point draws the same grid. Overlapping scans put many points into one
+    1 cm cell (about half of a near chain's on fr079); a marker per column finds them in
+    one pass, without sorting.
 
     Key r + 1 for row r, clamped to [0, rows + 1] (0: below the grid, rows + 1: above);
     ``start[key]`` is the first sorted point of that key, ``start[rows + 2]`` the count.
     """
     n = px.shape[0]
-    rows = grid.shape[0]
+    rows, cols = grid.shape
     key = np.empty(n, np.int64)
     count = np.zeros(rows + 3, np.int64)
     for k in range(n):
@@ -185,17 +192,39 @@ def _row_sort(grid, origin_y, resolution, px, py, sigma):
         count[r + 1] += 1
     for r in range(rows + 2):
         count[r + 1] += count[r]
-    start = count.copy()
+    order = np.empty(n, np.int64)
+    pos = count.copy()
+    for k in range(n):
+        order[pos[key[k]]] = k
+        pos[key[k]] += 1
+    # Per column: the row of the last point kept there and its index in the output.
+    seen_row = np.full(cols, -(1 << 62), np.int64)
+    seen_at = np.zeros(cols, np.int64)
     sx = np.empty(n)
     sy = np.empty(n)
     ss = np.empty(n)
-    for k in range(n):
-        d = count[key[k]]
-        count[key[k]] += 1
-        sx[d] = px[k]
-        sy[d] = py[k]
-        ss[d] = sigma[k]
-    return sx, sy, ss, start
+    start = np.zeros(rows + 3, np.int64)
+    m = 0
+    for r in range(rows + 2):
+        start[r] = m
+        for t in range(count[r], count[r + 1]):
+            k = order[t]
+            cu = int(math.floor((px[k] - origin_x) / resolution))
+            cv = int(math.floor((py[k] - origin_y) / resolution))
+            if cu >= 0 and cu < cols:
+                if seen_row[cu] == cv:
+                    at = seen_at[cu]
+                    if sigma[k] > ss[at]:
+                        ss[at] = sigma[k]
+                    continue
+                seen_row[cu] = cv
+                seen_at[cu] = m
+            sx[m] = px[k]
+            sy[m] = py[k]
+            ss[m] = sigma[k]
+            m += 1
+    start[rows + 2] = m
+    return sx[:m], sy[:m], ss[:m], start
 
 
 @njit(cache=True)
@@ -203,9 +232,9 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
     """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
 
     Row order keeps the smear's writes in cache: many scans overlap in space,
-    not in memory.
+    not in memory. Points sharing a cell are drawn once (see :func:`_row_sort`).
     """
-    sx, sy, ss, _ = _row_sort(grid, origin_y, resolution, px, py, sigma)
+    sx, sy, ss, _ = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
     smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
 
 
@@ -253,8 +282,8 @@ def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip
     """
     if px.shape[0] == 0:
         return
-    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
-    edge = _band_edges(start, px.shape[0], grid.shape[0], bands)
+    sx, sy, ss, start = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
+    edge = _band_edges(start, sx.shape[0], grid.shape[0], bands)
     _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
                                        skip_drawn), bands)
 
