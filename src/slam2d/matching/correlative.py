@@ -812,17 +812,35 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
 @njit(cache=True)
 def _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta):
     """Per query point its range, and the sparse table of ``pooled`` that :func:`_bound_over` reads."""
+    rng = _ranges(qx, qy)
+    return rng, _range_max_levels(pooled, _bound_levels(rng, block, resolution, trans, slack, delta))
+
+
+@njit(cache=True)
+def _ranges(qx, qy):
+    """Each query point's distance from the robot."""
     n = qx.shape[0]
     rng = np.empty(n)
-    r_max = 0.0
     for k in range(n):
         rng[k] = math.sqrt(qx[k] * qx[k] + qy[k] * qy[k])
+    return rng
+
+
+@njit(cache=True)
+def _bound_levels(rng, block, resolution, trans, slack, delta):
+    """Levels of the sparse table that cover the widest square a query point can sweep.
+
+    A table with more levels gives the same range maxima (:func:`_range_max` covers a range
+    with fewer, larger overlapping squares), so a cached one with at least these will do.
+    """
+    r_max = 0.0
+    for k in range(rng.shape[0]):
         r_max = max(r_max, rng[k])
     widest = int(2.0 * (trans + slack + r_max * delta) / (resolution * block)) + 2
     levels = 1
     while (1 << levels) <= widest:
         levels += 1
-    return rng, _range_max_levels(pooled, levels)
+    return levels
 
 
 @njit(cache=True, nogil=True)
@@ -921,6 +939,77 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
                         first = (a, i, j)
                     ties += 1
     return raw, resp, best, ties, first
+
+
+@njit(cache=True)
+def _pairwise_sum(a, lo, n):
+    """numpy's pairwise summation of a[lo:lo + n] (8 accumulators up to 128 values, halves above),
+    in its order, so a compiled sum equals ``ndarray.sum()`` bit for bit."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+        i = 8
+        while i < n - (n % 8):
+            r0 += a[lo + i]
+            r1 += a[lo + i + 1]
+            r2 += a[lo + i + 2]
+            r3 += a[lo + i + 3]
+            r4 += a[lo + i + 4]
+            r5 += a[lo + i + 5]
+            r6 += a[lo + i + 6]
+            r7 += a[lo + i + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[lo + i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(a, lo, n2) + _pairwise_sum(a, lo + n2, n - n2)
+
+
+@njit(cache=True)
+def _spread_sums(resp, offs, cx, cy, px, py, threshold):
+    """Sums of the positional covariance: w, w dx^2, w dy^2, w dx dy over the (y, x) surface of the
+    best response over angles, w that response where it reaches ``threshold`` (else 0), dx, dy from
+    (px, py); and whether any such cell is on the window's edge.
+
+    The element products in numpy's order and numpy's pairwise sums (an all-axes sum of a
+    C-ordered array is one of the flattened values after 0.0), so the values are its bits.
+    """
+    na, ny, nx = resp.shape
+    n = ny * nx
+    w = np.empty(n)
+    txx = np.empty(n)
+    tyy = np.empty(n)
+    txy = np.empty(n)
+    edge = False
+    for i in range(ny):
+        dy = (cy + offs[i]) - py
+        for j in range(nx):
+            v = resp[0, i, j]
+            for a in range(1, na):
+                if resp[a, i, j] > v:
+                    v = resp[a, i, j]
+            k = i * nx + j
+            if v >= threshold:
+                if i == 0 or i == ny - 1 or j == 0 or j == nx - 1:
+                    edge = True
+            else:
+                v = 0.0
+            dx = (cx + offs[j]) - px
+            w[k] = v
+            txx[k] = v * dx * dx
+            tyy[k] = v * dy * dy
+            txy[k] = v * dx * dy
+    return (0.0 + _pairwise_sum(w, 0, n), 0.0 + _pairwise_sum(txx, 0, n), 0.0 + _pairwise_sum(tyy, 0, n),
+            0.0 + _pairwise_sum(txy, 0, n), edge)
 
 
 # --------------------------------------------------------------------------- the matcher
@@ -1120,8 +1209,13 @@ class CorrelativeMatcher:
         whose origin is another multiple of the cell), m."""
         return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
 
-    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
-        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
+    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0,
+                     tables: dict | None = None) -> float:
+        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's).
+
+        ``tables``: where the bound grid's sparse table is kept between calls (the caller empties
+        it when the bound grid changes); without it the table is built for this call.
+        """
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         if self.response_expansion:
@@ -1136,7 +1230,14 @@ class CorrelativeMatcher:
         qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
         trans, slack = self._bound_window()
         cut = int(math.ceil(stop * n))
-        rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        if tables is None:
+            rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        else:
+            rng = _ranges(qx, qy)
+            levels = _bound_levels(rng, _BOUND_BLOCK, self.resolution, trans, slack, delta)
+            table = tables.get("table")
+            if table is None or table.shape[0] < levels:
+                table = tables["table"] = _range_max_levels(pooled, levels)
         reached = np.zeros(1, np.int64)
         parts = {}
 
@@ -1210,6 +1311,26 @@ class CorrelativeMatcher:
         return pose, best, raw_best, resp, offs, lookups
 
     def _positional_covariance(self, resp, offs, center, pose, best, step_m):
+        """Karto's x, y covariance from the response surface (see the module docstring).
+
+        The usual case (no good response on the window's edge) in one compiled pass whose sums
+        are numpy's, bit for bit (:func:`_spread_sums`); the edge case in numpy below.
+        """
+        norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                                 float(pose[1]), best - _COVARIANCE_BAND)
+        if norm <= 1e-12 or best <= 0:
+            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+        if edge:
+            return self._positional_covariance_at_edge(resp, offs, center, pose, best, step_m)
+        floor = 0.1 * step_m * step_m
+        cov = np.zeros((2, 2))
+        cov[0, 0] = max(sxx / norm, floor)
+        cov[1, 1] = max(syy / norm, floor)
+        cov[0, 1] = cov[1, 0] = sxy / norm
+        cov /= best
+        return cov
+
+    def _positional_covariance_at_edge(self, resp, offs, center, pose, best, step_m):
         surface = resp.max(axis=0)  # best response over angles, per (y, x)
         mask = surface >= best - _COVARIANCE_BAND
         w = np.where(mask, surface, 0.0)
@@ -1526,7 +1647,9 @@ class GridCache:
             _scatter_max(pooled, np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]),
                          np.concatenate([q[2] for q in parts]), row0, col0)
             e["pooled_nodes"] = len(order)
-        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop)
+            e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
+        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
+                              tables=e.setdefault("pooled_tables", {}))
 
     def _node_blocks(self, n: int):
         got = self._blocks.get(n)
