@@ -230,3 +230,13 @@ def test_compiled_positional_covariance_is_the_numpy_one_bit_for_bit(seed):
             got = m._positional_covariance(resp, offs, center, pose, best, 0.02)
             want = m._positional_covariance_at_edge(resp, offs, center, pose, best, 0.02)
             assert np.array_equal(got, want)
+
+
+def test_compiled_pairwise_sum_is_numpys():
+    from slam2d.matching.correlative import _pairwise_sum
+
+    rng = np.random.default_rng(1)
+    for n in (1, 5, 8, 9, 17, 128, 129, 289, 441, 1000, 5000, 100000):
+        for _ in range(20):
+            a = rng.normal(size=n) * 10 ** rng.uniform(-3, 3, n)
+            assert 0.0 + _pairwise_sum(a, 0, n) == a.sum()

@@ -941,37 +941,71 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
     return raw, resp, best, ties, first
 
 
-@njit(cache=True)
-def _pairwise_sum(a, lo, n):
-    """numpy's pairwise summation of a[lo:lo + n] (8 accumulators up to 128 values, halves above),
-    in its order, so a compiled sum equals ``ndarray.sum()`` bit for bit."""
+@njit(cache=True, inline="always")
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of a block of at most 128 values: 8 accumulators, then the rest in order."""
     if n < 8:
         res = 0.0
         for i in range(lo, lo + n):
             res += a[i]
         return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_sum(a, lo, n):
+    """numpy's pairwise summation of a[lo:lo + n] (blocks of up to 128 values, halves above, split
+    at a multiple of 8), in its order, so a compiled sum equals ``ndarray.sum()`` bit for bit.
+
+    Its recursion run on an explicit stack (numba's cache mishandles recursive functions).
+    """
     if n <= 128:
-        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[lo + i]
-            r1 += a[lo + i + 1]
-            r2 += a[lo + i + 2]
-            r3 += a[lo + i + 3]
-            r4 += a[lo + i + 4]
-            r5 += a[lo + i + 5]
-            r6 += a[lo + i + 6]
-            r7 += a[lo + i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[lo + i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_sum(a, lo, n2) + _pairwise_sum(a, lo + n2, n - n2)
+        return _pairwise_block(a, lo, n)
+    # Frames (lo, n, combine?) and a stack of the values of finished halves.
+    frames = np.empty((128, 3), np.int64)
+    values = np.empty(128)
+    top = 0
+    nv = 0
+    frames[0, 0], frames[0, 1], frames[0, 2] = lo, n, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        f_lo, f_n, combine = frames[top, 0], frames[top, 1], frames[top, 2]
+        if combine:
+            right = values[nv - 1]
+            left = values[nv - 2]
+            nv -= 2
+            values[nv] = left + right
+            nv += 1
+        elif f_n <= 128:
+            values[nv] = _pairwise_block(a, f_lo, f_n)
+            nv += 1
+        else:
+            n2 = f_n // 2
+            n2 -= n2 % 8
+            # Popped in reverse: the left half, the right half, then their sum.
+            frames[top, 0], frames[top, 1], frames[top, 2] = 0, 0, 1
+            frames[top + 1, 0], frames[top + 1, 1], frames[top + 1, 2] = f_lo + n2, f_n - n2, 0
+            frames[top + 2, 0], frames[top + 2, 1], frames[top + 2, 2] = f_lo, n2, 0
+            top += 3
+    return values[0]
 
 
 @njit(cache=True)
