@@ -183,3 +183,60 @@ def test_bound_of_nothing_is_zero():
     assert m.response_bound(world, sig, np.zeros((0, 2)), prior) == 0.0
     assert m.response_bound(np.zeros((0, 2)), np.zeros(0), q, prior) == 0.0
     assert m.response_bound(world, sig, q, np.array([np.nan, 0.0, 0.0])) == 0.0
+
+
+def test_cached_sparse_table_gives_the_bound_of_a_fresh_one():
+    """A cache entry keeps its bound grid's sparse table between bounds (rebuilt when scans are added)."""
+    rng = np.random.default_rng(3)
+    parts = [_walls(rng, n_walls=3) for _ in range(4)]
+    sig = [np.full(p.shape[0], 0.03) for p in parts]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    for nodes in ([0], [0], [0, 1], [0, 1, 2], [0, 1, 2], [0, 1, 2, 3]):
+        for _ in range(3):
+            world = np.vstack([parts[i] for i in nodes])
+            prior = np.array([rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-math.pi, math.pi)])
+            q = se2.transform_points(se2.inverse(prior), world[::4])
+            # Short and long query ranges need tables of different depths.
+            q = q[np.hypot(q[:, 0], q[:, 1]) < rng.uniform(2.0, 12.0)]
+            if q.shape[0] < 10:
+                continue
+            lo, hi = m.search_box(q, prior)
+            e = cache.reserve(nodes, lo, hi)
+            for stop in (0.4, 2.0):
+                got = cache.bound(e, q, prior, stop=stop)
+                pooled, row0, col0 = e["pooled"]
+                fresh = m.pooled_bound(pooled, col0 * _BOUND_BLOCK * m.resolution, row0 * _BOUND_BLOCK * m.resolution,
+                                       q, prior, stop=stop)
+                assert got == fresh
+    assert cache.extensions >= 2
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_positional_covariance_is_the_numpy_one_bit_for_bit(seed):
+    """The usual case's compiled sums against the numpy code that still serves the edge case."""
+    rng = np.random.default_rng(seed)
+    m = CorrelativeMatcher()
+    for n_steps in (17, 9, 33):
+        half = n_steps // 2
+        offs = (np.arange(n_steps) - half) * 0.02
+        for _ in range(20):
+            resp = rng.uniform(-1.0, 0.6, (21, n_steps, n_steps))
+            a, i, j = rng.integers(0, 21), rng.integers(1, n_steps - 1), rng.integers(1, n_steps - 1)
+            resp[a, i - 1:i + 2, j - 1:j + 2] = rng.uniform(0.62, 0.9, (3, 3))  # a peak inside the window
+            best = float(resp.max())
+            center = rng.normal(size=3)
+            pose = center + np.array([offs[j], offs[i], 0.0])
+            got = m._positional_covariance(resp, offs, center, pose, best, 0.02)
+            want = m._positional_covariance_at_edge(resp, offs, center, pose, best, 0.02)
+            assert np.array_equal(got, want)
+
+
+def test_compiled_pairwise_sum_is_numpys():
+    from slam2d.matching.correlative import _pairwise_sum
+
+    rng = np.random.default_rng(1)
+    for n in (1, 5, 8, 9, 17, 128, 129, 289, 441, 1000, 5000, 100000):
+        for _ in range(20):
+            a = rng.normal(size=n) * 10 ** rng.uniform(-3, 3, n)
+            assert 0.0 + _pairwise_sum(a, 0, n) == a.sum()

@@ -248,3 +248,53 @@ def test_max_pool_equals_the_windowed_maximum(width):
     grid = rng.integers(0, 256, (23, 31)).astype(np.uint8)
     want = np.array([[grid[r:r + width, c:c + width].max() for c in range(31)] for r in range(23)])
     assert np.array_equal(_max_pool(grid, width), want)
+
+
+def test_a_wider_kernel_covers_a_narrower_one_at_the_same_centre():
+    """What merging the points of one cell (keeping the widest sigma) relies on, over Karto's sigma range."""
+    from slam2d.matching.correlative import smear_points
+
+    res = 0.01
+    sigmas = np.concatenate([np.linspace(0.5, 10.0, 400), [3.0, 3.0000001]]) * res
+    half = int(np.ceil(2.0 * sigmas.max() / res))
+    previous = None
+    for s in np.sort(sigmas):
+        grid = np.zeros((2 * half + 1, 2 * half + 1), np.uint8)
+        smear_points(grid, 0.0, 0.0, res, np.array([half * res + 0.5 * res]), np.array([half * res + 0.5 * res]),
+                     np.array([s]))
+        if previous is not None:
+            assert np.all(grid >= previous)
+        previous = grid
+
+
+@pytest.mark.parametrize("bands", [1, 3])
+def test_points_sharing_a_cell_are_drawn_once_to_the_same_grid(bands):
+    """The row sort merges the points of one cell (widest sigma kept); the grid is each point drawn alone, max-combined."""
+    from slam2d.matching.correlative import _row_sort, smear_in_row_bands, smear_in_row_order, smear_points
+
+    rng = np.random.default_rng(7)
+    px = rng.uniform(-0.2, 1.2, 400)  # some beyond the grid, whose kernels still reach it
+    py = rng.uniform(-0.2, 1.2, 400)
+    # The same cells again, with other sigmas (wider and narrower), in another order.
+    perm = rng.permutation(px.size)
+    px = np.concatenate([px, px[perm] + 0.003])
+    py = np.concatenate([py, py[perm] + 0.002])
+    px -= np.mod(px, 0.01) - 0.001  # every point 1 mm into its cell, so the shift stays inside it
+    py -= np.mod(py, 0.01) - 0.001
+    sig = rng.uniform(0.005, 0.1, px.size)
+    one_by_one = np.zeros((100, 120), np.uint8)
+    for k in range(px.size):
+        smear_points(one_by_one, 0.0, 0.0, 0.01, px[k:k + 1], py[k:k + 1], sig[k:k + 1])
+    merged = np.zeros_like(one_by_one)
+    if bands == 1:
+        smear_in_row_order(merged, 0.0, 0.0, 0.01, px, py, sig)
+    else:
+        smear_in_row_bands(merged, 0.0, 0.0, 0.01, px, py, sig, False, bands)
+    assert np.array_equal(merged, one_by_one)
+    sx, sy, ss, start = _row_sort(merged, 0.0, 0.0, 0.01, px, py, sig)
+    cu, cv = np.floor(px / 0.01).astype(int), np.floor(py / 0.01).astype(int)
+    inside = (cu >= 0) & (cu < 120) & (cv >= 0) & (cv < 100)  # each cell of the grid once
+    cells = len(set(zip(cu[inside], cv[inside])))
+    outside = len(set(zip(cu[~inside], cv[~inside])))  # beyond it, repeats are merged where found
+    assert cells + outside <= sx.size <= cells + (~inside).sum()
+    assert sx.size == start[-1] < px.size

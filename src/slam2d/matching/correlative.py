@@ -168,14 +168,21 @@ def _smear_band(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn,
 
 
 @njit(cache=True)
-def _row_sort(grid, origin_y, resolution, px, py, sigma):
-    """The points in grid-row order (a counting sort, stable) and where each row's points start.
+def _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma):
+    """The points in grid-row order (a counting sort, stable), one per cell, and where each row's points start.
+
+    Points sharing a cell are merged into the first of them with the largest of their
+    sigmas: the smear snaps a point to its cell, and at one centre a wider kernel is at
+    least the narrower one everywhere (its exp() of a smaller argument, reaching further),
+    so the merged point draws the same grid. Overlapping scans put many points into one
+    1 cm cell (about half of a near chain's on fr079); a marker per column finds them in
+    one pass, without sorting.
 
     Key r + 1 for row r, clamped to [0, rows + 1] (0: below the grid, rows + 1: above);
     ``start[key]`` is the first sorted point of that key, ``start[rows + 2]`` the count.
     """
     n = px.shape[0]
-    rows = grid.shape[0]
+    rows, cols = grid.shape
     key = np.empty(n, np.int64)
     count = np.zeros(rows + 3, np.int64)
     for k in range(n):
@@ -185,17 +192,39 @@ def _row_sort(grid, origin_y, resolution, px, py, sigma):
         count[r + 1] += 1
     for r in range(rows + 2):
         count[r + 1] += count[r]
-    start = count.copy()
+    order = np.empty(n, np.int64)
+    pos = count.copy()
+    for k in range(n):
+        order[pos[key[k]]] = k
+        pos[key[k]] += 1
+    # Per column: the row of the last point kept there and its index in the output.
+    seen_row = np.full(cols, -(1 << 62), np.int64)
+    seen_at = np.zeros(cols, np.int64)
     sx = np.empty(n)
     sy = np.empty(n)
     ss = np.empty(n)
-    for k in range(n):
-        d = count[key[k]]
-        count[key[k]] += 1
-        sx[d] = px[k]
-        sy[d] = py[k]
-        ss[d] = sigma[k]
-    return sx, sy, ss, start
+    start = np.zeros(rows + 3, np.int64)
+    m = 0
+    for r in range(rows + 2):
+        start[r] = m
+        for t in range(count[r], count[r + 1]):
+            k = order[t]
+            cu = int(math.floor((px[k] - origin_x) / resolution))
+            cv = int(math.floor((py[k] - origin_y) / resolution))
+            if cu >= 0 and cu < cols:
+                if seen_row[cu] == cv:
+                    at = seen_at[cu]
+                    if sigma[k] > ss[at]:
+                        ss[at] = sigma[k]
+                    continue
+                seen_row[cu] = cv
+                seen_at[cu] = m
+            sx[m] = px[k]
+            sy[m] = py[k]
+            ss[m] = sigma[k]
+            m += 1
+    start[rows + 2] = m
+    return sx[:m], sy[:m], ss[:m], start
 
 
 @njit(cache=True)
@@ -203,9 +232,9 @@ def smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip
     """:func:`smear_points` over the points taken in grid-row order (a counting sort, stable).
 
     Row order keeps the smear's writes in cache: many scans overlap in space,
-    not in memory.
+    not in memory. Points sharing a cell are drawn once (see :func:`_row_sort`).
     """
-    sx, sy, ss, _ = _row_sort(grid, origin_y, resolution, px, py, sigma)
+    sx, sy, ss, _ = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
     smear_points(grid, origin_x, origin_y, resolution, sx, sy, ss, skip_drawn)
 
 
@@ -253,8 +282,8 @@ def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip
     """
     if px.shape[0] == 0:
         return
-    sx, sy, ss, start = _row_sort(grid, origin_y, resolution, px, py, sigma)
-    edge = _band_edges(start, px.shape[0], grid.shape[0], bands)
+    sx, sy, ss, start = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
+    edge = _band_edges(start, sx.shape[0], grid.shape[0], bands)
     _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
                                        skip_drawn), bands)
 
@@ -783,17 +812,35 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
 @njit(cache=True)
 def _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta):
     """Per query point its range, and the sparse table of ``pooled`` that :func:`_bound_over` reads."""
+    rng = _ranges(qx, qy)
+    return rng, _range_max_levels(pooled, _bound_levels(rng, block, resolution, trans, slack, delta))
+
+
+@njit(cache=True)
+def _ranges(qx, qy):
+    """Each query point's distance from the robot."""
     n = qx.shape[0]
     rng = np.empty(n)
-    r_max = 0.0
     for k in range(n):
         rng[k] = math.sqrt(qx[k] * qx[k] + qy[k] * qy[k])
+    return rng
+
+
+@njit(cache=True)
+def _bound_levels(rng, block, resolution, trans, slack, delta):
+    """Levels of the sparse table that cover the widest square a query point can sweep.
+
+    A table with more levels gives the same range maxima (:func:`_range_max` covers a range
+    with fewer, larger overlapping squares), so a cached one with at least these will do.
+    """
+    r_max = 0.0
+    for k in range(rng.shape[0]):
         r_max = max(r_max, rng[k])
     widest = int(2.0 * (trans + slack + r_max * delta) / (resolution * block)) + 2
     levels = 1
     while (1 << levels) <= widest:
         levels += 1
-    return rng, _range_max_levels(pooled, levels)
+    return levels
 
 
 @njit(cache=True, nogil=True)
@@ -892,6 +939,111 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
                         first = (a, i, j)
                     ties += 1
     return raw, resp, best, ties, first
+
+
+@njit(cache=True, inline="always")
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of a block of at most 128 values: 8 accumulators, then the rest in order."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True)
+def _pairwise_sum(a, lo, n):
+    """numpy's pairwise summation of a[lo:lo + n] (blocks of up to 128 values, halves above, split
+    at a multiple of 8), in its order, so a compiled sum equals ``ndarray.sum()`` bit for bit.
+
+    Its recursion run on an explicit stack (numba's cache mishandles recursive functions).
+    """
+    if n <= 128:
+        return _pairwise_block(a, lo, n)
+    # Frames (lo, n, combine?) and a stack of the values of finished halves.
+    frames = np.empty((128, 3), np.int64)
+    values = np.empty(128)
+    top = 0
+    nv = 0
+    frames[0, 0], frames[0, 1], frames[0, 2] = lo, n, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        f_lo, f_n, combine = frames[top, 0], frames[top, 1], frames[top, 2]
+        if combine:
+            right = values[nv - 1]
+            left = values[nv - 2]
+            nv -= 2
+            values[nv] = left + right
+            nv += 1
+        elif f_n <= 128:
+            values[nv] = _pairwise_block(a, f_lo, f_n)
+            nv += 1
+        else:
+            n2 = f_n // 2
+            n2 -= n2 % 8
+            # Popped in reverse: the left half, the right half, then their sum.
+            frames[top, 0], frames[top, 1], frames[top, 2] = 0, 0, 1
+            frames[top + 1, 0], frames[top + 1, 1], frames[top + 1, 2] = f_lo + n2, f_n - n2, 0
+            frames[top + 2, 0], frames[top + 2, 1], frames[top + 2, 2] = f_lo, n2, 0
+            top += 3
+    return values[0]
+
+
+@njit(cache=True)
+def _spread_sums(resp, offs, cx, cy, px, py, threshold):
+    """Sums of the positional covariance: w, w dx^2, w dy^2, w dx dy over the (y, x) surface of the
+    best response over angles, w that response where it reaches ``threshold`` (else 0), dx, dy from
+    (px, py); and whether any such cell is on the window's edge.
+
+    The element products in numpy's order and numpy's pairwise sums (an all-axes sum of a
+    C-ordered array is one of the flattened values after 0.0), so the values are its bits.
+    """
+    na, ny, nx = resp.shape
+    n = ny * nx
+    w = np.empty(n)
+    txx = np.empty(n)
+    tyy = np.empty(n)
+    txy = np.empty(n)
+    edge = False
+    for i in range(ny):
+        dy = (cy + offs[i]) - py
+        for j in range(nx):
+            v = resp[0, i, j]
+            for a in range(1, na):
+                if resp[a, i, j] > v:
+                    v = resp[a, i, j]
+            k = i * nx + j
+            if v >= threshold:
+                if i == 0 or i == ny - 1 or j == 0 or j == nx - 1:
+                    edge = True
+            else:
+                v = 0.0
+            dx = (cx + offs[j]) - px
+            w[k] = v
+            txx[k] = v * dx * dx
+            tyy[k] = v * dy * dy
+            txy[k] = v * dx * dy
+    return (0.0 + _pairwise_sum(w, 0, n), 0.0 + _pairwise_sum(txx, 0, n), 0.0 + _pairwise_sum(tyy, 0, n),
+            0.0 + _pairwise_sum(txy, 0, n), edge)
 
 
 # --------------------------------------------------------------------------- the matcher
@@ -1093,8 +1245,13 @@ class CorrelativeMatcher:
         whose origin is another multiple of the cell), m."""
         return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
 
-    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0) -> float:
-        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's)."""
+    def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0,
+                     tables: dict | None = None) -> float:
+        """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's).
+
+        ``tables``: where the bound grid's sparse table is kept between calls (the caller empties
+        it when the bound grid changes); without it the table is built for this call.
+        """
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         if self.response_expansion:
@@ -1109,7 +1266,14 @@ class CorrelativeMatcher:
         qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
         trans, slack = self._bound_window()
         cut = int(math.ceil(stop * n))
-        rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        if tables is None:
+            rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
+        else:
+            rng = _ranges(qx, qy)
+            levels = _bound_levels(rng, _BOUND_BLOCK, self.resolution, trans, slack, delta)
+            table = tables.get("table")
+            if table is None or table.shape[0] < levels:
+                table = tables["table"] = _range_max_levels(pooled, levels)
         reached = np.zeros(1, np.int64)
         parts = {}
 
@@ -1183,6 +1347,26 @@ class CorrelativeMatcher:
         return pose, best, raw_best, resp, offs, lookups
 
     def _positional_covariance(self, resp, offs, center, pose, best, step_m):
+        """Karto's x, y covariance from the response surface (see the module docstring).
+
+        The usual case (no good response on the window's edge) in one compiled pass whose sums
+        are numpy's, bit for bit (:func:`_spread_sums`); the edge case in numpy below.
+        """
+        norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                                 float(pose[1]), best - _COVARIANCE_BAND)
+        if norm <= 1e-12 or best <= 0:
+            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+        if edge:
+            return self._positional_covariance_at_edge(resp, offs, center, pose, best, step_m)
+        floor = 0.1 * step_m * step_m
+        cov = np.zeros((2, 2))
+        cov[0, 0] = max(sxx / norm, floor)
+        cov[1, 1] = max(syy / norm, floor)
+        cov[0, 1] = cov[1, 0] = sxy / norm
+        cov /= best
+        return cov
+
+    def _positional_covariance_at_edge(self, resp, offs, center, pose, best, step_m):
         surface = resp.max(axis=0)  # best response over angles, per (y, x)
         mask = surface >= best - _COVARIANCE_BAND
         w = np.where(mask, surface, 0.0)
@@ -1513,7 +1697,9 @@ class GridCache:
             _scatter_max(pooled, np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]),
                          np.concatenate([q[2] for q in parts]), row0, col0)
             e["pooled_nodes"] = len(order)
-        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop)
+            e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
+        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
+                              tables=e.setdefault("pooled_tables", {}))
 
     def _node_blocks(self, n: int):
         got = self._blocks.get(n)
