@@ -58,7 +58,7 @@ from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
-from slam2d.matching.correlative import CorrelativeMatcher, GridCache
+from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, GridCache
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 
@@ -264,6 +264,13 @@ class GraphSlamParams(GridParams):
         0.02, unit="m/m", low=0.0,
         help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
         "(not in Karto); inf turns the gate off",
+    )
+    loop_check_peaks: bool = param(
+        True,
+        help="refine every distinct peak of a loop match's coarse surface that could come within 0.1 of the best, "
+        "take the best refined one, and reject the closure when the refined peaks within 0.1 of it spread wider "
+        "than loop_match_maximum_variance_coarse (Karto's variance test over places, not only around the best "
+        "lattice pose; not in Karto): the coarse lattice can sample a sharp true peak below a look-alike",
     )
     loop_retry_distance: float = param(
         0.3, unit="m", low=0.0,
@@ -900,6 +907,12 @@ class GraphFrontend:
             if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
                 self._count("loop_rejected_coarse")
                 continue
+            if p.loop_check_peaks:
+                coarse, spread = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt)
+                if spread > p.loop_match_maximum_variance_coarse:
+                    self._count("loop_rejected_ambiguous")
+                    continue
+                strong = coarse.response > coarse_threshold
             fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
             attempt["response_fine"] = fine.response
             strong = strong and fine.response >= p.loop_match_minimum_response_fine
@@ -946,6 +959,56 @@ class GraphFrontend:
                 self._count("loop_closures")
                 closed += 1
             candidate = None
+
+    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt):
+        """The loop match's best place among every distinct peak of its coarse surface, and their spread.
+
+        The coarse search samples x, y every two cells and the heading every 2 deg; a wall
+        seen across a corridor gives a peak a few centimetres wide, which the lattice can
+        sample 0.15-0.3 below its value while a look-alike place happens to sit on a lattice
+        point (simulated corridor loop: true place 1.0 refined, 0.67 on the lattice; a place
+        1.5 m along the corridor 0.83). So every local maximum of the coarse surface that
+        the refine step could lift to within the covariance band of the best (down to
+        _REFINE_GAIN plus that band below it) and that the drift gate allows is refined as
+        the best one was, and the best refined place is the match. Karto's variance test is
+        then repeated over the refined places: their response-weighted spread about the best
+        (divided by the best response, as Karto's covariance is), counting those within the
+        covariance band of it, in the worst direction. Two places that fit about equally
+        well far apart are a look-alike, whichever is right. Returns (match, spread in m^2).
+        """
+        grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
+        band = COVARIANCE_BAND
+        places = [(coarse.pose, coarse.response)]
+        for q_pose, q_resp in matcher.places(points, pose, grid, floor=coarse.response - band - _REFINE_GAIN):
+            if float(np.hypot(*(q_pose[:2] - pose[:2]))) <= allowed:
+                places.append((q_pose, q_resp))
+        # Places within the reach of the best's own refine (one coarse step and a cell) are that
+        # place: the match stays as it was unless a place beyond that fits better.
+        reach = 3.0 * matcher.resolution
+        best = max(range(len(places)), key=lambda k: places[k][1])
+        if float(np.hypot(*(places[best][0][:2] - coarse.pose[:2]))) <= reach:
+            best = 0
+        b_pose, b_resp = places[best]
+        spread = np.zeros((2, 2))
+        weight = b_resp
+        rivals = 0
+        for k, (q_pose, q_resp) in enumerate(places):
+            d = q_pose[:2] - b_pose[:2]
+            if k == best or q_resp < b_resp - band or float(np.hypot(*d)) <= reach:
+                continue
+            spread += q_resp * np.outer(d, d)
+            weight += q_resp
+            rivals += 1
+        worst = float(np.linalg.eigvalsh(spread / (weight * max(b_resp, 1e-9)))[-1]) if rivals else 0.0
+        attempt["peaks"] = len(places) - 1
+        attempt["rivals"] = rivals
+        attempt["spread"] = worst
+        if best != 0:
+            self._count("loop_better_peaks")
+            attempt["moved_m"] = float(np.hypot(*(b_pose[:2] - coarse.pose[:2])))
+            attempt["response_coarse"] = b_resp
+            coarse = dataclasses.replace(coarse, pose=b_pose.copy(), response=b_resp)
+        return coarse, worst
 
     def _closest_in_chain(self, chain: list[int], pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the new scan at ``pose`` (LinkChainToScan's choice)."""
