@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from slam2d.core import make_scan, se2
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.graph.frontend import GraphFrontend, GraphSlamParams, _Hypothesis
 
 STEP = 0.25  # m between the old pass's nodes
 
@@ -121,7 +121,8 @@ def _trials(rng, n):
 def test_look_alike_places_are_rejected():
     """A corridor whose wall pattern repeats every 2 m (copies differing by 2 cm), its old pass bent by 0.3 deg/m
     (drift): Karto's thresholds alone close some returns 2 m wrong (the lattice samples the true place low and a
-    copy on a lattice pose high); with the check none is wrong, and those attempts are rejected as ambiguous."""
+    copy on a lattice pose high); with the check none is wrong: those attempts are ambiguous, and an ambiguous match
+    is not accepted alone."""
     rng = np.random.default_rng(2)
     unit = _teeth(0.0, 1.5, rng)
     segs = _corridor([(x + k * 2.0 + rng.uniform(-0.02, 0.02), s, w, d + rng.uniform(-0.02, 0.02))
@@ -132,7 +133,7 @@ def test_look_alike_places_are_rejected():
         on, counts = _close(segs, truth, error, 0.005, check=True)
         wrong_off += sum(e > 0.2 for e in off)
         wrong_on += sum(e > 0.2 for e in on)
-        ambiguous += counts.get("loop_rejected_ambiguous", 0)
+        ambiguous += counts.get("loop_ambiguous", 0)
     assert wrong_off >= 2, wrong_off  # the failure is real in this corridor
     assert wrong_on == 0
     assert ambiguous >= wrong_off
@@ -149,7 +150,7 @@ def test_true_closures_in_a_corridor_without_repeats_are_kept():
         on, counts = _close(segs, truth, error, 0.005, check=True)
         assert len(on) == len(off) and all(e < 0.02 for e in on), (off, on)
         np.testing.assert_allclose(on, off, atol=1e-9)
-        assert counts.get("loop_rejected_ambiguous", 0) == 0
+        assert counts.get("loop_ambiguous", 0) == 0
         kept += len(on)
     assert kept >= 4
 
@@ -175,3 +176,21 @@ def test_places_find_a_peak_between_lattice_poses():
     assert [r for _, r in places] == sorted((r for _, r in places), reverse=True)
     assert best > coarse.response + 0.1, (best, coarse.response)
     assert np.hypot(*(best_pose[:2] - truth[:2])) < 0.03 and abs(best_pose[2]) < math.radians(0.3), best_pose
+
+
+def test_an_ambiguous_match_needs_an_unambiguous_partner():
+    """Two ambiguous matches from two scans of a repeated corridor can agree on the same wrong place; a match that
+    saw the place unambiguously can confirm an ambiguous one."""
+    fe = GraphFrontend(GraphSlamParams())
+    truth = np.array([[0.5 * k, 0.0, 0.0] for k in range(20)] + [[0.5 * k, 0.2, 0.0] for k in range(20)])
+    for pose in truth:
+        fe.graph.add_node(pose)
+
+    def hyp(node, frm, ambiguous):
+        return _Hypothesis(node=node, frm=frm, z=se2.relative(truth[frm], truth[node]),
+                           covariance=np.eye(3) * 1e-4, response_coarse=0.9, response_fine=0.9, chain_size=10,
+                           ambiguous=ambiguous)
+
+    fe._hypotheses.append(hyp(25, 5, True))
+    assert fe._confirming_hypothesis(hyp(27, 7, True)) is None
+    assert fe._confirming_hypothesis(hyp(27, 7, False)) is fe._hypotheses[0]

@@ -907,12 +907,17 @@ class GraphFrontend:
             if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
                 self._count("loop_rejected_coarse")
                 continue
+            ambiguous = False
             if p.loop_check_peaks:
                 coarse, spread = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt)
-                if spread > p.loop_match_maximum_variance_coarse:
-                    self._count("loop_rejected_ambiguous")
-                    continue
-                strong = coarse.response > coarse_threshold
+                # Places about equally good far apart: whichever this scan's match picked, it is not
+                # evidence alone. It waits, as a weak match does, for a match from another scan that
+                # is not ambiguous and puts the new scans in the same place of the old map.
+                ambiguous = spread > p.loop_match_maximum_variance_coarse
+                strong = coarse.response > coarse_threshold and not ambiguous
+                if ambiguous:
+                    self._count("loop_ambiguous")
+                    attempt["ambiguous"] = True
             fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
             attempt["response_fine"] = fine.response
             strong = strong and fine.response >= p.loop_match_minimum_response_fine
@@ -922,7 +927,8 @@ class GraphFrontend:
             frm = self._closest_in_chain(chain, fine.pose)
             hyp = _Hypothesis(node=node, frm=frm, z=se2.relative(self.graph.poses[frm], fine.pose),
                               covariance=self._local_covariance(frm, fine.covariance),
-                              response_coarse=coarse.response, response_fine=fine.response, chain_size=b - a)
+                              response_coarse=coarse.response, response_fine=fine.response, chain_size=b - a,
+                              ambiguous=ambiguous)
             partner = None
             if not strong:
                 # Below Karto's thresholds a match alone is not trusted; a second one from another
@@ -1044,7 +1050,9 @@ class GraphFrontend:
             keep.append(h)
             # Both legs of the cycle through the graph must be short: a long one carries the
             # drift a closure is there to correct, and a wrong match can agree with it.
-            if h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
+            # Two ambiguous matches can agree on the same wrong place (a repeated stretch of corridor
+            # seen from two poses): one of the pair must have seen the place unambiguously.
+            if (h.ambiguous and hyp.ambiguous) or h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
                 continue
             via_h = se2.compose(se2.compose(poses[h.frm], h.z), se2.relative(poses[h.node], poses[hyp.node]))
             err = se2.relative(se2.compose(poses[hyp.frm], hyp.z), via_h)
@@ -1145,6 +1153,7 @@ class _Hypothesis:
     response_coarse: float
     response_fine: float
     chain_size: int
+    ambiguous: bool = False  # its scan fits other places about as well (loop_check_peaks)
 
 
 MAX_COV = 500.0
