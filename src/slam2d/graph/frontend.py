@@ -29,8 +29,11 @@ For every scan (:meth:`GraphFrontend.process`):
    exceeds ``loop_match_minimum_response_coarse`` and the x and y variances
    are below ``loop_match_maximum_variance_coarse``; then refined with the
    sequential matcher (no penalty) and accepted if the response reaches
-   ``loop_match_minimum_response_fine``. Every accepted closure links the
-   chain and runs the back end over the whole graph.
+   ``loop_match_minimum_response_fine``. With ``loop_check_peaks`` every
+   distinct peak of the coarse surface is refined in between: the best place
+   is the match, and one with a rival place about as good far away is
+   ambiguous and waits for an unambiguous match from another scan. Every
+   accepted closure links the chain and runs the back end over the whole graph.
 
 Distances between scans use each scan's barycentre (Karto's
 ``UseScanBarycenter``). Edge covariances from the matcher are in the world
@@ -267,10 +270,11 @@ class GraphSlamParams(GridParams):
     )
     loop_check_peaks: bool = param(
         True,
-        help="refine every distinct peak of a loop match's coarse surface that could come within 0.1 of the best, "
-        "take the best refined one, and reject the closure when the refined peaks within 0.1 of it spread wider "
-        "than loop_match_maximum_variance_coarse (Karto's variance test over places, not only around the best "
-        "lattice pose; not in Karto): the coarse lattice can sample a sharp true peak below a look-alike",
+        help="refine every distinct peak of a loop match's coarse surface that could come within 0.1 of the best "
+        "and take the best refined one; when the refined peaks within 0.1 of it spread wider than "
+        "loop_match_maximum_variance_coarse (Karto's variance test over places, not only around the best lattice "
+        "pose) the match is ambiguous and is accepted only with a consistent match from another scan that is not "
+        "(not in Karto): the coarse lattice can sample a sharp true peak below a look-alike",
     )
     loop_retry_distance: float = param(
         0.3, unit="m", low=0.0,
@@ -980,7 +984,8 @@ class GraphFrontend:
         then repeated over the refined places: their response-weighted spread about the best
         (divided by the best response, as Karto's covariance is), counting those within the
         covariance band of it, in the worst direction. Two places that fit about equally
-        well far apart are a look-alike, whichever is right. Returns (match, spread in m^2).
+        well far apart are a look-alike, whichever is right: the caller treats the match as
+        ambiguous when the spread exceeds Karto's limit. Returns (match, spread in m^2).
         """
         grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
         band = COVARIANCE_BAND
