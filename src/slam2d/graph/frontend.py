@@ -276,6 +276,15 @@ class GraphSlamParams(GridParams):
         "pose) the match is ambiguous and is accepted only with a consistent match from another scan that is not "
         "(not in Karto): the coarse lattice can sample a sharp true peak below a look-alike",
     )
+    loop_refine_coarse: bool = param(
+        True,
+        help="a loop match that fails Karto's coarse tests but whose coarse response is within the refine step's "
+        "reach (0.2) of the hypothesis threshold has every distinct peak of its coarse surface refined as "
+        "loop_check_peaks does, and Karto's tests are applied to the best refined place: its response, and the "
+        "coarse surface's variance about it (the lattice poses within 0.1 of its response, and itself); the "
+        "peak check's ambiguity test follows (not in Karto): with a narrow smear a true place can fall between "
+        "the coarse lattice's poses and score 0.3 below its refined value",
+    )
     loop_retry_distance: float = param(
         0.3, unit="m", low=0.0,
         help="a chain a loop match was tried against (or a near chain that failed to link) is tried again only "
@@ -908,12 +917,34 @@ class GraphFrontend:
             variance_ok = (coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
                            and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse)
             strong = coarse.response > coarse_threshold
+            rescued = False
             if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
-                self._count("loop_rejected_coarse")
-                continue
+                # The lattice may have sampled a sharp true place far below its value: a match within
+                # the refine step's reach of the hypothesis threshold is judged on its refined places.
+                if not (p.loop_refine_coarse and coarse.response > 0.0
+                        and coarse.response >= min(coarse_threshold, p.loop_match_minimum_response_confirmed) - _REFINE_GAIN):
+                    self._count("loop_rejected_coarse")
+                    continue
+                self._count("loop_refined_coarse")
+                attempt["refined"] = True
+                coarse, spread, surface_cov = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt,
+                                                               keep_near=False)
+                # Karto's tests on the best refined place: its response, and the coarse surface's
+                # spread about it (lattice poses within the band of its response, and itself).
+                cov = surface_cov(coarse.pose, coarse.response)
+                attempt["var_x_refined"], attempt["var_y_refined"] = float(cov[0, 0]), float(cov[1, 1])
+                strong = coarse.response > coarse_threshold
+                if not (cov[0, 0] < p.loop_match_maximum_variance_coarse and cov[1, 1] < p.loop_match_maximum_variance_coarse
+                        and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
+                    self._count("loop_rejected_coarse")
+                    continue
+                self._count("loop_rescued")
+                attempt["rescued"] = True
+                rescued = True
             ambiguous = False
-            if p.loop_check_peaks:
-                coarse, spread = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt)
+            if p.loop_check_peaks or rescued:
+                if not rescued:
+                    coarse, spread, _ = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt)
                 # Places about equally good far apart: whichever this scan's match picked, it is not
                 # evidence alone. It waits, as a weak match does, for a match from another scan that
                 # is not ambiguous and puts the new scans in the same place of the old map.
@@ -970,7 +1001,7 @@ class GraphFrontend:
                 closed += 1
             candidate = None
 
-    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt):
+    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt, keep_near=True):
         """The loop match's best place among every distinct peak of its coarse surface, and their spread.
 
         The coarse search samples x, y every two cells and the heading every 2 deg; a wall
@@ -985,19 +1016,23 @@ class GraphFrontend:
         (divided by the best response, as Karto's covariance is), counting those within the
         covariance band of it, in the worst direction. Two places that fit about equally
         well far apart are a look-alike, whichever is right: the caller treats the match as
-        ambiguous when the spread exceeds Karto's limit. Returns (match, spread in m^2).
+        ambiguous when the spread exceeds Karto's limit. With ``keep_near`` false (a match that
+        failed the coarse tests, loop_refine_coarse) the best refined place is the match even
+        near the first one. Returns (match, spread in m^2, the coarse surface's covariance
+        about a pose: ``places(about=True)``).
         """
         grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
         band = COVARIANCE_BAND
         places = [(coarse.pose, coarse.response)]
-        for q_pose, q_resp in matcher.places(points, pose, grid, floor=coarse.response - band - _REFINE_GAIN):
+        found, surface_cov = matcher.places(points, pose, grid, floor=coarse.response - band - _REFINE_GAIN, about=True)
+        for q_pose, q_resp in found:
             if float(np.hypot(*(q_pose[:2] - pose[:2]))) <= allowed:
                 places.append((q_pose, q_resp))
         # Places within the reach of the best's own refine (one coarse step and a cell) are that
         # place: the match stays as it was unless a place beyond that fits better.
         reach = 3.0 * matcher.resolution
         best = max(range(len(places)), key=lambda k: places[k][1])
-        if float(np.hypot(*(places[best][0][:2] - coarse.pose[:2]))) <= reach:
+        if keep_near and float(np.hypot(*(places[best][0][:2] - coarse.pose[:2]))) <= reach:
             best = 0
         b_pose, b_resp = places[best]
         spread = np.zeros((2, 2))
@@ -1019,7 +1054,7 @@ class GraphFrontend:
             attempt["moved_m"] = float(np.hypot(*(b_pose[:2] - coarse.pose[:2])))
             attempt["response_coarse"] = b_resp
             coarse = dataclasses.replace(coarse, pose=b_pose.copy(), response=b_resp)
-        return coarse, worst
+        return coarse, worst, surface_cov
 
     def _closest_in_chain(self, chain: list[int], pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the new scan at ``pose`` (LinkChainToScan's choice)."""

@@ -1182,11 +1182,16 @@ class CorrelativeMatcher:
         raw_best = float(raw[a0, y0, x0])
         return pose, best, raw_best, resp, offs, lookups
 
-    def _positional_covariance(self, resp, offs, center, pose, best, step_m):
-        surface = resp.max(axis=0)  # best response over angles, per (y, x)
+    def _positional_covariance(self, resp, offs, center, pose, best, step_m, own=0.0):
+        """Karto's covariance of the surface about ``pose``: poses within the band of ``best``, response-weighted.
+
+        ``own`` is the weight of ``pose`` itself as one more sample (a refined place that
+        the lattice ``resp`` sampled low; 0 for the lattice's own best).
+        """
+        surface = resp.max(axis=0) if resp.ndim == 3 else resp  # best response over angles, per (y, x)
         mask = surface >= best - _COVARIANCE_BAND
         w = np.where(mask, surface, 0.0)
-        norm = w.sum()
+        norm = w.sum() + own
         cov = np.zeros((2, 2))
         floor = 0.1 * step_m * step_m
         if norm <= 1e-12 or best <= 0:
@@ -1295,7 +1300,8 @@ class CorrelativeMatcher:
         *,
         floor: float,
         count: int = 16,
-    ) -> list[tuple[NDArray[np.float64], float]]:
+        about: bool = False,
+    ):
         """The distinct places the query fits in this matcher's window, each refined: [(pose, response)], best first.
 
         The unpenalised coarse search over the whole window (exhaustive: every pose is
@@ -1307,11 +1313,18 @@ class CorrelativeMatcher:
         3 cm smear a wall seen across a corridor gives a peak one cell wide in x and a
         degree in heading, which the 2-cell, 2 deg lattice can sample 0.3 below its value
         while a look-alike place happens to sit on a lattice pose.
+
+        With ``about`` it returns ``(places, covariance)``, where ``covariance(pose, response)``
+        is Karto's positional covariance of this coarse surface taken about a refined place:
+        the lattice poses responding within the covariance band (0.1) of that place's
+        response, and the place itself, response-weighted, divided by its response. Where the
+        lattice sampled the place's peak low only the place itself counts; where the lattice
+        holds poses about as good (a corridor's ridge) they spread it as Karto's test would.
         """
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
-            return []
+            return ([], lambda pose, response: np.diag([MAX_VARIANCE, MAX_VARIANCE])) if about else []
         g, ox, oy = grid
         n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
         angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
@@ -1337,7 +1350,14 @@ class CorrelativeMatcher:
             pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
             out.append((pose, float(best)))
         out.sort(key=lambda t: -t[1])
-        return out
+        if not about:
+            return out
+        step_m = 2.0 * self.resolution
+
+        def covariance(pose, response):
+            return self._positional_covariance(surface, offs, prior, pose, response, step_m, own=response)
+
+        return out, covariance
 
 
 def _uniform(sigmas: NDArray[np.float64]) -> float | None:
