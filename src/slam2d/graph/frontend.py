@@ -918,17 +918,20 @@ class GraphFrontend:
                            and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse)
             strong = coarse.response > coarse_threshold
             rescued = False
+            # Every peak that could refine to the hypothesis threshold is refined (the reach the branch and
+            # bound searched), not only those near the lattice's best: the lattice can sample the true place
+            # lowest of all (a sharp peak half a step from every lattice pose).
+            reach_floor = min(coarse_threshold, p.loop_match_minimum_response_confirmed) - _REFINE_GAIN
             if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
                 # The lattice may have sampled a sharp true place far below its value: a match within
                 # the refine step's reach of the hypothesis threshold is judged on its refined places.
-                if not (p.loop_refine_coarse and coarse.response > 0.0
-                        and coarse.response >= min(coarse_threshold, p.loop_match_minimum_response_confirmed) - _REFINE_GAIN):
+                if not (p.loop_refine_coarse and coarse.response > 0.0 and coarse.response >= reach_floor):
                     self._count("loop_rejected_coarse")
                     continue
                 self._count("loop_refined_coarse")
                 attempt["refined"] = True
                 coarse, spread, surface_cov = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt,
-                                                               keep_near=False)
+                                                               keep_near=False, floor=reach_floor)
                 # Karto's tests on the best refined place: its response, and the coarse surface's
                 # spread about it (lattice poses within the band of its response, and itself).
                 cov = surface_cov(coarse.pose, coarse.response)
@@ -944,7 +947,8 @@ class GraphFrontend:
             ambiguous = False
             if p.loop_check_peaks or rescued:
                 if not rescued:
-                    coarse, spread, _ = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt)
+                    coarse, spread, _ = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt,
+                                                         floor=reach_floor if p.loop_refine_coarse else None)
                 # Places about equally good far apart: whichever this scan's match picked, it is not
                 # evidence alone. It waits, as a weak match does, for a match from another scan that
                 # is not ambiguous and puts the new scans in the same place of the old map.
@@ -1001,7 +1005,7 @@ class GraphFrontend:
                 closed += 1
             candidate = None
 
-    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt, keep_near=True):
+    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt, keep_near=True, floor=None):
         """The loop match's best place among every distinct peak of its coarse surface, and their spread.
 
         The coarse search samples x, y every two cells and the heading every 2 deg; a wall
@@ -1024,7 +1028,9 @@ class GraphFrontend:
         grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
         band = COVARIANCE_BAND
         places = [(coarse.pose, coarse.response)]
-        found, surface_cov = matcher.places(points, pose, grid, floor=coarse.response - band - _REFINE_GAIN, about=True)
+        if floor is None:
+            floor = coarse.response - band - _REFINE_GAIN
+        found, surface_cov = matcher.places(points, pose, grid, floor=floor, about=True)
         for q_pose, q_resp in found:
             if float(np.hypot(*(q_pose[:2] - pose[:2]))) <= allowed:
                 places.append((q_pose, q_resp))
