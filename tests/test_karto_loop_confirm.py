@@ -60,7 +60,7 @@ def _frame(t, ranges, x=0.0):
     return Frame(index=0, scan=scan, odometry=np.array([x, 0.0, 0.0]))
 
 
-@pytest.mark.parametrize("share", [0.0, 1.0])
+@pytest.mark.parametrize("share", [0.0, 0.5, 1.0])
 def test_smear_grows_with_the_gap_between_beams(share):
     fe = GraphFrontend(GraphSlamParams(smear_beam_spacing=share))
     ranges = np.linspace(1.0, 11.0, 180)

@@ -228,7 +228,7 @@ def test_compiled_positional_covariance_is_the_numpy_one_bit_for_bit(seed):
             center = rng.normal(size=3)
             pose = center + np.array([offs[j], offs[i], 0.0])
             got = m._positional_covariance(resp, offs, center, pose, best, 0.02)
-            want = m._positional_covariance_at_edge(resp, offs, center, pose, best, 0.02)
+            want = m._positional_covariance_general(resp, offs, center, pose, best, 0.02)
             assert np.array_equal(got, want)
 
 

@@ -29,8 +29,11 @@ For every scan (:meth:`GraphFrontend.process`):
    exceeds ``loop_match_minimum_response_coarse`` and the x and y variances
    are below ``loop_match_maximum_variance_coarse``; then refined with the
    sequential matcher (no penalty) and accepted if the response reaches
-   ``loop_match_minimum_response_fine``. Every accepted closure links the
-   chain and runs the back end over the whole graph.
+   ``loop_match_minimum_response_fine``. With ``loop_check_peaks`` every
+   distinct peak of the coarse surface is refined in between: the best place
+   is the match, and one with a rival place about as good far away is
+   ambiguous and waits for an unambiguous match from another scan. Every
+   accepted closure links the chain and runs the back end over the whole graph.
 
 Distances between scans use each scan's barycentre (Karto's
 ``UseScanBarycenter``). Edge covariances from the matcher are in the world
@@ -58,7 +61,7 @@ from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
-from slam2d.matching.correlative import CorrelativeMatcher, GridCache
+from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, GridCache
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 
@@ -265,6 +268,23 @@ class GraphSlamParams(GridParams):
         help="the odometry-plus-matching drift a loop closure may correct, per metre travelled since the chain "
         "(not in Karto); inf turns the gate off",
     )
+    loop_check_peaks: bool = param(
+        True,
+        help="refine every distinct peak of a loop match's coarse surface that could come within 0.1 of the best "
+        "and take the best refined one; when the refined peaks within 0.1 of it spread wider than "
+        "loop_match_maximum_variance_coarse (Karto's variance test over places, not only around the best lattice "
+        "pose) the match is ambiguous and is accepted only with a consistent match from another scan that is not "
+        "(not in Karto): the coarse lattice can sample a sharp true peak below a look-alike",
+    )
+    loop_refine_coarse: bool = param(
+        True,
+        help="a loop match that fails Karto's coarse tests but whose coarse response is within the refine step's "
+        "reach (0.2) of the hypothesis threshold has every distinct peak of its coarse surface refined as "
+        "loop_check_peaks does, and Karto's tests are applied to the best refined place: its response, and the "
+        "coarse surface's variance about it (the lattice poses within 0.1 of its response, and itself); the "
+        "peak check's ambiguity test follows (not in Karto): with a narrow smear a true place can fall between "
+        "the coarse lattice's poses and score 0.3 below its refined value",
+    )
     loop_retry_distance: float = param(
         0.3, unit="m", low=0.0,
         help="a chain a loop match was tried against (or a near chain that failed to link) is tried again only "
@@ -292,10 +312,11 @@ class GraphSlamParams(GridParams):
         0.03, unit="m", low=0.0, help="smear sigma of the loop grid [LoopSearchSpaceSmearDeviation]"
     )
     smear_beam_spacing: float = param(
-        1.0, low=0.0,
+        0.5, low=0.0,
         help="widen each reference point's smear, in quadrature, by this share of the gap between its beam "
-        "and the next at its range (range x angle increment), up to 10 cells; 0.5 fits aces better but closed "
-        "a loop 1.5 m wrong in simulation (not in Karto, whose smear is "
+        "and the next at its range (range x angle increment), up to 10 cells (a wall point between two beam ends "
+        "is at most half the gap from the nearer); 0.5 meets more of the targets than 1.0 (the simulated RPLidar, "
+        "aces at most smears) though fr079 and fr101 are better with 1.0 (docs) (not in Karto, whose smear is "
         "the same for every point: far points of a 1 deg laser 1 m apart then match as isolated dots); 0 = off",
     )
     distance_variance_penalty: float = param(
@@ -906,9 +927,46 @@ class GraphFrontend:
             variance_ok = (coarse.covariance[0, 0] < p.loop_match_maximum_variance_coarse
                            and coarse.covariance[1, 1] < p.loop_match_maximum_variance_coarse)
             strong = coarse.response > coarse_threshold
+            rescued = False
+            # Every peak that could refine to the hypothesis threshold is refined (the reach the branch and
+            # bound searched), not only those near the lattice's best: the lattice can sample the true place
+            # lowest of all (a sharp peak half a step from every lattice pose).
+            reach_floor = min(coarse_threshold, p.loop_match_minimum_response_confirmed) - _REFINE_GAIN
             if not (variance_ok and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
-                self._count("loop_rejected_coarse")
-                continue
+                # The lattice may have sampled a sharp true place far below its value: a match within
+                # the refine step's reach of the hypothesis threshold is judged on its refined places.
+                if not (p.loop_refine_coarse and coarse.response > 0.0 and coarse.response >= reach_floor):
+                    self._count("loop_rejected_coarse")
+                    continue
+                self._count("loop_refined_coarse")
+                attempt["refined"] = True
+                coarse, spread, surface_cov = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt,
+                                                               keep_near=False, floor=reach_floor)
+                # Karto's tests on the best refined place: its response, and the coarse surface's
+                # spread about it (lattice poses within the band of its response, and itself).
+                cov = surface_cov(coarse.pose, coarse.response)
+                attempt["var_x_refined"], attempt["var_y_refined"] = float(cov[0, 0]), float(cov[1, 1])
+                strong = coarse.response > coarse_threshold
+                if not (cov[0, 0] < p.loop_match_maximum_variance_coarse and cov[1, 1] < p.loop_match_maximum_variance_coarse
+                        and (strong or coarse.response >= p.loop_match_minimum_response_confirmed)):
+                    self._count("loop_rejected_coarse")
+                    continue
+                self._count("loop_rescued")
+                attempt["rescued"] = True
+                rescued = True
+            ambiguous = False
+            if p.loop_check_peaks or rescued:
+                if not rescued:
+                    coarse, spread, _ = self._best_place(matcher, chain, points, pose, coarse, allowed, attempt,
+                                                         floor=reach_floor if p.loop_refine_coarse else None)
+                # Places about equally good far apart: whichever this scan's match picked, it is not
+                # evidence alone. It waits, as a weak match does, for a match from another scan that
+                # is not ambiguous and puts the new scans in the same place of the old map.
+                ambiguous = spread > p.loop_match_maximum_variance_coarse
+                strong = coarse.response > coarse_threshold and not ambiguous
+                if ambiguous:
+                    self._count("loop_ambiguous")
+                    attempt["ambiguous"] = True
             fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
             attempt["response_fine"] = fine.response
             strong = strong and fine.response >= p.loop_match_minimum_response_fine
@@ -918,7 +976,8 @@ class GraphFrontend:
             frm = self._closest_in_chain(chain, fine.pose)
             hyp = _Hypothesis(node=node, frm=frm, z=se2.relative(self.graph.poses[frm], fine.pose),
                               covariance=self._local_covariance(frm, fine.covariance),
-                              response_coarse=coarse.response, response_fine=fine.response, chain_size=b - a)
+                              response_coarse=coarse.response, response_fine=fine.response, chain_size=b - a,
+                              ambiguous=ambiguous)
             partner = None
             if not strong:
                 # Below Karto's thresholds a match alone is not trusted; a second one from another
@@ -956,6 +1015,63 @@ class GraphFrontend:
                 closed += 1
             candidate = None
 
+    def _best_place(self, matcher, chain, points, pose, coarse, allowed, attempt, keep_near=True, floor=None):
+        """The loop match's best place among every distinct peak of its coarse surface, and their spread.
+
+        The coarse search samples x, y every two cells and the heading every 2 deg; a wall
+        seen across a corridor gives a peak a few centimetres wide, which the lattice can
+        sample 0.15-0.3 below its value while a look-alike place happens to sit on a lattice
+        point (simulated corridor loop: true place 1.0 refined, 0.67 on the lattice; a place
+        1.5 m along the corridor 0.83). So every local maximum of the coarse surface that
+        the refine step could lift to within the covariance band of the best (down to
+        _REFINE_GAIN plus that band below it) and that the drift gate allows is refined as
+        the best one was, and the best refined place is the match. Karto's variance test is
+        then repeated over the refined places: their response-weighted spread about the best
+        (divided by the best response, as Karto's covariance is), counting those within the
+        covariance band of it, in the worst direction. Two places that fit about equally
+        well far apart are a look-alike, whichever is right: the caller treats the match as
+        ambiguous when the spread exceeds Karto's limit. With ``keep_near`` false (a match that
+        failed the coarse tests, loop_refine_coarse) the best refined place is the match even
+        near the first one. Returns (match, spread in m^2, the coarse surface's covariance
+        about a pose: ``places(about=True)``).
+        """
+        grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
+        band = COVARIANCE_BAND
+        places = [(coarse.pose, coarse.response)]
+        if floor is None:
+            floor = coarse.response - band - _REFINE_GAIN
+        found, surface_cov = matcher.places(points, pose, grid, floor=floor, about=True)
+        for q_pose, q_resp in found:
+            if float(np.hypot(*(q_pose[:2] - pose[:2]))) <= allowed:
+                places.append((q_pose, q_resp))
+        # Places within the reach of the best's own refine (one coarse step and a cell) are that
+        # place: the match stays as it was unless a place beyond that fits better.
+        reach = 3.0 * matcher.resolution
+        best = max(range(len(places)), key=lambda k: places[k][1])
+        if keep_near and float(np.hypot(*(places[best][0][:2] - coarse.pose[:2]))) <= reach:
+            best = 0
+        b_pose, b_resp = places[best]
+        spread = np.zeros((2, 2))
+        weight = b_resp
+        rivals = 0
+        for k, (q_pose, q_resp) in enumerate(places):
+            d = q_pose[:2] - b_pose[:2]
+            if k == best or q_resp < b_resp - band or float(np.hypot(*d)) <= reach:
+                continue
+            spread += q_resp * np.outer(d, d)
+            weight += q_resp
+            rivals += 1
+        worst = float(np.linalg.eigvalsh(spread / (weight * max(b_resp, 1e-9)))[-1]) if rivals else 0.0
+        attempt["peaks"] = len(places) - 1
+        attempt["rivals"] = rivals
+        attempt["spread"] = worst
+        if best != 0:
+            self._count("loop_better_peaks")
+            attempt["moved_m"] = float(np.hypot(*(b_pose[:2] - coarse.pose[:2])))
+            attempt["response_coarse"] = b_resp
+            coarse = dataclasses.replace(coarse, pose=b_pose.copy(), response=b_resp)
+        return coarse, worst, surface_cov
+
     def _closest_in_chain(self, chain: list[int], pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the new scan at ``pose`` (LinkChainToScan's choice)."""
         ref = self.reference_positions()
@@ -990,7 +1106,9 @@ class GraphFrontend:
             keep.append(h)
             # Both legs of the cycle through the graph must be short: a long one carries the
             # drift a closure is there to correct, and a wrong match can agree with it.
-            if h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
+            # Two ambiguous matches can agree on the same wrong place (a repeated stretch of corridor
+            # seen from two poses): one of the pair must have seen the place unambiguously.
+            if (h.ambiguous and hyp.ambiguous) or h.node == hyp.node or self._path_length(min(h.frm, hyp.frm), max(h.frm, hyp.frm)) > p.loop_confirm_path:
                 continue
             via_h = se2.compose(se2.compose(poses[h.frm], h.z), se2.relative(poses[h.node], poses[hyp.node]))
             err = se2.relative(se2.compose(poses[hyp.frm], hyp.z), via_h)
@@ -1091,6 +1209,7 @@ class _Hypothesis:
     response_coarse: float
     response_fine: float
     chain_size: int
+    ambiguous: bool = False  # its scan fits other places about as well (loop_check_peaks)
 
 
 MAX_COV = 500.0

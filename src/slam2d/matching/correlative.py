@@ -75,6 +75,8 @@ _THREADS = max(1, int(os.environ.get(
 _PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
 MAX_VARIANCE = 500.0
+# Poses responding within this of the best count towards a match's covariance (Karto's 0.1).
+COVARIANCE_BAND = _COVARIANCE_BAND
 
 
 @dataclass
@@ -1346,31 +1348,34 @@ class CorrelativeMatcher:
         raw_best = float(raw[a0, y0, x0])
         return pose, best, raw_best, resp, offs, lookups
 
-    def _positional_covariance(self, resp, offs, center, pose, best, step_m):
-        """Karto's x, y covariance from the response surface (see the module docstring).
+    def _positional_covariance(self, resp, offs, center, pose, best, step_m, own=0.0):
+        """Karto's x, y covariance of the surface about ``pose`` (see the module docstring).
 
-        The usual case (no good response on the window's edge) in one compiled pass whose sums
-        are numpy's, bit for bit (:func:`_spread_sums`); the edge case in numpy below.
+        ``own`` is the weight of ``pose`` itself as one more sample (a refined place that the
+        lattice ``resp`` sampled low; 0 for the lattice's own best). The usual case (the lattice's
+        own best, no good response on the window's edge) runs in one compiled pass whose sums are
+        numpy's, bit for bit (:func:`_spread_sums`); the others in numpy below.
         """
-        norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
-                                                 float(pose[1]), best - _COVARIANCE_BAND)
-        if norm <= 1e-12 or best <= 0:
-            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
-        if edge:
-            return self._positional_covariance_at_edge(resp, offs, center, pose, best, step_m)
-        floor = 0.1 * step_m * step_m
-        cov = np.zeros((2, 2))
-        cov[0, 0] = max(sxx / norm, floor)
-        cov[1, 1] = max(syy / norm, floor)
-        cov[0, 1] = cov[1, 0] = sxy / norm
-        cov /= best
-        return cov
+        if own == 0.0 and resp.ndim == 3:
+            norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]),
+                                                     float(pose[0]), float(pose[1]), best - _COVARIANCE_BAND)
+            if norm <= 1e-12 or best <= 0:
+                return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+            if not edge:
+                floor = 0.1 * step_m * step_m
+                cov = np.zeros((2, 2))
+                cov[0, 0] = max(sxx / norm, floor)
+                cov[1, 1] = max(syy / norm, floor)
+                cov[0, 1] = cov[1, 0] = sxy / norm
+                cov /= best
+                return cov
+        return self._positional_covariance_general(resp, offs, center, pose, best, step_m, own)
 
-    def _positional_covariance_at_edge(self, resp, offs, center, pose, best, step_m):
-        surface = resp.max(axis=0)  # best response over angles, per (y, x)
+    def _positional_covariance_general(self, resp, offs, center, pose, best, step_m, own=0.0):
+        surface = resp.max(axis=0) if resp.ndim == 3 else resp  # best response over angles, per (y, x)
         mask = surface >= best - _COVARIANCE_BAND
         w = np.where(mask, surface, 0.0)
-        norm = w.sum()
+        norm = w.sum() + own
         cov = np.zeros((2, 2))
         floor = 0.1 * step_m * step_m
         if norm <= 1e-12 or best <= 0:
@@ -1484,6 +1489,73 @@ class CorrelativeMatcher:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var)
+
+    def places(
+        self,
+        query_points: NDArray[np.float64],
+        prior: NDArray[np.float64],
+        grid: tuple[NDArray[np.uint8], float, float],
+        *,
+        floor: float,
+        count: int = 16,
+        about: bool = False,
+    ):
+        """The distinct places the query fits in this matcher's window, each refined: [(pose, response)], best first.
+
+        The unpenalised coarse search over the whole window (exhaustive: every pose is
+        scored) is reduced to the best response over headings per x, y; a place is an x, y
+        whose response is at least each of its 8 neighbours' and at least ``floor`` (at most
+        ``count`` of them, best first). Each is then searched one coarse step each way in
+        x, y at one cell and in heading at the fine step, so that a peak lying between
+        lattice poses is found wherever it is in the lattice's cell: on a 5 cm grid with a
+        3 cm smear a wall seen across a corridor gives a peak one cell wide in x and a
+        degree in heading, which the 2-cell, 2 deg lattice can sample 0.3 below its value
+        while a look-alike place happens to sit on a lattice pose.
+
+        With ``about`` it returns ``(places, covariance)``, where ``covariance(pose, response)``
+        is Karto's positional covariance of this coarse surface taken about a refined place:
+        the lattice poses responding within the covariance band (0.1) of that place's
+        response, and the place itself, response-weighted, divided by its response. Where the
+        lattice sampled the place's peak low only the place itself counts; where the lattice
+        holds poses about as good (a corridor's ridge) they spread it as Karto's test would.
+        """
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
+        if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
+            return ([], lambda pose, response: np.diag([MAX_VARIANCE, MAX_VARIANCE])) if about else []
+        g, ox, oy = grid
+        n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
+        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        _, _, _, resp, offs, _ = self._search(g, (ox, oy), q, prior, prior, angles, self._coarse_half, 2, False, False)
+        surface = resp.max(axis=0)  # (y, x)
+        padded = np.pad(surface, 1, constant_values=-np.inf)
+        n = surface.shape[0]
+        peak = surface >= floor
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    peak &= surface >= padded[1 + dy : 1 + dy + n, 1 + dx : 1 + dx + n]
+        iy, ix = np.nonzero(peak)
+        order = np.argsort(-surface[iy, ix], kind="stable")[:count]
+        heading = resp.argmax(axis=0)
+        n_fine = int(round(self.coarse_angle_resolution / self.fine_angle_step))
+        fine = np.arange(-n_fine, n_fine + 1) * self.fine_angle_step
+        out = []
+        for k in order:
+            y, x = int(iy[k]), int(ix[k])
+            center = np.array([prior[0] + offs[x], prior[1] + offs[y], prior[2] + angles[heading[y, x]]])
+            pose, best, _, _, _, _ = self._search(g, (ox, oy), q, center, center, fine, 2, 1, False, False)
+            pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
+            out.append((pose, float(best)))
+        out.sort(key=lambda t: -t[1])
+        if not about:
+            return out
+        step_m = 2.0 * self.resolution
+
+        def covariance(pose, response):
+            return self._positional_covariance(surface, offs, prior, pose, response, step_m, own=response)
+
+        return out, covariance
 
 
 def _uniform(sigmas: NDArray[np.float64]) -> float | None:
