@@ -367,6 +367,19 @@ def test_sequential_recovery_finds_a_wheel_slip():
     assert errors["default"][slip] < off[slip] and errors["default"].max() < off.max(), errors["default"][slip]
 
 
+def _chained_graph(start, steps, info):
+    """A pose graph of ``steps`` chained from ``start`` (the dead-reckoning poses), one edge per step."""
+    from slam2d.backends import PoseGraph
+    from slam2d.backends.synthetic import chain_poses
+
+    poses = chain_poses(start, np.asarray(steps))
+    g = PoseGraph()
+    g.add_nodes(poses)
+    n = len(poses)
+    g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), info)
+    return g, poses
+
+
 def _square_loop(n_side=20, step=0.5):
     """Truth of a square loop walked twice (nodes every ``step`` m), as a front end's node poses."""
     poses = []
@@ -384,7 +397,6 @@ def _square_loop(n_side=20, step=0.5):
 def test_closure_bound_is_exact_with_exact_steps_and_cuts_a_drifting_chain():
     from types import SimpleNamespace
 
-    from slam2d.backends import PoseGraph
     from slam2d.graph.evaluation import closure_bound
 
     truth = _square_loop()
@@ -393,13 +405,8 @@ def test_closure_bound_is_exact_with_exact_steps_and_cuts_a_drifting_chain():
     for noisy in (False, True):
         steps = [z + (np.array([0.0, 0.0, 0.004]) + rng.normal(0, [0.01, 0.01, 0.002]) if noisy else 0.0)
                  for z in exact]
-        poses = [truth[0]]
-        for z in steps:
-            poses.append(se2.compose(poses[-1], z))
-        g = PoseGraph()
-        g.add_nodes(np.asarray(poses))
+        g, poses = _chained_graph(truth[0], steps, np.diag([1e4, 1e4, 1e5]))
         n = len(poses)
-        g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), np.diag([1e4, 1e4, 1e5]))
         fe = SimpleNamespace(graph=g, node_times=lambda n=n: np.arange(n, dtype=float))
         b = closure_bound(fe, truth, radius=0.3)
         assert b["closures"] == n - 80  # every node of the second lap returns to the first
@@ -451,22 +458,15 @@ def _edge_graph(truth, errors, info):
     """A front end stand-in whose sequential edges are the true steps plus ``errors`` (along, across, heading)."""
     from types import SimpleNamespace
 
-    from slam2d.backends import PoseGraph
-
     steps = []
     for k in range(len(truth) - 1):
         z = se2.relative(truth[k], truth[k + 1])
         u = z[:2] / np.hypot(*z[:2])
         steps.append(np.array([*(z[:2] + errors[k, 0] * u + errors[k, 1] * np.array([-u[1], u[0]])),
                                z[2] + errors[k, 2]]))
-    poses = [truth[0]]
-    for z in steps:
-        poses.append(se2.compose(poses[-1], z))
-    g = PoseGraph()
-    g.add_nodes(np.asarray(poses))
+    g, poses = _chained_graph(truth[0], steps, info)
     n = len(poses)
-    g.add_edges(np.arange(n - 1), np.arange(1, n), np.asarray(steps), info)
-    odom = np.asarray(poses).copy()  # the odometry: the edges' own chain
+    odom = poses.copy()  # the odometry: the edges' own chain
     return SimpleNamespace(graph=g, node_times=lambda n=n: np.arange(n, dtype=float),
                            odometry_at_nodes=lambda: odom, sequential=SimpleNamespace(search_size=0.3))
 
