@@ -383,9 +383,8 @@ def _chained_graph(start, steps, info):
 def _square_loop(n_side=20, step=0.5):
     """Truth of a square loop walked twice (nodes every ``step`` m), as a front end's node poses."""
     poses = []
-    for lap in range(2):
-        for side in range(4):
-            theta = side * np.pi / 2
+    for _lap in range(2):
+        for _side in range(4):
             for k in range(n_side):
                 if not poses:
                     poses.append(np.zeros(3))
