@@ -5,6 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests check correctness, not time: a per-example deadline only flakes on a loaded
+# machine (CI shares 2 cores), so it is off for every test unless one sets its own.
+settings.register_profile("slam2d", deadline=None)
+settings.load_profile("slam2d")
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 DATASETS = PROJECT_ROOT.parent / "shared" / "datasets"
