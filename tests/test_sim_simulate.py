@@ -202,7 +202,7 @@ def test_the_last_beam_of_a_distorted_sweep_is_cast_from_the_pose_at_the_sweeps_
     # Beam N-1 is measured N-1 mirror steps after beam 0 (LaserSpec.sweep_duration), not N:
     # the end pose was one beam step late (RPLidar: 0.5 ms of motion).
     from slam2d.sim.laser import LaserSimulator
-    from slam2d.sim.simulate import _poses_at
+    from slam2d.io.tum import interpolate_poses
     from slam2d.sensors.range_noise import ConstantSigma
 
     params = SimulationParams(duration=6.0, range_noise="none", dropouts=False, distortion=True, laser="rplidar-a1")
@@ -211,7 +211,7 @@ def test_the_last_beam_of_a_distorted_sweep_is_cast_from_the_pose_at_the_sweeps_
     mount = np.asarray(sim.robot.laser_mount, dtype=np.float64)
     checked = 0
     for k, i in enumerate(sim.scan_indices[:-2]):
-        end = _poses_at(sim.times, sim.truth, np.array([sim.times[i] + sim.laser.sweep_duration]))[0]
+        end = interpolate_poses(sim.times, sim.truth, sim.times[i] + sim.laser.sweep_duration, np.inf)[0][0]
         start = sim.truth[i]
         if np.hypot(*(end[:2] - start[:2])) < 0.01 or np.isnan(sim.scans[k].ranges[-1]):
             continue

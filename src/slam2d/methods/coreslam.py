@@ -20,6 +20,7 @@ from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.hole_map import FREE, HoleMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.io.tum import interpolate_poses
 from slam2d.matching.random_numbers import new_state
 from slam2d.matching.rmhc import rmhc_match
 from slam2d.methods.base import SlamMethod
@@ -153,8 +154,7 @@ class CoreSlam(SlamMethod):
             del times[0], poses[0]
         if when <= times[0]:
             return poses[0]  # the history starts later (the first scans): its oldest reading
-        k = int(np.searchsorted(times, when)) - 1
-        return se2.interpolate(poses[k], poses[k + 1], (when - times[k]) / (times[k + 1] - times[k]))
+        return interpolate_poses(times, poses, when, math.inf)[0][0]
 
     def _predict(self, frame: Frame) -> NDArray[np.float64]:
         odom = self._delayed_odometry(frame)

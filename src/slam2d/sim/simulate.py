@@ -11,6 +11,7 @@ bytes.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ import slam2d
 from slam2d.core import Frame, OdometryReading, make_scan, se2
 from slam2d.core.scan import LaserScan
 from slam2d.errors import InputError
+from slam2d.io.tum import interpolate_poses
 from slam2d.params import param, validate
 from slam2d.sensors.motion_noise import OdometryNoise
 from slam2d.sensors.range_noise import ConstantSigma, RangeNoiseModel, StudyModel
@@ -197,7 +199,9 @@ def simulate(
     laser_start = se2.compose(truth[scan_indices], mount)
     # From the first beam to the last: N - 1 steps of the mirror (pose_end is the last beam's pose).
     sweep_end_times = times[scan_indices] + laser.sweep_duration
-    laser_end = se2.compose(_poses_at(times, truth, sweep_end_times), mount)
+    # The last sweeps end after the last sample: held at it.
+    sweep_end_poses, _ = interpolate_poses(times, truth, np.minimum(sweep_end_times, times[-1]), math.inf)
+    laser_end = se2.compose(sweep_end_poses, mount)
     scans = []
     for k, i in enumerate(scan_indices):
         ranges = lidar.measure(laser_start[k], laser_end[k] if params.distortion else None, scan_rng)
@@ -208,16 +212,6 @@ def simulate(
             )
         )
     return Simulation(world, params, noise, robot, laser, times, truth, odometry, scan_indices, scans)
-
-
-def _poses_at(times: NDArray[np.float64], poses: NDArray[np.float64], query: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Poses interpolated at ``query`` times, held at the ends."""
-    k = np.clip(np.searchsorted(times, query, side="right") - 1, 0, len(times) - 2) if len(times) > 1 else np.zeros(len(query), int)
-    if len(times) == 1:
-        return np.repeat(poses[:1], len(query), axis=0)
-    t0, t1 = times[k], times[k + 1]
-    frac = np.clip((query - t0) / (t1 - t0), 0.0, 1.0)
-    return se2.interpolate(poses[k], poses[k + 1], frac)
 
 
 #: The true map's cell size: finer than the 0.05 m maps it usually judges, so that map error is
