@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from slam2d.core import se2
 from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
@@ -92,3 +93,47 @@ def test_no_second_edge_when_the_closest_running_scan_is_the_previous_node():
     fe = _chain([[1.0, 0.0, 0.0]], [step_cov], use_scan_barycenter=False)
     _link(fe, 2, np.array([2.0, 0.0, 0.0]), step_cov)
     assert fe.graph.num_edges == 1  # the sequential 1 -> 2 only (_chain adds no edges)
+
+
+def test_prior_heading_drop_says_whether_the_scan_fits_the_prior_heading():
+    """The matcher reports how far below its best the prior's own heading responds (coarse search)."""
+    from slam2d.matching.correlative import CorrelativeMatcher
+
+    from tests.test_matching_correlative import ROOM, _query
+
+    rng = np.random.default_rng(3)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng)
+    m = CorrelativeMatcher()
+    right = m.match(ROOM, None, q, truth)
+    wrong = m.match(ROOM, None, q, truth + np.array([0.0, 0.0, math.radians(12.0)]))
+    assert 0.0 <= right.prior_heading_drop < 0.05
+    assert wrong.prior_heading_drop > 0.1  # the room fits 12 deg off clearly worse
+    assert abs(se2.wrap_angle(wrong.pose[2] - truth[2])) < math.radians(0.5)
+
+
+def _estimate_with(drop, **settings):
+    """The sequential estimate of a front end whose match (ambiguous heading, 6 deg from the prediction)
+    reports ``drop`` below its best at the prediction's heading."""
+    import dataclasses
+
+    from slam2d.matching.correlative import MatchResult
+
+    fe = GraphFrontend(GraphSlamParams(**settings))
+    fe.graph.add_node(np.zeros(3))
+    predicted = np.array([1.0, 0.0, 0.0])
+    match = MatchResult(pose=np.array([1.0, 0.0, math.radians(6.0)]), covariance=np.diag([1e-4, 1e-4, 1e-4]),
+                        response=0.7, raw_response=0.7, evaluated=0, heading_variance_coarse=math.radians(5.0) ** 2,
+                        prior_heading_drop=drop)
+    fe._match = lambda *a, **k: dataclasses.replace(match)
+    pose, _, _ = fe._sequential_estimate(np.zeros((5, 2)), predicted)
+    return pose
+
+
+def test_odometry_is_fused_only_when_the_scan_fits_its_heading_about_as_well():
+    fused = _estimate_with(0.02)
+    assert 0.0 < fused[2] < math.radians(5.0)  # pulled towards the odometry's 0
+    kept = _estimate_with(0.2)
+    assert kept[2] == pytest.approx(math.radians(6.0))  # the scan rejects the odometry's heading
+    old = _estimate_with(0.2, odometry_fusion_maximum_drop=1.0)
+    np.testing.assert_allclose(old, fused)
