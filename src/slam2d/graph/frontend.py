@@ -118,6 +118,14 @@ class GraphSlamParams(GridParams):
         "as the match's heading variance (not in Karto): a scan that fits about as well 20 deg off (clutter, "
         "people) keeps the odometry heading",
     )
+    odometry_fusion_maximum_drop: float = param(
+        0.1, low=0.0, high=1.0,
+        help="odometry_fusion fuses the odometry only when the sequential match's best coarse response at the "
+        "odometry's own heading is at most this below its best (the odometry's heading is one of those the scan "
+        "fits about as well; 0.1 is the covariance band) (not in Karto): aces, smear 0.032, node 216: the match "
+        "1.3 deg off, the odometry 7.9 deg off and 0.15 below, fused 3.8 deg off; 1 fuses whenever the spread "
+        "is wide, as before",
+    )
     reference_range_margin: float = param(
         0.0, unit="m", low=0.0,
         help="a scan used as a matching reference keeps returns up to range_threshold plus this (not in Karto): "
@@ -203,6 +211,15 @@ class GraphSlamParams(GridParams):
         "graph already puts the scan, and dozens of them along one corridor hold the graph there against a "
         "loop closure; 0 (default) keeps the window's variance, since 1-100 helped the simulated worlds but "
         "not intel, aces or fr101",
+    )
+    running_link_chain_covariance: bool = param(
+        True,
+        help="the edge from the closest running scan to a new node (Karto's LinkChainToScan over the running "
+        "scans), when that scan is not the previous node, gets the match's covariance plus the uncertainty of "
+        "the sequential edges between the two (not in Karto, which gives it the match's alone): the match "
+        "placed the scan in a map of scans drawn at their current poses, so the relative pose to an older "
+        "scan carries whatever the steps since it got wrong (aces: a 4 deg turn fused with the odometry, "
+        "claimed 2.2 deg, was frozen by such an edge claiming 0.5 deg)",
     )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
@@ -460,6 +477,8 @@ class GraphFrontend:
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
+        # Per node after the first: its sequential edge's measurement and covariance (previous node's frame).
+        self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
 
@@ -585,6 +604,41 @@ class GraphFrontend:
             self._add_edge(closest, node, pose, cov)
         return closest
 
+    def _link_running_scan(self, last: int, node: int, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> None:
+        """LinkChainToScan over the running scans; with running_link_chain_covariance the edge from an older
+        scan than ``last`` carries the sequential steps' uncertainty between the two (see _chain_covariance)."""
+        if not self.params.running_link_chain_covariance:
+            self._link_chain_to_scan(self._running, node, pose, cov)
+            return
+        ref = self.reference_positions()
+        d2 = ((ref[self._running] - ref[node]) ** 2).sum(axis=1)
+        closest = int(self._running[int(np.argmin(d2))])
+        if closest == last or self._has_edge(closest, node):
+            return  # Karto's edge from the previous node is the sequential one, already added
+        z = se2.relative(self.graph.poses[closest], pose)
+        local = self._chain_covariance(closest, last, se2.relative(self.graph.poses[last], pose),
+                                       self._local_covariance(last, cov))
+        self._count("running_links_chained")
+        self.graph.add_edge(closest, node, z, np.linalg.inv(local))
+
+    def _chain_covariance(self, i: int, last: int, step: NDArray[np.float64], step_cov: NDArray[np.float64]):
+        """Covariance, in node i's frame, of node i's sequential edges up to ``last`` followed by ``step``.
+
+        First-order propagation of ``a + b`` (the relative pose so far composed with the next
+        step): Ja covers how the heading error so far swings the step's translation, Jb rotates
+        the step's own covariance. The chain is at most the running buffer long.
+        """
+        rel = np.zeros(3)
+        acc = np.zeros((3, 3))
+        steps = [self._seq_steps[k] for k in range(i, last)] + [(step, step_cov)]
+        for z, c in steps:  # a few dozen 3x3 products per linked scan, not a per-beam loop
+            ct, st = math.cos(rel[2]), math.sin(rel[2])
+            ja = np.array([[1.0, 0.0, -st * z[0] - ct * z[1]], [0.0, 1.0, ct * z[0] - st * z[1]], [0.0, 0.0, 1.0]])
+            jb = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
+            acc = ja @ acc @ ja.T + jb @ c @ jb.T
+            rel = se2.compose(rel, z)
+        return 0.5 * (acc + acc.T) + np.eye(3) * 1e-12
+
     def _has_edge(self, i: int, j: int) -> bool:
         ei, ej = self.graph.edge_i, self.graph.edge_j
         return bool(np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))))
@@ -615,7 +669,13 @@ class GraphFrontend:
         if values is not None:
             result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
         pose, cov = result.pose, result.covariance
-        if p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2:
+        fuse = p.odometry_fusion and not recovered and result.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2
+        if fuse and result.prior_heading_drop > p.odometry_fusion_maximum_drop:
+            # The scan fits the odometry's heading clearly worse than its best: the headings it cannot
+            # tell apart do not include the odometry's, which is then no evidence to average in.
+            self._count("odometry_fusion_refused")
+            fuse = False
+        if fuse:
             c = cov.copy()
             c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
             pose, cov = _fuse(pose, c, predicted, _odometry_covariance())
@@ -724,7 +784,8 @@ class GraphFrontend:
             means = [pose]
             covs = [cov]
             self._add_edge(last, node, pose, cov)
-            self._link_chain_to_scan(self._running, node, pose, cov)
+            self._seq_steps.append((self.graph.measurements[-1].copy(), self._local_covariance(last, cov)))
+            self._link_running_scan(last, node, pose, cov)
             linked = self._link_near_chains(node, points, pose, means, covs)
             values["near_links"] = float(linked)
             if len(means) > 1:

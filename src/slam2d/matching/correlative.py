@@ -91,6 +91,9 @@ class MatchResult:
     # Spread of the coarse angles whose best response is within 0.1 of the best (rad^2): wide
     # when the scan fits about as well at headings many coarse steps apart.
     heading_variance_coarse: float = 0.0
+    # How far the best coarse response at the prior's own heading (over the x, y window) lies below
+    # the best coarse response: whether the scan fits the prior's heading about as well (NaN: not searched).
+    prior_heading_drop: float = math.nan
 
 
 # --------------------------------------------------------------------------- compiled kernels
@@ -1454,6 +1457,7 @@ class CorrelativeMatcher:
         dth = angles - angles[int(np.argmax(a_curve))]
         heading_var = float((w * dth * dth).sum() / w.sum()) if w.sum() > 1e-12 else MAX_VARIANCE
         heading_var = max(heading_var, self.coarse_angle_resolution**2 / 12.0)
+        prior_drop = float(best - a_curve[n_half])  # the coarse angles are offsets from the prior's heading
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
@@ -1488,7 +1492,7 @@ class CorrelativeMatcher:
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
-        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var)
+        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
 
     def places(
         self,
