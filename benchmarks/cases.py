@@ -624,8 +624,8 @@ def karto_aces_spread(_: Path) -> tuple[float, str]:
 
     With Karto's fixed smear and 0.8 loop thresholds aces's graph was an open chain (the loop
     back to the start responded 0.63-0.80 and was rejected) and the ATE moved 0.12-0.24 m within
-    3 mm; with the beam-gap smear and confirmed closures it is 0.109-0.113 m (docs/methods/karto.md,
-    aces third look).
+    3 mm. The later looks in docs/methods/karto.md (third to fifth) trace what is left of the
+    spread to single sequential steps; the row shows where it stands now.
     """
     import numpy as np
 
