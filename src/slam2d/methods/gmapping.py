@@ -88,6 +88,10 @@ class GMappingParams:
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
+    coarse_kernel: int = param(
+        0, unit="cells", low=0, high=10, help="not in GMapping: each particle first climbs at the first steps "
+        "(lstep, astep, no halving) with its beams searching this many cells around their ends, so a particle a few "
+        "cells off its map's walls is pulled into the basin GMapping's climb (kernelSize) then refines; 0: off")
     ogain: float = param(3.0, low=1e-6, help="weight smoothing: weights are exp(loglik / (ogain N))")
     lskip: int = param(0, low=0, help="use every (lskip+1)-th beam for matching and likelihood")
     minimumScore: float = param(
@@ -325,7 +329,8 @@ class GMapping(SlamMethod):
         mount = np.asarray(scan.mount, dtype=np.float64)
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
-        match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+        start = self._coarse_climb(mount, beams) if p.coarse_kernel > 0 else self._state
+        match_particles(*common, start, mount, beams.ex, beams.ey, beams.ux, beams.uy,
                         beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search,
                         p.angular_search_every,
                         p.linearOdometryReliability, p.angularOdometryReliability,
@@ -365,6 +370,25 @@ class GMapping(SlamMethod):
             "best_score": best_score,
             "tiles": float(maps.tiles_in_use),
         }
+
+    def _coarse_climb(self, mount, beams: BeamSet) -> NDArray[np.float64]:
+        """``coarse_kernel``: every particle's start for GMapping's climb, climbed first on a wider score.
+
+        The same climb at its first steps (``lstep``, ``astep``, no halving), but each beam looks for a
+        map point within ``coarse_kernel`` cells: a particle whose walls lie beyond the ``kernelSize``
+        window (a loop coming back to old map, a particle the motion noise put a few cells off) is
+        moved into the basin the original climb then refines. A particle whose coarse climb fails
+        starts from its own pose.
+        """
+        p = self.params
+        maps = self._maps
+        n = self._n
+        out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+        match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
+                        p.coarse_kernel, p.free_cell_check, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, 0, 0.0, 1, 0.0, 0.0,
+                        self._prior_info(p.odometry_prior), 0.0, out, score, like, ok)
+        return np.where(ok[:, None], out, self._state)
 
     def _prior_info(self, weight: float, since: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Per particle, ``weight`` times the information of the odometry prior a climb weighs (zeros: off).
