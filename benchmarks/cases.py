@@ -969,6 +969,10 @@ CASES: list[Case] = [
          "infers aces's no-return code, 50.0 m), seeds 0-4",
          _gmapping("aces/aces.clf.gz", settings=GMAPPING_DENSE, more_seeds=(1, 2, 3, 4)),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
+    Case("gmapping-aces-dense-coarse", "`gmapping` on aces with the dense-log set plus `coarse_kernel=3` (each "
+         "particle also climbs from a coarse-window start, keeps the better climb), seeds 0-4",
+         _gmapping("aces/aces.clf.gz", settings={**GMAPPING_DENSE, "coarse_kernel": 3}, more_seeds=(1, 2, 3, 4)),
+         target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-fr101", "`gmapping` defaults (30 particles) on fr101", _gmapping("fr101/fr101.clf.gz"),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-fr101-dense", "`gmapping` on fr101 with the docs' dense-log set (`srt=0.05 stt=0.05`)",

@@ -526,3 +526,23 @@ def test_defaults_meet_the_arena_target(paper_arena, tmp_path):
     assert ate < 0.03, ate
     plain = run_ate("gmapping", paper_arena, tmp_path / "plain", "--set", "between_updates=odometry")
     assert plain > ate
+
+
+
+def test_coarse_kernel_pulls_in_a_particle_beyond_the_climbs_reach():
+    """A wall 3 m ahead; the odometry puts the robot 0.13 m (2.6 cells) from where it is. GMapping's climb
+    (kernelSize 1) finds no map point from there and keeps the odometry's pose; a first climb whose beams
+    search coarse_kernel=3 cells pulls it back, and the fine climb refines it."""
+    angles = np.linspace(-0.2, 0.2, 81)
+    ranges = 3.02 / np.cos(angles)
+    scan = [make_scan(float(t), ranges, angles[0], angles[1] - angles[0], 0.02, 30.0) for t in range(2)]
+    frames = [Frame(0, scan[0], np.zeros(3)), Frame(1, scan[1], np.array([-0.13, 0.0, 0.0]))]
+    end = {}
+    for coarse in (0, 3):
+        params = GMappingParams(particles=2, srr=0.0, srt=0.0, str=0.0, stt=0.0, linearUpdate=0.1,
+                                coarse_kernel=coarse)
+        slam = GMapping(params, seed=0).run(frames)
+        assert slam.diagnostics.series["updated"][-1] == 1
+        end[coarse] = slam.trajectory()[1][-1]
+    assert abs(end[0][0] + 0.13) < 1e-9  # the plain climb stays where the odometry put it
+    assert abs(end[3][0]) < 0.01 and abs(end[3][2]) < 0.01

@@ -88,6 +88,11 @@ class GMappingParams:
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
+    coarse_kernel: int = param(
+        0, unit="cells", low=0, high=10, help="not in GMapping: each particle also climbs from a second start, found "
+        "by a climb at the first steps (lstep, astep) whose beams search this many cells around their ends, and "
+        "keeps whichever of the two climbs scores higher; reaches walls a few cells beyond kernelSize's window "
+        "(a loop coming back to old map); 0: off, the original's one climb")
     ogain: float = param(3.0, low=1e-6, help="weight smoothing: weights are exp(loglik / (ogain N))")
     lskip: int = param(0, low=0, help="use every (lskip+1)-th beam for matching and likelihood")
     minimumScore: float = param(
@@ -325,12 +330,17 @@ class GMapping(SlamMethod):
         mount = np.asarray(scan.mount, dtype=np.float64)
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
-        match_particles(*common, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations, p.angular_search,
-                        p.angular_search_every,
-                        p.linearOdometryReliability, p.angularOdometryReliability,
-                        self._prior_info(p.odometry_prior), p.minimumScore,
-                        out_poses, score, like, ok)
+        climb = (mount, beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep,
+                 p.iterations, p.angular_search, p.angular_search_every, p.linearOdometryReliability,
+                 p.angularOdometryReliability, self._prior_info(p.odometry_prior), p.minimumScore)
+        match_particles(*common, self._state, *climb, out_poses, score, like, ok)
+        if p.coarse_kernel > 0:
+            # the same climb again from the coarse climb's pose; each particle keeps the higher score
+            poses2, score2, like2, ok2 = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+            match_particles(*common, self._coarse_climb(mount, beams), *climb, poses2, score2, like2, ok2)
+            take = ok2 & (~ok | (score2 > score))
+            out_poses[take], score[take], like[take] = poses2[take], score2[take], like2[take]
+            ok |= ok2
         failures = int(n - ok.sum())
         if failures:
             self.diagnostics.count("match_failures", failures)
@@ -365,6 +375,27 @@ class GMapping(SlamMethod):
             "best_score": best_score,
             "tiles": float(maps.tiles_in_use),
         }
+
+    def _coarse_climb(self, mount, beams: BeamSet) -> NDArray[np.float64]:
+        """``coarse_kernel``: every particle's second start for GMapping's climb, climbed on a wider score.
+
+        The same climb at its first steps (``lstep``, ``astep``, no halving), but each beam looks for a
+        map point within ``coarse_kernel`` cells: a particle whose walls lie beyond the ``kernelSize``
+        window (a loop coming back to old map, a particle the motion noise put a few cells off) is
+        moved into the basin the original climb then refines. A particle whose coarse climb fails
+        starts from its own pose. The wider window alone also matches beams to the wrong wall in
+        cluttered rooms, hence the second climb is only kept where it scores higher on the
+        original's own score.
+        """
+        p = self.params
+        maps = self._maps
+        n = self._n
+        out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
+        match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
+                        p.coarse_kernel, p.free_cell_check, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, 0, 0.0, 1, 0.0, 0.0,
+                        self._prior_info(p.odometry_prior), 0.0, out, score, like, ok)
+        return np.where(ok[:, None], out, self._state)
 
     def _prior_info(self, weight: float, since: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Per particle, ``weight`` times the information of the odometry prior a climb weighs (zeros: off).
