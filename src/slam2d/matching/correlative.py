@@ -1195,6 +1195,28 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
 
 
 @njit(cache=True)
+def _along_extent(resp, offs, cx, cy, px, py, threshold, vx, vy):
+    """Least and largest ``dx vx + dy vy`` over the (y, x) cells whose best response over angles reaches
+    ``threshold`` (dx, dy from (px, py)): the mask's extent along a direction, numpy's arithmetic."""
+    na, ny, nx = resp.shape
+    lo = np.inf
+    hi = -np.inf
+    for i in range(ny):
+        dy = (cy + offs[i]) - py
+        for j in range(nx):
+            v = resp[0, i, j]
+            for a in range(1, na):
+                if resp[a, i, j] > v:
+                    v = resp[a, i, j]
+            if v >= threshold:
+                dx = (cx + offs[j]) - px
+                t = dx * vx + dy * vy
+                lo = min(lo, t)
+                hi = max(hi, t)
+    return lo, hi
+
+
+@njit(cache=True)
 def _tie_mean(resp, best, offs, angles, cx, cy, ct):
     """Karto's pose of a search whose best response is shared: the mean offset of every pose within
     1e-12 of it (C order, numpy's pairwise mean, so the bits of ``offs[np.nonzero(...)].mean()``)."""
@@ -1665,14 +1687,22 @@ class CorrelativeMatcher:
                                                      float(pose[0]), float(pose[1]), best - _COVARIANCE_BAND)
             if norm <= 1e-12 or best <= 0:
                 return np.diag([MAX_VARIANCE, MAX_VARIANCE])
-            if not edge:
-                floor = 0.1 * step_m * step_m
-                cov = np.zeros((2, 2))
-                cov[0, 0] = max(sxx / norm, floor)
-                cov[1, 1] = max(syy / norm, floor)
-                cov[0, 1] = cov[1, 0] = sxy / norm
-                cov /= best
-                return cov
+            floor = 0.1 * step_m * step_m
+            cov = np.zeros((2, 2))
+            cov[0, 0] = max(sxx / norm, floor)
+            cov[1, 1] = max(syy / norm, floor)
+            cov[0, 1] = cov[1, 0] = sxy / norm
+            cov /= best
+            if edge:
+                # As in the general case below, with the same sums (the mask's extent along the
+                # main axis compiled too).
+                vals, vecs = np.linalg.eigh(cov)
+                lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                       float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
+                if hi - lo >= 0.5 * self.search_size:
+                    vals[-1] = max(vals[-1], self.search_size**2)
+                    cov = (vecs * vals) @ vecs.T
+            return cov
         return self._positional_covariance_general(resp, offs, center, pose, best, step_m, own)
 
     def _positional_covariance_general(self, resp, offs, center, pose, best, step_m, own=0.0):
