@@ -912,6 +912,15 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
     resp = np.empty((na, ny, nx))
     two_pi = 2 * np.pi
     best = -np.inf
+    # The distance penalty is the same at every angle: once per translation.
+    pdist = np.empty((ny, nx))
+    if penalize:
+        for i in range(ny):
+            dy = (cy + offs[i]) - py
+            for j in range(nx):
+                dx = (cx + offs[j]) - px
+                d2 = dx * dx + dy * dy
+                pdist[i, j] = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
     for a in range(na):
         pa = 1.0
         if penalize:
@@ -919,15 +928,11 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
             dth = (dth + np.pi) % two_pi - np.pi
             pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
         for i in range(ny):
-            dy = (cy + offs[i]) - py
             for j in range(nx):
                 r = sums[a, i, j] / norm
                 raw[a, i, j] = r
                 if penalize:
-                    dx = (cx + offs[j]) - px
-                    d2 = dx * dx + dy * dy
-                    pd = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
-                    v = r * (pd * pa) if r >= 0 else -1.0
+                    v = r * (pdist[i, j] * pa) if r >= 0 else -1.0
                 else:
                     v = r
                 resp[a, i, j] = v
