@@ -34,6 +34,13 @@ until the bound falls more than 0.1 below the best found. Every pose whose
 response can be within 0.1 of the best is thus scored exactly, so the result
 and its covariance equal the exhaustive search's (a test checks it), at a
 fraction of the lookups.
+
+A match's own coarse search (narrow windows, searched exhaustively) skips angles the same
+way: angles are scored from the prior's heading outwards, points in chunks, and an angle whose
+sums so far plus a full cell for every point still to come (times its largest penalty) cannot
+come within 0.1 of the best response scored so far is left unscored. Only the surface within
+that band shapes the result, so the match is the exhaustive one bit for bit, with about two
+thirds of the lookups on real scans.
 """
 
 from __future__ import annotations
