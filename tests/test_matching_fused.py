@@ -20,16 +20,7 @@ from slam2d.matching.correlative import (
     _heading_spread,
     _tie_mean,
 )
-
-
-def _walls(rng, n_walls, extent=5.0, step=0.015):
-    pts = []
-    for _ in range(n_walls):
-        a = rng.uniform(-extent, extent, 2)
-        b = a + rng.uniform(-4.0, 4.0, 2)
-        n = max(2, int(np.linalg.norm(b - a) / step))
-        pts.append(a + (b - a) * np.linspace(0.0, 1.0, n)[:, None])
-    return np.vstack(pts)
+from tests.test_matching_bound import _walls
 
 
 def _corridor(rng, step=0.015):

@@ -432,13 +432,10 @@ def _add_rows(grid, out, r_base, c_base, ni, nj, step):
 
 
 @njit(cache=True, inline="always")
-def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
-    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
+def _accumulate(grid, rows, cols, a, k0, k1, i0, j0, ni, nj, step, out):
+    """out[i, j] += grid under the points [k0, k1) at angle ``a`` shifted by (i0 + i, j0 + j) steps."""
     g_rows, g_cols = grid.shape
-    for i in range(ni):
-        for j in range(nj):
-            out[i, j] = 0
-    for k in range(rows.shape[1]):
+    for k in range(k0, k1):
         r_base = rows[a, k] + i0 * step
         c_base = cols[a, k] + j0 * step
         r_last = r_base + (ni - 1) * step
@@ -454,6 +451,15 @@ def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
                     c = c_base + j * step
                     if c >= 0 and c < g_cols:
                         out[i, j] += grid[r, c]
+
+
+@njit(cache=True, inline="always")
+def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
+    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
+    for i in range(ni):
+        for j in range(nj):
+            out[i, j] = 0
+    _accumulate(grid, rows, cols, a, 0, rows.shape[1], i0, j0, ni, nj, step, out)
 
 
 @njit(cache=True)
@@ -906,6 +912,17 @@ def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y
     return best
 
 
+@njit(cache=True, inline="always")
+def _distance_penalties(offs, cx, cy, px, py, dvp, min_dp, out):
+    """out[i, j]: the distance penalty factor of the translation (offs[j], offs[i]) from (cx, cy), measured from (px, py)."""
+    for i in range(offs.shape[0]):
+        dy = (cy + offs[i]) - py
+        for j in range(offs.shape[0]):
+            dx = (cx + offs[j]) - px
+            d2 = dx * dx + dy * dy
+            out[i, j] = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
+
+
 @njit(cache=True)
 def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penalize, dvp, avp, min_dp, min_ap):
     """Raw and (with ``penalize``) penalised responses of a search, its best, how many poses tie
@@ -922,12 +939,7 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
     # The distance penalty is the same at every angle: once per translation.
     pdist = np.empty((ny, nx))
     if penalize:
-        for i in range(ny):
-            dy = (cy + offs[i]) - py
-            for j in range(nx):
-                dx = (cx + offs[j]) - px
-                d2 = dx * dx + dy * dy
-                pdist[i, j] = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
+        _distance_penalties(offs, cx, cy, px, py, dvp, min_dp, pdist)
     for a in range(na):
         pa = 1.0
         if penalize:
@@ -1024,6 +1036,16 @@ def _pairwise_sum(a, lo, n):
     return values[0]
 
 
+@njit(cache=True, inline="always")
+def _best_over_angles(resp, i, j):
+    """max over angles of resp[:, i, j]."""
+    v = resp[0, i, j]
+    for a in range(1, resp.shape[0]):
+        if resp[a, i, j] > v:
+            v = resp[a, i, j]
+    return v
+
+
 @njit(cache=True)
 def _spread_sums(resp, offs, cx, cy, px, py, threshold):
     """Sums of the positional covariance: w, w dx^2, w dy^2, w dx dy over the (y, x) surface of the
@@ -1043,10 +1065,7 @@ def _spread_sums(resp, offs, cx, cy, px, py, threshold):
     for i in range(ny):
         dy = (cy + offs[i]) - py
         for j in range(nx):
-            v = resp[0, i, j]
-            for a in range(1, na):
-                if resp[a, i, j] > v:
-                    v = resp[a, i, j]
+            v = _best_over_angles(resp, i, j)
             k = i * nx + j
             if v >= threshold:
                 if i == 0 or i == ny - 1 or j == 0 or j == nx - 1:
@@ -1060,6 +1079,18 @@ def _spread_sums(resp, offs, cx, cy, px, py, threshold):
             txy[k] = v * dx * dy
     return (0.0 + _pairwise_sum(w, 0, n), 0.0 + _pairwise_sum(txx, 0, n), 0.0 + _pairwise_sum(tyy, 0, n),
             0.0 + _pairwise_sum(txy, 0, n), edge)
+
+
+@njit(cache=True, inline="always")
+def _cells_at(q, x0, y0, th, origin_x, origin_y, resolution, first, rows, cols):
+    """rows[0], cols[0]: the cells of the points ``q`` at pose (x0, y0, th), plus ``first`` (:func:`_query_cells`' arithmetic)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    for k in range(q.shape[0]):
+        wx = x0 + c * q[k, 0] - s * q[k, 1]
+        wy = y0 + s * q[k, 0] + c * q[k, 1]
+        cols[0, k] = int(math.floor((wx - origin_x) / resolution)) + first
+        rows[0, k] = int(math.floor((wy - origin_y) / resolution)) + first
 
 
 @njit(cache=True, nogil=True)
@@ -1077,40 +1108,11 @@ def _score_poses(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles
     cols = np.empty((1, n), np.int64)
     buf = np.empty((n_steps, n_steps), np.int32)
     for a in range(a0, a1):
-        th = theta0 + angles[a]
-        c = math.cos(th)
-        s = math.sin(th)
-        for k in range(n):
-            wx = x0 + c * q[k, 0] - s * q[k, 1]
-            wy = y0 + s * q[k, 0] + c * q[k, 1]
-            cols[0, k] = int(math.floor((wx - origin_x) / resolution)) + first
-            rows[0, k] = int(math.floor((wy - origin_y) / resolution)) + first
+        _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, first, rows, cols)
         _score_window(grid, rows, cols, 0, 0, 0, n_steps, n_steps, step, buf)
         for i in range(n_steps):
             for j in range(n_steps):
                 sums[a, i, j] = buf[i, j]
-
-
-@njit(cache=True, inline="always")
-def _accumulate(grid, rows, cols, k0, k1, ni, nj, step, out):
-    """out[i, j] += grid under the points [k0, k1) (cells ``rows[0, k]``, ``cols[0, k]``) shifted by (i, j) steps."""
-    g_rows, g_cols = grid.shape
-    for k in range(k0, k1):
-        r_base = rows[0, k]
-        c_base = cols[0, k]
-        r_last = r_base + (ni - 1) * step
-        c_last = c_base + (nj - 1) * step
-        if r_base >= 0 and c_base >= 0 and r_last < g_rows and c_last < g_cols:
-            _add_rows(grid, out, r_base, c_base, ni, nj, step)
-        elif r_last >= 0 and c_last >= 0 and r_base < g_rows and c_base < g_cols:
-            for i in range(ni):
-                r = r_base + i * step
-                if r < 0 or r >= g_rows:
-                    continue
-                for j in range(nj):
-                    c = c_base + j * step
-                    if c >= 0 and c < g_cols:
-                        out[i, j] += grid[r, c]
 
 
 @njit(cache=True, nogil=True)
@@ -1141,14 +1143,8 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
     pdist = np.ones((n_steps, n_steps))
     pd_max = 1.0
     if penalize:
-        pd_max = 0.0
-        for i in range(n_steps):
-            dy = (y0 + offs[i]) - py
-            for j in range(n_steps):
-                dx = (x0 + offs[j]) - px
-                d2 = dx * dx + dy * dy
-                pdist[i, j] = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
-                pd_max = max(pd_max, pdist[i, j])
+        _distance_penalties(offs, x0, y0, px, py, dvp, min_dp, pdist)
+        pd_max = pdist.max()
     best = -np.inf
     band = _COVARIANCE_BAND + 1e-9
     lookups = 0
@@ -1159,14 +1155,7 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
             dth = (theta0 + angles[a]) - pt
             dth = (dth + np.pi) % two_pi - np.pi
             pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
-        th = theta0 + angles[a]
-        c = math.cos(th)
-        s = math.sin(th)
-        for k in range(n):
-            wx = x0 + c * q[k, 0] - s * q[k, 1]
-            wy = y0 + s * q[k, 0] + c * q[k, 1]
-            cols[0, k] = int(math.floor((wx - origin_x) / resolution)) + first
-            rows[0, k] = int(math.floor((wy - origin_y) / resolution)) + first
+        _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, first, rows, cols)
         for i in range(n_steps):
             for j in range(n_steps):
                 buf[i, j] = 0
@@ -1174,7 +1163,7 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
         k0 = 0
         while k0 < n:
             k1 = min(k0 + chunk, n)
-            _accumulate(grid, rows, cols, k0, k1, n_steps, n_steps, step, buf)
+            _accumulate(grid, rows, cols, 0, k0, k1, 0, 0, n_steps, n_steps, step, buf)
             lookups += (k1 - k0) * n_steps * n_steps
             k0 = k1
             if k0 < n:
@@ -1216,10 +1205,7 @@ def _along_extent(resp, offs, cx, cy, px, py, threshold, vx, vy):
     for i in range(ny):
         dy = (cy + offs[i]) - py
         for j in range(nx):
-            v = resp[0, i, j]
-            for a in range(1, na):
-                if resp[a, i, j] > v:
-                    v = resp[a, i, j]
+            v = _best_over_angles(resp, i, j)
             if v >= threshold:
                 dx = (cx + offs[j]) - px
                 t = dx * vx + dy * vy
