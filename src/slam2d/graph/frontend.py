@@ -517,9 +517,14 @@ class GraphFrontend:
         return self._points[i], self._sigmas[i]
 
     def _scan_points(self, scan, sig, use) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The scan's points (base frame) of the beams in ``use`` and their smear sigmas."""
+        """The scan's points (base frame) of the beams in ``use`` and their smear sigmas.
+
+        ``sig`` None: the points only (a scan matched as a query, never drawn), sigmas None.
+        """
         p = self.params
         points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
+        if sig is None:
+            return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
         if p.smear_beam_spacing > 0:
             # A reference point stands for the stretch of wall between it and its neighbours'
@@ -735,7 +740,6 @@ class GraphFrontend:
             self.anchor, self.offset = last, offset
             return None
         scan = frame.scan
-        sig = beam_sigmas(scan, self.sensor_model, 0.0)
         with np.errstate(invalid="ignore"):
             use = scan.valid & (scan.ranges <= p.range_threshold)
         if not use.any():
@@ -746,16 +750,19 @@ class GraphFrontend:
                 self.offset = se2.relative(self.graph.poses[last], chained)
                 self._frame_pose = chained
             return None
-        points, sigmas = self._scan_points(scan, sig, use)
         if not moved:
             # A scan that adds no node is still matched against the running scans, for its own
-            # pose in the trajectory: between nodes the odometry alone can be degrees off.
+            # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
+            # never drawn as a reference, so it needs no sigmas.
+            points, _ = self._scan_points(scan, None, use)
             pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between)
             self._frame_degenerate = self._degenerate(fcov, self.between)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
             return None
+        sig = beam_sigmas(scan, self.sensor_model, 0.0)
+        points, sigmas = self._scan_points(scan, sig, use)
         values: dict[str, float] = {}
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
@@ -1302,11 +1309,16 @@ def _fill_gaps(points: NDArray[np.float64], sigmas: NDArray[np.float64], max_gap
     return np.concatenate([points, added]), np.concatenate([sigmas, sig])
 
 
-def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: float):
-    """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
+def _thin_keep(points: NDArray[np.float64], spacing: float) -> NDArray[np.int64]:
+    """Indices of the first point (in scan order) of every ``spacing``-sided square."""
     cells = np.floor(points / spacing).astype(np.int64)
     _, first = np.unique(cells, axis=0, return_index=True)
-    keep = np.sort(first)
+    return np.sort(first)
+
+
+def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: float):
+    """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
+    keep = _thin_keep(points, spacing)
     return points[keep], sigmas[keep]
 
 

@@ -34,6 +34,13 @@ until the bound falls more than 0.1 below the best found. Every pose whose
 response can be within 0.1 of the best is thus scored exactly, so the result
 and its covariance equal the exhaustive search's (a test checks it), at a
 fraction of the lookups.
+
+A match's own coarse search (narrow windows, searched exhaustively) skips angles the same
+way: angles are scored from the prior's heading outwards, points in chunks, and an angle whose
+sums so far plus a full cell for every point still to come (times its largest penalty) cannot
+come within 0.1 of the best response scored so far is left unscored. Only the surface within
+that band shapes the result, so the match is the exhaustive one bit for bit, with about two
+thirds of the lookups on real scans.
 """
 
 from __future__ import annotations
@@ -66,6 +73,8 @@ _BOUND_BLOCK = 8
 _BOUND_SPLITS = 3
 # Exhaustive searches of at least this many lookups share their angles among threads.
 _PARALLEL_LOOKUPS = 1_000_000
+# Points scored between two checks of a coarse search's angle bound (see _score_poses_pruned).
+_PRUNE_CHUNK = 32
 # Smears of at least this many points are drawn in row bands, one per thread.
 _PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
@@ -426,13 +435,10 @@ def _add_rows(grid, out, r_base, c_base, ni, nj, step):
 
 
 @njit(cache=True, inline="always")
-def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
-    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
+def _accumulate(grid, rows, cols, a, k0, k1, i0, j0, ni, nj, step, out):
+    """out[i, j] += grid under the points [k0, k1) at angle ``a`` shifted by (i0 + i, j0 + j) steps."""
     g_rows, g_cols = grid.shape
-    for i in range(ni):
-        for j in range(nj):
-            out[i, j] = 0
-    for k in range(rows.shape[1]):
+    for k in range(k0, k1):
         r_base = rows[a, k] + i0 * step
         c_base = cols[a, k] + j0 * step
         r_last = r_base + (ni - 1) * step
@@ -448,6 +454,15 @@ def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
                     c = c_base + j * step
                     if c >= 0 and c < g_cols:
                         out[i, j] += grid[r, c]
+
+
+@njit(cache=True, inline="always")
+def _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, out):
+    """out[i, j] = sum of grid under the points at angle ``a`` shifted by (i0 + i, j0 + j) steps (int32)."""
+    for i in range(ni):
+        for j in range(nj):
+            out[i, j] = 0
+    _accumulate(grid, rows, cols, a, 0, rows.shape[1], i0, j0, ni, nj, step, out)
 
 
 @njit(cache=True)
@@ -900,6 +915,17 @@ def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y
     return best
 
 
+@njit(cache=True, inline="always")
+def _distance_penalties(offs, cx, cy, px, py, dvp, min_dp, out):
+    """out[i, j]: the distance penalty factor of the translation (offs[j], offs[i]) from (cx, cy), measured from (px, py)."""
+    for i in range(offs.shape[0]):
+        dy = (cy + offs[i]) - py
+        for j in range(offs.shape[0]):
+            dx = (cx + offs[j]) - px
+            d2 = dx * dx + dy * dy
+            out[i, j] = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
+
+
 @njit(cache=True)
 def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penalize, dvp, avp, min_dp, min_ap):
     """Raw and (with ``penalize``) penalised responses of a search, its best, how many poses tie
@@ -913,6 +939,10 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
     resp = np.empty((na, ny, nx))
     two_pi = 2 * np.pi
     best = -np.inf
+    # The distance penalty is the same at every angle: once per translation.
+    pdist = np.empty((ny, nx))
+    if penalize:
+        _distance_penalties(offs, cx, cy, px, py, dvp, min_dp, pdist)
     for a in range(na):
         pa = 1.0
         if penalize:
@@ -920,15 +950,11 @@ def _responses(sums, norm, offs, angles, cx, cy, ctheta, px, py, ptheta, penaliz
             dth = (dth + np.pi) % two_pi - np.pi
             pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
         for i in range(ny):
-            dy = (cy + offs[i]) - py
             for j in range(nx):
                 r = sums[a, i, j] / norm
                 raw[a, i, j] = r
                 if penalize:
-                    dx = (cx + offs[j]) - px
-                    d2 = dx * dx + dy * dy
-                    pd = max(1.0 - _PENALTY_GAIN * d2 / dvp, min_dp)
-                    v = r * (pd * pa) if r >= 0 else -1.0
+                    v = r * (pdist[i, j] * pa) if r >= 0 else -1.0
                 else:
                     v = r
                 resp[a, i, j] = v
@@ -1013,6 +1039,16 @@ def _pairwise_sum(a, lo, n):
     return values[0]
 
 
+@njit(cache=True, inline="always")
+def _best_over_angles(resp, i, j):
+    """max over angles of resp[:, i, j]."""
+    v = resp[0, i, j]
+    for a in range(1, resp.shape[0]):
+        if resp[a, i, j] > v:
+            v = resp[a, i, j]
+    return v
+
+
 @njit(cache=True)
 def _spread_sums(resp, offs, cx, cy, px, py, threshold):
     """Sums of the positional covariance: w, w dx^2, w dy^2, w dx dy over the (y, x) surface of the
@@ -1032,10 +1068,7 @@ def _spread_sums(resp, offs, cx, cy, px, py, threshold):
     for i in range(ny):
         dy = (cy + offs[i]) - py
         for j in range(nx):
-            v = resp[0, i, j]
-            for a in range(1, na):
-                if resp[a, i, j] > v:
-                    v = resp[a, i, j]
+            v = _best_over_angles(resp, i, j)
             k = i * nx + j
             if v >= threshold:
                 if i == 0 or i == ny - 1 or j == 0 or j == nx - 1:
@@ -1049,6 +1082,279 @@ def _spread_sums(resp, offs, cx, cy, px, py, threshold):
             txy[k] = v * dx * dy
     return (0.0 + _pairwise_sum(w, 0, n), 0.0 + _pairwise_sum(txx, 0, n), 0.0 + _pairwise_sum(tyy, 0, n),
             0.0 + _pairwise_sum(txy, 0, n), edge)
+
+
+@njit(cache=True, inline="always")
+def _cells_at(q, x0, y0, th, origin_x, origin_y, resolution, first, rows, cols):
+    """rows[0], cols[0]: the cells of the points ``q`` at pose (x0, y0, th), plus ``first`` (:func:`_query_cells`' arithmetic)."""
+    c = math.cos(th)
+    s = math.sin(th)
+    for k in range(q.shape[0]):
+        wx = x0 + c * q[k, 0] - s * q[k, 1]
+        wy = y0 + s * q[k, 0] + c * q[k, 1]
+        cols[0, k] = int(math.floor((wx - origin_x) / resolution)) + first
+        rows[0, k] = int(math.floor((wy - origin_y) / resolution)) + first
+
+
+@njit(cache=True, nogil=True)
+def _score_poses(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, half, step, a0, a1, sums):
+    """sums[a] for the angles [a0, a1): the grid summed under the query points ``q`` (N, 2) rotated to
+    ``theta0 + angles[a]`` at every translation of the window (float64 of integer sums).
+
+    :func:`_query_cells` and :func:`_score_all` in one pass, one angle's cells at a time (the same
+    arithmetic, so the same sums), with no per-angle tables to allocate.
+    """
+    n = q.shape[0]
+    n_steps = 2 * half + 1
+    first = -half * step
+    rows = np.empty((1, n), np.int64)
+    cols = np.empty((1, n), np.int64)
+    buf = np.empty((n_steps, n_steps), np.int32)
+    for a in range(a0, a1):
+        _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, first, rows, cols)
+        _score_window(grid, rows, cols, 0, 0, 0, n_steps, n_steps, step, buf)
+        for i in range(n_steps):
+            for j in range(n_steps):
+                sums[a, i, j] = buf[i, j]
+
+
+@njit(cache=True, nogil=True)
+def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, order, half, step, px, py,
+                        pt, penalize, dvp, avp, min_dp, min_ap, floor, chunk, sums):
+    """:func:`_score_poses` over every angle, skipping the angles that cannot matter: (lookups done).
+
+    Angles are scored in ``order`` (the prior's heading first), their points in chunks of
+    ``chunk``; after each chunk, the sums so far plus a full cell for every point still to
+    come, times the largest penalty factor of the angle, bound the angle's (penalised)
+    responses. Once that bound is below the best response scored so far (or ``floor``) less
+    the covariance band, the angle is left unscored (sums -1): none of its poses can be the
+    best, tie with it or weigh in the covariance (poses within the band of the best), so the
+    match is the exhaustive one bit for bit. The arithmetic of the responses is
+    :func:`_responses`', so the running best is the same number.
+    """
+    n = q.shape[0]
+    na = angles.shape[0]
+    n_steps = 2 * half + 1
+    first = -half * step
+    norm = float(n * _SCALE)
+    rows = np.empty((1, n), np.int64)
+    cols = np.empty((1, n), np.int64)
+    buf = np.empty((n_steps, n_steps), np.int32)
+    offs = (np.arange(n_steps) - half) * (step * resolution)
+    two_pi = 2 * np.pi
+    # The distance penalty of every translation and its largest value.
+    pdist = np.ones((n_steps, n_steps))
+    pd_max = 1.0
+    if penalize:
+        _distance_penalties(offs, x0, y0, px, py, dvp, min_dp, pdist)
+        pd_max = pdist.max()
+    best = -np.inf
+    band = _COVARIANCE_BAND + 1e-9
+    lookups = 0
+    for idx in range(na):
+        a = order[idx]
+        pa = 1.0
+        if penalize:
+            dth = (theta0 + angles[a]) - pt
+            dth = (dth + np.pi) % two_pi - np.pi
+            pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
+        _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, first, rows, cols)
+        for i in range(n_steps):
+            for j in range(n_steps):
+                buf[i, j] = 0
+        pruned = False
+        k0 = 0
+        while k0 < n:
+            k1 = min(k0 + chunk, n)
+            _accumulate(grid, rows, cols, 0, k0, k1, 0, 0, n_steps, n_steps, step, buf)
+            lookups += (k1 - k0) * n_steps * n_steps
+            k0 = k1
+            if k0 < n:
+                top = buf[0, 0]
+                for i in range(n_steps):
+                    for j in range(n_steps):
+                        if buf[i, j] > top:
+                            top = buf[i, j]
+                bound = (float(top) + (n - k0) * _SCALE) / norm
+                if penalize:
+                    bound = bound * (pd_max * pa)
+                if bound < max(best, floor) - band:
+                    pruned = True
+                    break
+        if pruned:
+            for i in range(n_steps):
+                for j in range(n_steps):
+                    sums[a, i, j] = -1.0
+            continue
+        for i in range(n_steps):
+            for j in range(n_steps):
+                v = buf[i, j]
+                sums[a, i, j] = v
+                r = v / norm
+                if penalize:
+                    r = r * (pdist[i, j] * pa) if r >= 0 else -1.0
+                if r > best:
+                    best = r
+    return lookups
+
+
+@njit(cache=True)
+def _along_extent(resp, offs, cx, cy, px, py, threshold, vx, vy):
+    """Least and largest ``dx vx + dy vy`` over the (y, x) cells whose best response over angles reaches
+    ``threshold`` (dx, dy from (px, py)): the mask's extent along a direction, numpy's arithmetic."""
+    na, ny, nx = resp.shape
+    lo = np.inf
+    hi = -np.inf
+    for i in range(ny):
+        dy = (cy + offs[i]) - py
+        for j in range(nx):
+            v = _best_over_angles(resp, i, j)
+            if v >= threshold:
+                dx = (cx + offs[j]) - px
+                t = dx * vx + dy * vy
+                lo = min(lo, t)
+                hi = max(hi, t)
+    return lo, hi
+
+
+@njit(cache=True)
+def _tie_mean(resp, best, offs, angles, cx, cy, ct):
+    """Karto's pose of a search whose best response is shared: the mean offset of every pose within
+    1e-12 of it (C order, numpy's pairwise mean, so the bits of ``offs[np.nonzero(...)].mean()``)."""
+    na, ny, nx = resp.shape
+    ox = np.empty(resp.size)
+    oy = np.empty(resp.size)
+    ot = np.empty(resp.size)
+    m = 0
+    for a in range(na):
+        for i in range(ny):
+            for j in range(nx):
+                if resp[a, i, j] >= best - 1e-12:
+                    ox[m] = offs[j]
+                    oy[m] = offs[i]
+                    ot[m] = angles[a]
+                    m += 1
+    pose = np.empty(3)
+    pose[0] = cx + (0.0 + _pairwise_sum(ox, 0, m)) / m
+    pose[1] = cy + (0.0 + _pairwise_sum(oy, 0, m)) / m
+    pose[2] = ct + (0.0 + _pairwise_sum(ot, 0, m)) / m
+    return pose
+
+
+@njit(cache=True)
+def _finish_search(sums, n_points, offs, angles, cx, cy, ct, px, py, pt, penalize, dvp, avp, min_dp, min_ap):
+    """Responses of a scored window (:func:`_responses`) and its best pose (Karto's mean over ties):
+    (pose, best, raw at the first best, responses)."""
+    raw, resp, best, ties, first = _responses(sums, float(n_points * _SCALE), offs, angles, cx, cy, ct, px, py, pt,
+                                              penalize, dvp, avp, min_dp, min_ap)
+    a0, y0, x0 = first
+    if ties == 1:
+        pose = np.empty(3)
+        pose[0] = cx + offs[x0]
+        pose[1] = cy + offs[y0]
+        pose[2] = ct + angles[a0]
+    else:
+        pose = _tie_mean(resp, best, offs, angles, cx, cy, ct)
+    return pose, best, raw[a0, y0, x0], resp
+
+
+@njit(cache=True)
+def _search_window(grid, origin_x, origin_y, resolution, q, cx, cy, ct, px, py, pt, angles, half, step, penalize,
+                   dvp, avp, min_dp, min_ap):
+    """One exhaustive search phase in one call: (pose, best, raw, responses, offsets)."""
+    n_steps = 2 * half + 1
+    sums = np.empty((angles.shape[0], n_steps, n_steps))
+    _score_poses(grid, origin_x, origin_y, resolution, q, cx, cy, ct, angles, half, step, 0, angles.shape[0], sums)
+    offs = (np.arange(n_steps) - half) * (step * resolution)
+    pose, best, raw, resp = _finish_search(sums, q.shape[0], offs, angles, cx, cy, ct, px, py, pt, penalize,
+                                           dvp, avp, min_dp, min_ap)
+    return pose, best, raw, resp, offs
+
+
+@njit(cache=True)
+def _heading_spread(resp, angles, best, floor):
+    """The coarse heading variance of :class:`MatchResult`: the response-weighted spread of the angles
+    whose best response is within the covariance band of the best, about the best angle (at least
+    ``floor``); numpy's arithmetic and sums."""
+    na = resp.shape[0]
+    curve = np.empty(na)
+    for a in range(na):
+        v = resp[a, 0, 0]
+        for i in range(resp.shape[1]):
+            for j in range(resp.shape[2]):
+                if resp[a, i, j] > v:
+                    v = resp[a, i, j]
+        curve[a] = v
+    top = 0
+    for a in range(1, na):
+        if curve[a] > curve[top]:
+            top = a
+    w = np.empty(na)
+    t = np.empty(na)
+    for a in range(na):
+        w[a] = max(curve[a], 0.0) if curve[a] >= best - _COVARIANCE_BAND else 0.0
+        d = angles[a] - angles[top]
+        t[a] = w[a] * d * d
+    norm = 0.0 + _pairwise_sum(w, 0, na)
+    var = (0.0 + _pairwise_sum(t, 0, na)) / norm if norm > 1e-12 else MAX_VARIANCE
+    return max(var, floor)
+
+
+@njit(cache=True)
+def _argmax3(resp):
+    """np.unravel_index(np.argmax(resp), resp.shape) (the first largest, C order)."""
+    na, ny, nx = resp.shape
+    best = resp[0, 0, 0]
+    ba = bi = bj = 0
+    for a in range(na):
+        for i in range(ny):
+            for j in range(nx):
+                if resp[a, i, j] > best:
+                    best = resp[a, i, j]
+                    ba, bi, bj = a, i, j
+    return ba, bi, bj
+
+
+@njit(cache=True)
+def _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt, angles, penalize, dvp, avp, min_dp, min_ap,
+                recentre, floor, fallback):
+    """The fine search of :meth:`CorrelativeMatcher.match` in one call: one cell and the fine angles
+    around ``pose``, re-centred up to ``recentre`` times while its best lies on the window's edge and
+    responds better, then the angular spread at the best x, y. Returns (pose, best, raw, theta
+    variance (at least ``floor``; ``fallback`` when no angle responds), searches run)."""
+    na = angles.shape[0]
+    pose, best, raw, resp, _ = _search_window(grid, origin_x, origin_y, resolution, q, pose[0], pose[1], pose[2],
+                                              px, py, pt, angles, 1, 1, penalize, dvp, avp, min_dp, min_ap)
+    runs = 1
+    for _ in range(recentre):
+        a_b, i_b, j_b = _argmax3(resp)
+        if 0 < i_b < 2 and 0 < j_b < 2 and 0 < a_b < na - 1:
+            break
+        pose2, best2, raw2, resp2, _ = _search_window(grid, origin_x, origin_y, resolution, q, pose[0], pose[1],
+                                                      pose[2], px, py, pt, angles, 1, 1, penalize, dvp, avp,
+                                                      min_dp, min_ap)
+        runs += 1
+        if best2 <= best + 1e-12:
+            break
+        pose, best, raw, resp = pose2, best2, raw2, resp2
+    _, i_b, j_b = _argmax3(resp)
+    curve = np.empty(na)
+    for a in range(na):
+        curve[a] = resp[a, i_b, j_b]
+    top = 0
+    for a in range(1, na):
+        if curve[a] > curve[top]:
+            top = a
+    best_f = curve[top]
+    w = np.empty(na)
+    t = np.empty(na)
+    for a in range(na):
+        w[a] = curve[a] if curve[a] >= best_f - _COVARIANCE_BAND else 0.0
+        d = angles[a] - angles[top]
+        t[a] = w[a] * d * d
+    norm = 0.0 + _pairwise_sum(w, 0, na)
+    var = (0.0 + _pairwise_sum(t, 0, na)) / norm if norm > 1e-12 else fallback
+    return pose, best, raw, max(var, floor), runs
 
 
 # --------------------------------------------------------------------------- the matcher
@@ -1301,55 +1607,73 @@ class CorrelativeMatcher:
         pa = np.maximum(1.0 - _PENALTY_GAIN * dth * dth / self.angle_variance_penalty, self.minimum_angle_penalty)
         return pd * pa
 
-    def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb, floor=-1.0):
-        """One search phase around ``center``: (best pose, best response, raw, surface, lookups)."""
+    def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb, floor=-1.0,
+                prune=False):
+        """One search phase around ``center``: (best pose, best response, raw, surface, lookups).
+
+        ``prune``: the surface is needed only within the covariance band of the best (a match's
+        coarse search, not :meth:`places`): angles that cannot come within it are left unscored.
+        """
         res = self.resolution
         n_steps = 2 * half + 1
+        n_points = q.shape[0]
+        # The bound is on the raw response, so it prunes exactly only without a penalty.
+        exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
+        if exhaustive and prune:
+            q = np.ascontiguousarray(q, dtype=np.float64)
+            sums = np.empty((angles.shape[0], n_steps, n_steps))
+            cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
+            args = (float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
+                    self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
+            lookups = _score_poses_pruned(grid, origin[0], origin[1], res, q, cx, cy, ct, angles,
+                                          np.argsort(np.abs(angles), kind="stable"), half, step, *args[:8],
+                                          -1.0, _PRUNE_CHUNK, sums)
+            offs = (np.arange(n_steps) - half) * (step * res)
+            pose, best, raw_best, resp = _finish_search(sums, n_points, offs, angles, cx, cy, ct, *args)
+            return pose, best, float(raw_best), resp, offs, int(lookups)
+        if exhaustive:
+            q = np.ascontiguousarray(q, dtype=np.float64)
+            lookups = angles.shape[0] * n_steps * n_steps * n_points
+            # Threads pay only on searches big enough to outweigh waking them (the coarse one).
+            if _THREADS > 1 and lookups >= _PARALLEL_LOOKUPS:
+                sums = np.empty((angles.shape[0], n_steps, n_steps))
+                cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
+                _split(lambda a0, a1: _score_poses(grid, origin[0], origin[1], res, q, cx, cy, ct, angles, half, step,
+                                                   a0, a1, sums), angles.shape[0])
+                offs = (np.arange(n_steps) - half) * (step * res)
+                pose, best, raw_best, resp = _finish_search(
+                    sums, n_points, offs, angles, cx, cy, ct, float(prior[0]), float(prior[1]), float(prior[2]),
+                    penalize, self.distance_variance_penalty, self.angle_variance_penalty,
+                    self.minimum_distance_penalty, self.minimum_angle_penalty)
+            else:
+                pose, best, raw_best, resp, offs = _search_window(
+                    grid, origin[0], origin[1], res, q, float(center[0]), float(center[1]), float(center[2]),
+                    float(prior[0]), float(prior[1]), float(prior[2]), angles, half, step, penalize,
+                    self.distance_variance_penalty, self.angle_variance_penalty, self.minimum_distance_penalty,
+                    self.minimum_angle_penalty)
+            return pose, best, float(raw_best), resp, offs, lookups
         rows, cols = _query_cells(
             q[:, 0], q[:, 1], angles, center[0], center[1], center[2],
             origin[0], origin[1], res, -half * step,
         )
-        n_points = q.shape[0]
-        # The bound is on the raw response, so it prunes exactly only without a penalty.
-        exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
-        if exhaustive:
-            # Threads pay only on searches big enough to outweigh waking them (the coarse one).
-            big = _THREADS > 1 and n_points * rows.shape[0] * n_steps * n_steps >= _PARALLEL_LOOKUPS
-            sums = (_score_all_parallel if big else _score_all)(grid, rows, cols, n_steps, step)
-            lookups = sums.size * n_points
-        else:
-            block = _BLOCK
-            n_blocks = (n_steps + block - 1) // block
-            width = (block - 1) * step + 1
-            pooled = _max_pool(grid, width)
-            bounds = _block_bounds(pooled, rows, cols, n_blocks, block * step, width)
-            flat = bounds.reshape(-1)
-            order = np.argsort(-flat, kind="stable")
-            band = _COVARIANCE_BAND + 1e-9
-            sums, lookups = _score_blocks(
-                grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
-            )
-            lookups += flat.size * n_points
-        offs = (np.arange(n_steps) - half) * (step * res)
-        # Responses, penalties and the best in one compiled pass (the same arithmetic as numpy's).
-        raw, resp, best, ties, first = _responses(
-            sums, float(n_points * _SCALE), offs, angles, float(center[0]), float(center[1]), float(center[2]),
-            float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
-            self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty,
+        block = _BLOCK
+        n_blocks = (n_steps + block - 1) // block
+        width = (block - 1) * step + 1
+        pooled = _max_pool(grid, width)
+        bounds = _block_bounds(pooled, rows, cols, n_blocks, block * step, width)
+        flat = bounds.reshape(-1)
+        order = np.argsort(-flat, kind="stable")
+        band = _COVARIANCE_BAND + 1e-9
+        sums, lookups = _score_blocks(
+            grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
         )
-        a0, y0, x0 = first
-        if ties == 1:
-            pose = np.array([center[0] + offs[x0], center[1] + offs[y0], center[2] + angles[a0]])
-        else:
-            # Karto averages every pose with the best response.
-            a_i, y_i, x_i = np.nonzero(resp >= best - 1e-12)
-            pose = np.array([
-                center[0] + offs[x_i].mean(),
-                center[1] + offs[y_i].mean(),
-                center[2] + angles[a_i].mean(),
-            ])
-        raw_best = float(raw[a0, y0, x0])
-        return pose, best, raw_best, resp, offs, lookups
+        lookups += flat.size * n_points
+        offs = (np.arange(n_steps) - half) * (step * res)
+        pose, best, raw_best, resp = _finish_search(
+            sums, n_points, offs, angles, float(center[0]), float(center[1]), float(center[2]),
+            float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
+            self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
+        return pose, best, float(raw_best), resp, offs, lookups
 
     def _positional_covariance(self, resp, offs, center, pose, best, step_m, own=0.0):
         """Karto's x, y covariance of the surface about ``pose`` (see the module docstring).
@@ -1364,14 +1688,22 @@ class CorrelativeMatcher:
                                                      float(pose[0]), float(pose[1]), best - _COVARIANCE_BAND)
             if norm <= 1e-12 or best <= 0:
                 return np.diag([MAX_VARIANCE, MAX_VARIANCE])
-            if not edge:
-                floor = 0.1 * step_m * step_m
-                cov = np.zeros((2, 2))
-                cov[0, 0] = max(sxx / norm, floor)
-                cov[1, 1] = max(syy / norm, floor)
-                cov[0, 1] = cov[1, 0] = sxy / norm
-                cov /= best
-                return cov
+            floor = 0.1 * step_m * step_m
+            cov = np.zeros((2, 2))
+            cov[0, 0] = max(sxx / norm, floor)
+            cov[1, 1] = max(syy / norm, floor)
+            cov[0, 1] = cov[1, 0] = sxy / norm
+            cov /= best
+            if edge:
+                # As in the general case below, with the same sums (the mask's extent along the
+                # main axis compiled too).
+                vals, vecs = np.linalg.eigh(cov)
+                lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                       float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
+                if hi - lo >= 0.5 * self.search_size:
+                    vals[-1] = max(vals[-1], self.search_size**2)
+                    cov = (vecs * vals) @ vecs.T
+            return cov
         return self._positional_covariance_general(resp, offs, center, pose, best, step_m, own)
 
     def _positional_covariance_general(self, resp, offs, center, pose, best, step_m, own=0.0):
@@ -1444,7 +1776,7 @@ class CorrelativeMatcher:
             n_half = int(round(offset / self.coarse_angle_resolution))
             angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
             pose, best, raw, resp, offs, n = self._search(
-                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response
+                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
             )
             lookups += n
             if best > 0.0:
@@ -1452,43 +1784,26 @@ class CorrelativeMatcher:
             offset += math.radians(20.0)
         cov = np.zeros((3, 3))
         cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, 2.0 * res)
-        a_curve = resp.max(axis=(1, 2))
-        w = np.where(a_curve >= best - _COVARIANCE_BAND, np.maximum(a_curve, 0.0), 0.0)
-        dth = angles - angles[int(np.argmax(a_curve))]
-        heading_var = float((w * dth * dth).sum() / w.sum()) if w.sum() > 1e-12 else MAX_VARIANCE
-        heading_var = max(heading_var, self.coarse_angle_resolution**2 / 12.0)
-        prior_drop = float(best - a_curve[n_half])  # the coarse angles are offsets from the prior's heading
+        heading_var = _heading_spread(resp, angles, best, self.coarse_angle_resolution**2 / 12.0)
+        # The coarse angles are offsets from the prior's heading, which the pruned search scores
+        # first and in full; an angle it leaves unscored (only with min_response) is over the band below.
+        prior_drop = float(best - max(resp[n_half].max(), 0.0))
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
             angles = np.arange(-n_half, n_half + 1) * self.fine_angle_step
-            pose, best, raw, resp_f, _, n = self._search(
-                g, origin, q, pose, prior, angles, 1, 1, penalize, False
-            )
-            lookups += n
-            for _ in range(self.fine_recentre):
-                # The coarse pose is 1-2 cells and up to half a coarse angle step off; at the
-                # wrong angle the best x, y is off too (far points move r * dtheta), and the
-                # fine step cannot leave its +-1 cell: re-centre while the best is on its edge.
-                a_b, i_b, j_b = np.unravel_index(int(np.argmax(resp_f)), resp_f.shape)
-                if 0 < i_b < 2 and 0 < j_b < 2 and 0 < a_b < angles.size - 1:
-                    break
-                pose2, best2, raw2, resp2, _, n = self._search(
-                    g, origin, q, pose, prior, angles, 1, 1, penalize, False
-                )
-                lookups += n
-                if best2 <= best + 1e-12:
-                    break
-                pose, best, raw, resp_f = pose2, best2, raw2, resp2
-            # Angular spread at the best x, y of the fine search.
-            _, i_b, j_b = np.unravel_index(int(np.argmax(resp_f)), resp_f.shape)
-            a_curve = resp_f[:, i_b, j_b]
-            best_f = float(a_curve.max())
-            w = np.where(a_curve >= best_f - _COVARIANCE_BAND, a_curve, 0.0)
-            dth = angles - angles[int(np.argmax(a_curve))]
-            norm = w.sum()
-            var = (w * dth * dth).sum() / norm if norm > 1e-12 else 1000.0 * self.fine_angle_step**2
-            cov[2, 2] = max(var, self.fine_angle_step**2)
+            # One coarse step of the fine search around the coarse best, in one compiled call: while
+            # its best lies on its window's edge and responds better it is re-centred there (up to
+            # fine_recentre times): the coarse pose is 1-2 cells and up to half a coarse angle step
+            # off; at the wrong angle the best x, y is off too (far points move r * dtheta), and the
+            # fine step cannot leave its +-1 cell. The heading variance is the spread of the fine
+            # angles at the best x, y.
+            pose, best, raw, cov[2, 2], runs = _fine_stage(
+                g, float(ox), float(oy), res, np.ascontiguousarray(q), pose, float(prior[0]), float(prior[1]),
+                float(prior[2]), angles, penalize, self.distance_variance_penalty, self.angle_variance_penalty,
+                self.minimum_distance_penalty, self.minimum_angle_penalty, int(self.fine_recentre),
+                self.fine_angle_step**2, 1000.0 * self.fine_angle_step**2)
+            lookups += runs * angles.shape[0] * 9 * q.shape[0]
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
