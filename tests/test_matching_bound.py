@@ -9,6 +9,7 @@ import pytest
 
 from slam2d.core import se2
 from slam2d.matching.correlative import (
+    smear_points,
     _BOUND_BLOCK,
     CorrelativeMatcher,
     GridCache,
@@ -130,6 +131,31 @@ def test_lazily_drawn_cache_grid_equals_the_whole_grid_where_requests_read():
         assert np.array_equal(a.covariance, b.covariance)
     assert cache.draws <= cache.builds
 
+
+
+def test_lazily_drawn_grid_stays_whole_when_a_wider_scan_joins_before_it_grows():
+    """A scan with wider smears joins a drawn entry, then a request grows the drawn box: the old scans'
+    points between the old box plus its reach of then and plus the wider reach are drawn too."""
+    rng = np.random.default_rng(4)
+    narrow = np.column_stack([rng.uniform(-6.0, 6.0, 4000), rng.uniform(-1.0, 1.0, 4000)])
+    wide = np.array([[5.0, 0.5], [-5.0, -0.5]])
+    parts = [narrow, wide]
+    sig = [np.full(len(narrow), 0.01), np.full(len(wide), 0.1)]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    cache.draw_margin = 0.0
+    requests = [([0], np.array([-2.0, -0.5]), np.array([0.0, 0.5])),
+                ([0, 1], np.array([-2.0, -0.5]), np.array([0.0, 0.5])),
+                ([0, 1], np.array([-2.0, -0.5]), np.array([0.5, 0.5]))]
+    for nodes, lo, hi in requests:
+        e = cache.reserve(nodes, lo, hi)
+        g, ox, oy = cache.materialize(e, lo, hi)
+    whole = np.zeros_like(g)
+    pts = np.vstack(parts)
+    smear_points(whole, ox, oy, m.resolution, pts[:, 0].copy(), pts[:, 1].copy(), np.concatenate(sig))
+    c0, r0 = np.floor((lo - [ox, oy]) / m.resolution).astype(int)
+    c1, r1 = np.floor((hi - [ox, oy]) / m.resolution).astype(int)
+    assert np.array_equal(g[r0 : r1 + 1, c0 : c1 + 1], whole[r0 : r1 + 1, c0 : c1 + 1])
 
 @pytest.mark.parametrize("penalize", [False, True])
 def test_fused_responses_are_the_numpy_values_bit_for_bit(penalize):
