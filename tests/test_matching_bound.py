@@ -187,19 +187,30 @@ def test_fused_responses_are_the_numpy_values_bit_for_bit(penalize):
     assert ties == len(hits) and tuple(hits[0]) == tuple(first)
 
 
-def test_karto_with_and_without_the_bound_gives_the_same_trajectory(monkeypatch):
+def test_karto_skips_only_near_chains_that_cannot_link(monkeypatch):
+    """Every near chain the bound keeps from matching responds below the link threshold (matched here to check)."""
     from slam2d.methods import get_method
     from slam2d.sim.simulate import SimulationParams, simulate
 
     frames = simulate("office", SimulationParams(duration=120.0, seed=1)).frames()
-    pruned = get_method("karto")(seed=0).run(frames)
-    assert pruned.diagnostics.counters.get("near_skipped_bound", 0) > 0  # the bound did prune
-    monkeypatch.setattr(GridCache, "bound", lambda self, e, q, prior, stop=2.0: 2.0)
-    full = get_method("karto")(seed=0).run(frames)
-    assert "near_skipped_bound" not in full.diagnostics.counters
-    ta, pa = pruned.trajectory()
-    tb, pb = full.trajectory()
-    assert np.array_equal(ta, tb) and np.array_equal(pa, pb)
+    original = GridCache.bound
+    skipped = []
+
+    def checked(self, e, q, prior, stop=2.0):
+        b = original(self, e, q, prior, stop=stop)
+        if b < stop:
+            lo, hi = self.matcher.search_box(q, prior)
+            r = self.matcher.match(None, None, q, prior, penalize=False, refine=True, grid=self.materialize(e, lo, hi))
+            skipped.append((b, r.response))
+        return b
+
+    monkeypatch.setattr(GridCache, "bound", checked)
+    slam = get_method("karto")(seed=0).run(frames)
+    link = slam.params.link_match_minimum_response_fine
+    counters = slam.diagnostics.counters
+    assert counters.get("near_skipped_bound", 0) > 0 and counters.get("near_skipped_bound_link", 0) > 0
+    assert len(skipped) == counters["near_skipped_bound"] + counters["near_skipped_bound_link"]
+    assert all(r <= b + 1e-9 and r < link for b, r in skipped)
 
 
 def test_bound_of_nothing_is_zero():
