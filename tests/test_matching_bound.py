@@ -9,13 +9,13 @@ import pytest
 
 from slam2d.core import se2
 from slam2d.matching.correlative import (
-    smear_points,
     _BOUND_BLOCK,
     CorrelativeMatcher,
     GridCache,
     _range_max,
     _range_max_levels,
     _responses,
+    smear_points,
 )
 
 
