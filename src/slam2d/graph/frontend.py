@@ -915,10 +915,16 @@ class GraphFrontend:
             lo, hi = self.sequential.search_box(points, pose)
             entry = self._seq_cache.reserve(chain, lo, hi)
             fail = 0.5 * p.link_match_minimum_response_fine
-            if self._seq_cache.bound(entry, points, pose, stop=fail) < fail:
+            bound = self._seq_cache.bound(entry, points, pose, stop=p.link_match_minimum_response_fine)
+            if bound < fail:
                 self._count("near_skipped_bound")
                 self._near_failed.append((a, b, float(pose[0]), float(pose[1])))
                 del self._near_failed[:-100]
+                continue
+            if bound < p.link_match_minimum_response_fine:
+                # It cannot link from here either, but it may respond well enough not to count as
+                # failed: it is tried again from the next pose, as a match that nearly linked is.
+                self._count("near_skipped_bound_link")
                 continue
             result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
                                            grid=self._seq_cache.materialize(entry, lo, hi))

@@ -2048,8 +2048,11 @@ class GridCache:
         if old is not None and not inside and e["n_drawn"]:
             pts, sig = _concat(parts[: e["n_drawn"]])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            # The points drawn before are those within the old box plus the reach of then (scans
+            # added since can have widened it): the rest of the old scans' points near the new box.
+            m_old = e["drawn_reach"]
             keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
-                               old[0][0] - m, old[0][1] - m, old[1][0] + m, old[1][1] + m)
+                               old[0][0] - m_old, old[0][1] - m_old, old[1][0] + m_old, old[1][1] + m_old)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         if e["n_drawn"] < len(parts):
@@ -2060,6 +2063,10 @@ class GridCache:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
+        if not inside:
+            # Every scan is now drawn to here; a request inside the box draws only new scans, to the
+            # reach of then, so the old ones keep the reach they were drawn with (the least counts).
+            e["drawn_reach"] = m
         return grid
 
     def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
