@@ -119,7 +119,8 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
     lc, ls = math.cos(lth), math.sin(lth)
     free_step = FREE_CELL_RATIO * res
     inv = 1.0 / res
-    reach = kernel + 2  # window plus the free neighbour (sqrt(2) cells back: at most 2 cells further)
+    # the window, plus the free neighbour when it is tested (sqrt(2) cells back: at most 2 cells further)
+    reach = kernel + 2 if free_check else kernel
     score = 0.0
     like = 0.0
     matched = 0
@@ -128,10 +129,12 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
         wy = ly + ls * ex[j] + lc * ey[j]
         col = int(math.floor((wx - ox) * inv))
         row = int(math.floor((wy - oy) * inv))
-        fx = wx - free_step * (lc * ux[j] - ls * uy[j])
-        fy = wy - free_step * (ls * ux[j] + lc * uy[j])
-        dfc = int(math.floor((fx - ox) * inv)) - col
-        dfr = int(math.floor((fy - oy) * inv)) - row
+        dfc = dfr = 0
+        if free_check:  # the neighbour's offset is only needed when it is tested
+            fx = wx - free_step * (lc * ux[j] - ls * uy[j])
+            fy = wy - free_step * (ls * ux[j] + lc * uy[j])
+            dfc = int(math.floor((fx - ox) * inv)) - col
+            dfr = int(math.floor((fy - oy) * inv)) - row
         a = row & _MASK
         b = col & _MASK
         t0 = -1
