@@ -45,6 +45,7 @@ from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 __all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal"]
 
 _MASK = (1 << TILE_SHIFT) - 1
+_SLOTS = 4  # cached windows per beam in a climb: a 2 x 2 block of cells (by row and column parity)
 FREE_CELL_RATIO = math.sqrt(2.0)  # GMapping m_freeCellRatio
 NULL_LIKELIHOOD = -0.5  # GMapping nullLikelihood: an unmatched beam's log-likelihood x lsigma
 
@@ -155,6 +156,89 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
     return score, like, matched
 
 
+@njit(cache=True, fastmath=True)
+def _window_points(pool, occ, table, p, row, col, kernel, ox, oy, res, pts, j):
+    """The usable map points (mean hit points of occupied cells) in the window around cell ``(row, col)``.
+
+    Written to ``pts[j, :k]`` in the order :func:`_nearest_in_window` visits
+    them (so a tie keeps the same point); returns ``k``. Without the free
+    neighbour test (``free_check`` off) they depend on the cell only.
+    """
+    a = row & _MASK
+    b = col & _MASK
+    t0 = -1
+    if kernel <= a <= _MASK - kernel and kernel <= b <= _MASK - kernel:
+        t0 = cell_tile(table, p, row, col)
+        if t0 < 0:  # the whole window is unknown
+            return 0
+    k = 0
+    for dr in range(-kernel, kernel + 1):
+        for dc in range(-kernel, kernel + 1):
+            rr = row + dr
+            cc = col + dc
+            t = t0 if t0 >= 0 else cell_tile(table, p, rr, cc)
+            if t < 0:
+                continue
+            a = rr & _MASK
+            b = cc & _MASK
+            if not occ[t, a, b]:
+                continue
+            n = pool[t, a, b, HITS]
+            pts[j, k, 0] = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
+            pts[j, k, 1] = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
+            k += 1
+    return k
+
+
+@njit(cache=True, fastmath=True)
+def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, key, count, pts):
+    """The score of :func:`_evaluate` (``free_check`` off), reusing each beam's window points.
+
+    A climb evaluates ~90 poses a few millimetres apart, so most beams end in
+    the cell they ended in at the previous pose: ``key[j]`` is that cell and
+    ``pts[j, :count[j]]`` its window's map points, looked up again only when
+    the beam changes cell. Same arithmetic, same order: the same score, bit
+    for bit.
+    """
+    c, s = math.cos(th), math.sin(th)
+    lx = x + c * mount[0] - s * mount[1]
+    ly = y + s * mount[0] + c * mount[1]
+    lth = th + mount[2]
+    lc, ls = math.cos(lth), math.sin(lth)
+    inv = 1.0 / res
+    score = 0.0
+    for j in range(ex.shape[0]):
+        wx = lx + lc * ex[j] - ls * ey[j]
+        wy = ly + ls * ex[j] + lc * ey[j]
+        col = int(math.floor((wx - ox) * inv))
+        row = int(math.floor((wy - oy) * inv))
+        slot = j * _SLOTS + (row & 1) * 2 + (col & 1)
+        if row != key[slot, 0] or col != key[slot, 1]:
+            key[slot, 0] = row
+            key[slot, 1] = col
+            count[slot] = _window_points(pool, occ, table, p, row, col, kernel, ox, oy, res, pts, slot)
+        best = -1.0
+        for k in range(count[slot]):
+            mx = pts[slot, k, 0]
+            my = pts[slot, k, 1]
+            d2 = (wx - mx) * (wx - mx) + (wy - my) * (wy - my)
+            if best < 0.0 or d2 < best:
+                best = d2
+        if best >= 0.0:
+            score += math.exp(-best / div_s[j])
+    return score
+
+
+@njit(cache=True, inline="always")
+def _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+           key, count, pts):
+    """The score of a pose in a climb: cached windows unless the free neighbour is tested."""
+    if free_check:
+        return _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
+                         div_s, div_l, False)[0]
+    return _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, key, count, pts)
+
+
 @njit(cache=True)
 def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
            lstep, astep, iterations, angular_search, lin_rel, ang_rel, prior_info):
@@ -185,17 +269,21 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
     """
     x, y, th = start[0], start[1], start[2]
     c0, s0 = math.cos(start[2]), math.sin(start[2])
+    # each beam's last cell and its window's map points (see _score_cached)
+    key = np.full((ex.shape[0] * _SLOTS, 2), np.iinfo(np.int64).min, dtype=np.int64)
+    count = np.zeros(ex.shape[0] * _SLOTS, dtype=np.int64)
+    pts = np.empty((ex.shape[0] * _SLOTS, (2 * kernel + 1) * (2 * kernel + 1), 2))
     use_prior = prior_info[0] > 0.0 or prior_info[1] > 0.0 or prior_info[2] > 0.0
-    current = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
-                        False)[0]
+    current = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+                     key, count, pts)
     raw = current
     steps = int(angular_search / astep)
     th0 = th
     for k in range(-steps, steps + 1):
         if k == 0:
             continue
-        sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th0 + k * astep, mount, ex, ey, ux,
-                       uy, div_s, div_l, False)[0]
+        sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th0 + k * astep, mount, ex, ey, ux,
+                    uy, div_s, div_l, key, count, pts)
         if use_prior:
             dth = (k * astep + math.pi) % (2.0 * math.pi) - math.pi
             sc_obj = sc - 0.5 * prior_info[2] * dth * dth
@@ -230,8 +318,8 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
                 cth += adelta
             else:
                 cth -= adelta
-            sc = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
-                           div_s, div_l, False)[0]
+            sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
+                        div_s, div_l, key, count, pts)
             if lin_rel > 0.0 or ang_rel > 0.0:
                 ddx, ddy = cx - start[0], cy - start[1]
                 dth = (cth - start[2] + math.pi) % (2.0 * math.pi) - math.pi
