@@ -45,6 +45,7 @@ from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 __all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal"]
 
 _MASK = (1 << TILE_SHIFT) - 1
+_SEEN = 256  # poses a climb remembers the score of
 _SLOTS = 4  # cached windows per beam in a climb: a 2 x 2 block of cells (by row and column parity)
 FREE_CELL_RATIO = math.sqrt(2.0)  # GMapping m_freeCellRatio
 NULL_LIKELIHOOD = -0.5  # GMapping nullLikelihood: an unmatched beam's log-likelihood x lsigma
@@ -273,9 +274,17 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
     key = np.full((ex.shape[0] * _SLOTS, 2), np.iinfo(np.int64).min, dtype=np.int64)
     count = np.zeros(ex.shape[0] * _SLOTS, dtype=np.int64)
     pts = np.empty((ex.shape[0] * _SLOTS, (2 * kernel + 1) * (2 * kernel + 1), 2))
+    # the poses scored so far and their scores: a step back to where the climb was (or a lattice point
+    # it already tried) is often the very same pose, bit for bit, and its score is not computed again
+    seen = np.empty((_SEEN, 3))
+    seen_score = np.empty(_SEEN)
+    n_seen = 0
     use_prior = prior_info[0] > 0.0 or prior_info[1] > 0.0 or prior_info[2] > 0.0
     current = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                      key, count, pts)
+    seen[0, 0], seen[0, 1], seen[0, 2] = x, y, th
+    seen_score[0] = current
+    n_seen = 1
     raw = current
     steps = int(angular_search / astep)
     th0 = th
@@ -318,8 +327,18 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
                 cth += adelta
             else:
                 cth -= adelta
-            sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
-                        div_s, div_l, key, count, pts)
+            sc = -1.0
+            for i in range(n_seen):
+                if seen[i, 0] == cx and seen[i, 1] == cy and seen[i, 2] == cth:
+                    sc = seen_score[i]
+                    break
+            if sc < 0.0:
+                sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
+                            div_s, div_l, key, count, pts)
+                if n_seen < _SEEN:
+                    seen[n_seen, 0], seen[n_seen, 1], seen[n_seen, 2] = cx, cy, cth
+                    seen_score[n_seen] = sc
+                    n_seen += 1
             if lin_rel > 0.0 or ang_rel > 0.0:
                 ddx, ddy = cx - start[0], cy - start[1]
                 dth = (cth - start[2] + math.pi) % (2.0 * math.pi) - math.pi
