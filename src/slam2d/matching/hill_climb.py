@@ -31,6 +31,17 @@ cells away, almost always in unknown space, so the test never rejects
 anything. ``free_check`` False (the default of the method) reproduces that
 behaviour; True tests what the code means, the cell one sqrt(2) step back
 along the beam.
+
+**Speed, same numbers.** A climb scores ~80 poses a few millimetres to a
+few centimetres apart. Without the free neighbour test a beam's candidate map
+points depend only on the cell it ends in, so each beam keeps the windows of
+the last cells it ended in (:func:`_score_cached`, four slots: a 2 x 2 block
+of cells) and looks the map up again only on a new cell (about a quarter of
+the beams per pose); and a candidate that is bit for bit a pose the climb
+already scored (a step back to where it came from) reuses that score. Both
+do the same arithmetic in the same order as :func:`_evaluate`: the scores,
+the climbs and so the filter are unchanged, bit for bit
+(``tests/test_hill_climb_cache.py``).
 """
 
 from __future__ import annotations
