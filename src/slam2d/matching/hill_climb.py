@@ -91,13 +91,15 @@ def _occupied(occ, t, row, col):
 
 
 @njit(cache=True, inline="always")
-def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res):
-    """Squared distance from ``(wx, wy)`` to the nearest usable map point around cell ``(row, col)``, or -1.
+def _window_points(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, ox, oy, res, pts, j):
+    """The usable map points around cell ``(row, col)``: written to ``pts[j, :k]``, returns ``k``.
 
-    ``t0`` is the tile of ``(row, col)`` when the whole window and its free
-    neighbours lie in it (the common case: one table lookup), else -1.
+    A usable point is the mean hit point of an occupied cell in the window
+    (with ``free_check``, one whose neighbour ``(dfr, dfc)`` cells away is not
+    occupied). ``t0`` is the tile of ``(row, col)`` when the whole window and
+    its free neighbours lie in it (the common case: one table lookup), else -1.
     """
-    best = -1.0
+    k = 0
     for dr in range(-kernel, kernel + 1):
         for dc in range(-kernel, kernel + 1):
             rr = row + dr
@@ -114,11 +116,22 @@ def _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free
                 if _occupied(occ, tf, rr + dfr, cc + dfc):
                     continue
             n = pool[t, a, b, HITS]
-            mx = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
-            my = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
-            d2 = (wx - mx) * (wx - mx) + (wy - my) * (wy - my)
-            if best < 0.0 or d2 < best:
-                best = d2
+            pts[j, k, 0] = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
+            pts[j, k, 1] = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
+            k += 1
+    return k
+
+
+@njit(cache=True, inline="always")
+def _nearest(pts, j, k, wx, wy):
+    """Squared distance from ``(wx, wy)`` to the nearest of ``pts[j, :k]`` (the first on a tie), or -1."""
+    best = -1.0
+    for i in range(k):
+        mx = pts[j, i, 0]
+        my = pts[j, i, 1]
+        d2 = (wx - mx) * (wx - mx) + (wy - my) * (wy - my)
+        if best < 0.0 or d2 < best:
+            best = d2
     return best
 
 
@@ -137,6 +150,7 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
     score = 0.0
     like = 0.0
     matched = 0
+    pts = np.empty((1, (2 * kernel + 1) * (2 * kernel + 1), 2))
     for j in range(ex.shape[0]):
         wx = lx + lc * ex[j] - ls * ey[j]
         wy = ly + ls * ex[j] + lc * ey[j]
@@ -157,7 +171,8 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
                 if want_like:
                     like += NULL_LIKELIHOOD / div_l[j]
                 continue
-        best = _nearest_in_window(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, wx, wy, ox, oy, res)
+        k = _window_points(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, ox, oy, res, pts, 0)
+        best = _nearest(pts, 0, k, wx, wy)
         if best >= 0.0:
             score += math.exp(-best / div_s[j])
             matched += 1
@@ -166,40 +181,6 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
         elif want_like:
             like += NULL_LIKELIHOOD / div_l[j]
     return score, like, matched
-
-
-@njit(cache=True, fastmath=True)
-def _window_points(pool, occ, table, p, row, col, kernel, ox, oy, res, pts, j):
-    """The usable map points (mean hit points of occupied cells) in the window around cell ``(row, col)``.
-
-    Written to ``pts[j, :k]`` in the order :func:`_nearest_in_window` visits
-    them (so a tie keeps the same point); returns ``k``. Without the free
-    neighbour test (``free_check`` off) they depend on the cell only.
-    """
-    a = row & _MASK
-    b = col & _MASK
-    t0 = -1
-    if kernel <= a <= _MASK - kernel and kernel <= b <= _MASK - kernel:
-        t0 = cell_tile(table, p, row, col)
-        if t0 < 0:  # the whole window is unknown
-            return 0
-    k = 0
-    for dr in range(-kernel, kernel + 1):
-        for dc in range(-kernel, kernel + 1):
-            rr = row + dr
-            cc = col + dc
-            t = t0 if t0 >= 0 else cell_tile(table, p, rr, cc)
-            if t < 0:
-                continue
-            a = rr & _MASK
-            b = cc & _MASK
-            if not occ[t, a, b]:
-                continue
-            n = pool[t, a, b, HITS]
-            pts[j, k, 0] = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
-            pts[j, k, 1] = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
-            k += 1
-    return k
 
 
 @njit(cache=True, fastmath=True)
@@ -228,14 +209,16 @@ def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex,
         if row != key[slot, 0] or col != key[slot, 1]:
             key[slot, 0] = row
             key[slot, 1] = col
-            count[slot] = _window_points(pool, occ, table, p, row, col, kernel, ox, oy, res, pts, slot)
-        best = -1.0
-        for k in range(count[slot]):
-            mx = pts[slot, k, 0]
-            my = pts[slot, k, 1]
-            d2 = (wx - mx) * (wx - mx) + (wy - my) * (wy - my)
-            if best < 0.0 or d2 < best:
-                best = d2
+            a = row & _MASK
+            b = col & _MASK
+            inside = kernel <= a <= _MASK - kernel and kernel <= b <= _MASK - kernel  # the window in one tile
+            t0 = cell_tile(table, p, row, col) if inside else -1
+            if inside and t0 < 0:
+                count[slot] = 0  # the whole window is unknown
+            else:
+                count[slot] = _window_points(pool, occ, table, p, t0, row, col, 0, 0, kernel, False, ox, oy, res, pts,
+                                             slot)
+        best = _nearest(pts, slot, count[slot], wx, wy)
         if best >= 0.0:
             score += math.exp(-best / div_s[j])
     return score
