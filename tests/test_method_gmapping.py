@@ -21,7 +21,7 @@ from slam2d.filters import (
 )
 from slam2d.grids.tiled import HITS, TILE, VISITS, TiledMaps
 from slam2d.io.tum import read_tum
-from slam2d.matching.hill_climb import BeamSet, match_particles
+from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_particles
 from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
@@ -247,6 +247,48 @@ def test_odometry_prior_holds_the_climb_where_the_scan_does_not_constrain_it():
         slide[weight] = np.abs(out[:, 0] - start[:, 0]).max()
     assert slide[0.0] > 0.1  # GMapping's climb rides the ripple along the corridor
     assert slide[1.0] < 0.05
+
+
+def test_improved_proposal_is_as_wide_as_the_odometry_along_a_corridor():
+    """Grisetti et al.'s proposal where the scan is flat: along the corridor tau is the odometry prior.
+
+    The optimum slid 0.08 m along an endless corridor from the predicted pose. On a grid of +-3
+    motion standard deviations the fitted Gaussian is centred near the predicted pose along the
+    corridor with about the prior's 0.1 m spread, and stays tight across it and in heading (the
+    scan's); on the original's +-1 cm grid the draw cannot leave the optimum. The weight factor
+    (log eta) is larger for a particle whose prediction agrees with the scan than one 0.1 m off across.
+    """
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor(angles)
+    n = 3
+    maps = TiledMaps(n, 0.05, (-6, -6, 6, 6))
+    for x in (-0.4, -0.2, 0.0, 0.2, 0.4):
+        maps.register(np.arange(n), np.tile([x, 0.0, 0.0], (n, 1)), np.broadcast_to(ranges, (n, 682)), angles,
+                      max_range=4.0, usable_range=4.0, generate_map=False)
+    beams = BeamSet(np.nan_to_num(ranges), angles, np.isfinite(ranges), np.full(682, 0.05), np.full(682, 0.075))
+    std = np.array([0.1, 0.03, 0.2])
+    optima = np.tile([0.08, 0.0, 0.0], (n, 1))
+    predicted = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    normals = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+
+    def draw(offsets):
+        out, logeta = np.empty((n, 3)), np.empty(n)
+        gaussian_proposal(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, optima,
+                          predicted, std, offsets, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy,
+                          beams.div_score, beams.div_like, normals, out, logeta)
+        return out, logeta
+
+    axes = [np.linspace(-3 * s, 3 * s, 7) for s in std]
+    wide, logeta = draw(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
+    assert abs(wide[0, 0]) < 0.03  # the mean along the corridor is the odometry's, not the slid optimum
+    along = wide[1, 0] - wide[0, 0]  # one standard normal along: the fitted standard deviation (L's first column)
+    assert 0.07 < along < 0.13
+    assert np.all(np.abs(wide[:2, 1]) < 0.015) and np.all(np.abs(wide[:2, 2]) < 0.01)  # the scan's
+    assert logeta[0] > logeta[2] + 2.0
+    fine = np.arange(-0.01, 0.0101, 0.01)
+    narrow, _ = draw(np.stack(np.meshgrid(fine, fine, np.array([-0.005, 0.0, 0.005]), indexing="ij"),
+                              axis=-1).reshape(-1, 3))
+    assert np.all(np.abs(narrow[:2, 0] - 0.08) < 0.02)
 
 
 def test_tracking_prior_leaves_the_filter_alone(arena):

@@ -111,6 +111,13 @@ class GMappingParams:
     llsamplestep: float = param(0.01, unit="m", low=1e-6, help="improved proposal: translation sampling step")
     lasamplerange: float = param(0.005, unit="rad", low=0.0, help="improved proposal: rotation sampling range")
     lasamplestep: float = param(0.005, unit="rad", low=1e-6, help="improved proposal: rotation sampling step")
+    proposal_range: float = param(
+        0.0, unit="std", low=0.0, high=10.0, help="not in GMapping: proposal=gaussian samples on a grid of +-this "
+        "many of the motion model's standard deviations (of the odometry increment since the last update; forward, "
+        "left, heading, in the optimum's frame), at least the ll/la sample ranges, so the fitted Gaussian can be as "
+        "wide as the odometry where the scan is flat; 0: the original's ll/la grid")
+    proposal_points: int = param(
+        5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
         "hill-climb", choices=("hill-climb", "gaussian"),
@@ -383,14 +390,18 @@ class GMapping(SlamMethod):
         return info
 
     def _gaussian(self, common, optima, like, ok, mount, beams):
-        """Improved proposal for the particles whose match succeeded."""
+        """Improved proposal for the particles whose match succeeded: draw from tau's fitted Gaussian, weight by eta."""
         p = self.params
         delta = se2.relative(self._update_odom, self._odom)
         predicted = se2.compose(self._update_poses, delta)
         std = np.maximum(gmapping_motion_std(delta, p.srr, p.srt, p.str, p.stt), 1e-3)
-        lin = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
-        ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
-        offsets = np.stack(np.meshgrid(lin, lin, ang, indexing="ij"), axis=-1).reshape(-1, 3)
+        if p.proposal_range > 0.0:  # wide enough for the odometry's spread where the scan is flat
+            half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
+            fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
+        else:  # the original's grid (+-1 cm, +-0.005 rad)
+            fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
+            ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
+        offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
         normals = self.rng.standard_normal((self._n, 3))
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
