@@ -22,6 +22,7 @@ from slam2d.filters import (
 from slam2d.grids.tiled import HITS, TILE, VISITS, TiledMaps
 from slam2d.io.tum import read_tum
 from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_particles
+from slam2d.matching.improved_proposal import laplace_proposal, quadratic_design
 from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
@@ -252,6 +253,8 @@ def test_odometry_prior_holds_the_climb_where_the_scan_does_not_constrain_it():
 def test_improved_proposal_is_as_wide_as_the_odometry_along_a_corridor():
     """Grisetti et al.'s proposal where the scan is flat: along the corridor tau is the odometry prior.
 
+    Both forms: tau sampled on a grid (proposal=gaussian) and the product of the two Gaussians (laplace).
+
     The optimum slid 0.08 m along an endless corridor from the predicted pose. On a grid of +-3
     motion standard deviations the fitted Gaussian is centred near the predicted pose along the
     corridor with about the prior's 0.1 m spread, and stays tight across it and in heading (the
@@ -286,9 +289,20 @@ def test_improved_proposal_is_as_wide_as_the_odometry_along_a_corridor():
     assert np.all(np.abs(wide[:2, 1]) < 0.015) and np.all(np.abs(wide[:2, 2]) < 0.01)  # the scan's
     assert logeta[0] > logeta[2] + 2.0
     fine = np.arange(-0.01, 0.0101, 0.01)
-    narrow, _ = draw(np.stack(np.meshgrid(fine, fine, np.array([-0.005, 0.0, 0.005]), indexing="ij"),
-                              axis=-1).reshape(-1, 3))
+    small = np.stack(np.meshgrid(fine, fine, np.array([-0.005, 0.0, 0.005]), indexing="ij"), axis=-1).reshape(-1, 3)
+    narrow, _ = draw(small)
     assert np.all(np.abs(narrow[:2, 0] - 0.08) < 0.02)
+    # proposal=laplace: the scan's Gaussian fitted at +-1 cell forward times the odometry's, in closed form
+    small = np.stack(np.meshgrid([-0.05, 0.0, 0.05], [-0.01, 0.0, 0.01], [-0.005, 0.0, 0.005], indexing="ij"),
+                     axis=-1).reshape(-1, 3)
+    product, logeta = np.empty((n, 3)), np.empty(n)
+    laplace_proposal(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, optima,
+                     predicted, std, small, quadratic_design(small), np.zeros(3), beams.ex, beams.ey, beams.ux,
+                     beams.uy, beams.div_score, beams.div_like, normals, product, logeta)
+    assert abs(product[0, 0]) < 0.03
+    assert 0.07 < product[1, 0] - product[0, 0] < 0.13
+    assert np.all(np.abs(product[:2, 1]) < 0.015) and np.all(np.abs(product[:2, 2]) < 0.01)
+    assert logeta[0] > logeta[2] + 2.0
 
 
 def test_tracking_prior_leaves_the_filter_alone(arena):

@@ -35,6 +35,7 @@ from slam2d.filters import (
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
 from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_one, match_particles
+from slam2d.matching.improved_proposal import laplace_proposal, quadratic_design
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -120,9 +121,12 @@ class GMappingParams:
         5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
-        "hill-climb", choices=("hill-climb", "gaussian"),
+        "hill-climb", choices=("hill-climb", "gaussian", "laplace"),
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
-        "fitted around it and weight by its normaliser (Grisetti et al. 2007; uses ll/la sample range/step)")
+        "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
+        "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
+        "of the scan's Gaussian (a quadratic fitted to the log-likelihood at +-delta forward, +-llsamplerange "
+        "sideways, +-lasamplerange in heading; flat directions carry no information) and the odometry's, sampled and weighted in closed form")
     generateMap: bool = param(
         False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
     map_output: str = param(
@@ -341,7 +345,7 @@ class GMapping(SlamMethod):
         failures = int(n - ok.sum())
         if failures:
             self.diagnostics.count("match_failures", failures)
-        if p.proposal == "gaussian" and ok.any():
+        if p.proposal != "hill-climb" and ok.any():
             out_poses, like = self._gaussian(common, out_poses, like, ok, mount, beams)
         self._state = out_poses
         self._weight += like
@@ -395,9 +399,15 @@ class GMapping(SlamMethod):
         delta = se2.relative(self._update_odom, self._odom)
         predicted = se2.compose(self._update_poses, delta)
         std = np.maximum(gmapping_motion_std(delta, p.srr, p.srt, p.str, p.stt), 1e-3)
-        if p.proposal_range > 0.0:  # wide enough for the odometry's spread where the scan is flat
+        if p.proposal_range > 0.0 and p.proposal == "gaussian":  # as wide as the odometry's spread
             half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
             fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
+        elif p.proposal == "laplace":
+            # forward one cell each way: the cells' ripple along a wall is periodic in it and cancels in the fit;
+            # sideways and in heading the original's small range, so no beam leaves its kernel window
+            fwd = np.array([-p.delta, 0.0, p.delta])
+            left = np.array([-p.llsamplerange, 0.0, p.llsamplerange])
+            ang = np.array([-p.lasamplerange, 0.0, p.lasamplerange])
         else:  # the original's grid (+-1 cm, +-0.005 rad)
             fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
             ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
@@ -405,6 +415,10 @@ class GMapping(SlamMethod):
         normals = self.rng.standard_normal((self._n, 3))
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
+        if p.proposal == "laplace":
+            laplace_proposal(*common, optima, predicted, std, offsets, quadratic_design(offsets), mount, beams.ex,
+                             beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
+            return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
         gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
                           beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
         return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
