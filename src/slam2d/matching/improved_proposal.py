@@ -3,30 +3,35 @@
 Around each particle's scan-matching optimum ``x*`` the scan's log-likelihood
 (:func:`slam2d.matching.hill_climb._evaluate`, GMapping's ``lsigma`` likelihood)
 is evaluated on a small grid of offsets in the optimum's own frame
-(``(forward, left, dtheta)``) and a quadratic is fitted to it by least squares:
-``log p(z | m, x* + o) ~ c + g.o - o.H.o / 2``. ``H`` is the scan's information
-about the pose; directions in which the fitted curvature is not negative (the
-score is flat or rippled, as along a corridor longer than the laser's reach)
-get none (``H``'s negative eigenvalues are set to 0). The odometry motion
-model's Gaussian (mean the particle's pose at the last update moved by the
-odometry, covariance GMapping's ``srr``... for the increment) is multiplied in
-analytically:
+(``(forward, left, dtheta)``, half-widths ``h``): the optimum, +-h on each
+axis and the four corners of the forward-left square. Taking the optimum as
+the likelihood's mode, its information ``H`` is minus the curvature of the
+log-likelihood there by finite differences (heading's cross terms left out),
+summed over the beams that find a map point at all 11 poses (a beam that
+gains or loses one changes the log-likelihood by ``0.5 / lsigma``, far more
+than the others' ``d^2`` differences);
+negative eigenvalues of the translation block and a negative heading curvature
+are set to 0: a flat or rippled direction (along a corridor longer than the
+laser's reach) carries no information. Forward ``h`` is one cell: the cells'
+ripple along a wall is periodic in it and cancels in the difference. The odometry motion
+model's Gaussian (mean ``d``: the particle's pose at the last update moved by
+the odometry; covariance ``P`` from ``srr``... for the increment, both in the
+optimum's frame) is multiplied in analytically:
 
-    A = H + P^-1,   mu = A^-1 (g + P^-1 d),   Sigma = A^-1
+    A = H + P^-1,   Sigma = A^-1,   mu = Sigma P^-1 d
 
-``d`` the predicted pose in the optimum's frame, ``P^-1`` the prior's
-information there. Along a corridor the product is the odometry's Gaussian,
-across it and in heading the scan's. The particle is drawn from
-``N(x* + mu, Sigma)`` and its weight factor is the normaliser
-``log eta = log integral p(z | m, x) p(x | x_prev, u) dx``:
+Along a corridor the product is the odometry's Gaussian, across it and in
+heading the scan's. The particle is drawn from ``N(x* + mu, Sigma)``; its
+weight factor is the normaliser ``log eta = log integral L(x) p(x | x_prev, u) dx``
+with ``L(o) = exp(c - o.H.o / 2)``, ``c`` the log-likelihood at the optimum:
 
-    log eta = c - d.P^-1.d / 2 + b.mu / 2 - log det A / 2 + log det P^-1 / 2   (b = g + P^-1 d)
+    log eta = c - d.(H - H Sigma H).d / 2 - log det(A) / 2 + log det(P^-1) / 2
 
 (less a constant the same for every particle). Unlike sampling ``tau`` on a
 grid as wide as the odometry (``proposal=gaussian`` with ``proposal_range``),
-the likelihood is only evaluated within a few centimetres of the optimum, where
-beams ending at the edge of the mapped area do not yet gain map points by
-moving the pose back into it.
+the likelihood is only evaluated within a cell of the optimum, where beams
+ending at the edge of the mapped area do not gain map points by moving the
+pose back into it.
 """
 
 from __future__ import annotations
@@ -38,51 +43,58 @@ from numba import njit, prange
 
 from slam2d.matching.hill_climb import _evaluate
 
-__all__ = ["quadratic_design", "laplace_proposal"]
-
-
-def quadratic_design(offsets: np.ndarray) -> np.ndarray:
-    """The least-squares solver ``(10, K)`` of a full quadratic in 3 variables fitted at ``offsets`` ``(K, 3)``.
-
-    Coefficients: ``c, g0, g1, g2, q00, q11, q22, q01, q02, q12`` of
-    ``c + g.o + sum q_ii o_i^2 + sum_{i<j} q_ij o_i o_j``.
-    """
-    o = np.asarray(offsets, dtype=np.float64)
-    design = np.column_stack([np.ones(len(o)), o, o**2, o[:, 0] * o[:, 1], o[:, 0] * o[:, 2], o[:, 1] * o[:, 2]])
-    return np.ascontiguousarray(np.linalg.pinv(design))
+__all__ = ["laplace_proposal"]
 
 
 @njit(cache=True, parallel=True)
-def laplace_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, predicted, prior_std, offsets, solver,
-                     mount, ex, ey, ux, uy, div_s, div_l, normals, out_poses, out_logeta):
+def laplace_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, predicted, prior_std, half, mount,
+                     ex, ey, ux, uy, div_s, div_l, normals, out_poses, out_logeta):
     """Draw every particle from the product of the scan's fitted Gaussian and the odometry's; weight by eta.
 
-    ``offsets`` ``(K, 3)`` and ``solver`` (:func:`quadratic_design` of them)
-    are shared by all particles; ``prior_std`` are the motion model's
-    standard deviations ``(forward, left, heading)`` in the predicted pose's
-    frame; ``normals[p]`` the particle's standard normals.
+    ``half`` ``(3,)``: the finite differences' steps (forward, left in m;
+    heading in rad); ``prior_std``: the motion model's standard
+    deviations ``(forward, left, heading)`` in the predicted pose's frame;
+    ``normals[p]``: the particle's standard normals.
     """
-    K = offsets.shape[0]
+    # the optimum, +-each axis, and the four corners of the forward-left square (heading unchanged)
+    offsets = np.zeros((11, 3))
+    for i in range(3):
+        offsets[1 + 2 * i, i] = half[i]
+        offsets[2 + 2 * i, i] = -half[i]
+    for k, (sf, sl) in enumerate(((1.0, 1.0), (-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0))):
+        offsets[7 + k, 0], offsets[7 + k, 1] = sf * half[0], sl * half[1]
     for p in prange(optima.shape[0]):
         co, so = math.cos(optima[p, 2]), math.sin(optima[p, 2])
-        values = np.empty(K)
-        for k in range(K):
-            x = optima[p, 0] + co * offsets[k, 0] - so * offsets[k, 1]
-            y = optima[p, 1] + so * offsets[k, 0] + co * offsets[k, 1]
-            values[k] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y,
-                                  optima[p, 2] + offsets[k, 2], mount, ex, ey, ux, uy, div_s, div_l, True)[1]
-        q = solver @ values
-        c = q[0]
-        g = q[1:4].copy()
-        H = np.empty((3, 3))  # minus the Hessian of the fitted log-likelihood
-        H[0, 0], H[1, 1], H[2, 2] = -2.0 * q[4], -2.0 * q[5], -2.0 * q[6]
-        H[0, 1] = H[1, 0] = -q[7]
-        H[0, 2] = H[2, 0] = -q[8]
-        H[1, 2] = H[2, 1] = -q[9]
-        lam, vec = np.linalg.eigh(H)
+        c = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, optima[p, 0], optima[p, 1], optima[p, 2],
+                      mount, ex, ey, ux, uy, div_s, div_l, True)[1]
+        # the curvature from the beams that find a map point at all 11 poses: a beam gaining or losing its
+        # map point (a step of 0.5 / lsigma) would swamp the differences of the others' d^2
+        v = np.zeros(11)
+        beam = np.empty(11)
+        for j in range(ex.shape[0]):
+            kept = True
+            for k in range(11):
+                x = optima[p, 0] + co * offsets[k, 0] - so * offsets[k, 1]
+                y = optima[p, 1] + so * offsets[k, 0] + co * offsets[k, 1]
+                _, lk, matched = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y,
+                                           optima[p, 2] + offsets[k, 2], mount, ex[j:j + 1], ey[j:j + 1],
+                                           ux[j:j + 1], uy[j:j + 1], div_s[j:j + 1], div_l[j:j + 1], True)
+                if matched == 0:
+                    kept = False
+                    break
+                beam[k] = lk
+            if kept:
+                v += beam
+        H = np.zeros((3, 3))  # the scan's information: minus the log-likelihood's curvature by finite differences
         for i in range(3):
-            lam[i] = max(lam[i], 0.0)  # a flat or rippled direction carries no information
-        H = (vec * lam) @ vec.T
+            H[i, i] = (2.0 * v[0] - v[1 + 2 * i] - v[2 + 2 * i]) / half[i] ** 2
+        H[0, 1] = H[1, 0] = -(v[7] + v[8] - v[9] - v[10]) / (4.0 * half[0] * half[1])
+        # a flat or rippled direction carries no information (negative eigenvalues of the translation block
+        # and a negative heading curvature are set to 0)
+        lam, vec = np.linalg.eigh(H[:2, :2].copy())
+        lam[0], lam[1] = max(lam[0], 0.0), max(lam[1], 0.0)
+        H[:2, :2] = (vec * lam) @ vec.T
+        H[2, 2] = max(H[2, 2], 0.0)
         # the odometry prior in the optimum's frame: its mean d and information Pinv
         dx, dy = predicted[p, 0] - optima[p, 0], predicted[p, 1] - optima[p, 1]
         d = np.array([co * dx + so * dy, -so * dx + co * dy,
@@ -96,14 +108,13 @@ def laplace_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, 
         Pinv[0, 1] = Pinv[1, 0] = cp * sp * (ia - ib)
         Pinv[2, 2] = 1.0 / prior_std[2] ** 2
         A = H + Pinv
-        b = g + Pinv @ d
         Sigma = np.linalg.inv(A)
         Sigma = 0.5 * (Sigma + Sigma.T)
-        mu = Sigma @ b
+        mu = Sigma @ (Pinv @ d)
         L = np.linalg.cholesky(Sigma)
-        v = mu + L @ normals[p]
-        out_poses[p, 0] = optima[p, 0] + co * v[0] - so * v[1]
-        out_poses[p, 1] = optima[p, 1] + so * v[0] + co * v[1]
-        out_poses[p, 2] = (optima[p, 2] + v[2] + math.pi) % (2.0 * math.pi) - math.pi
-        out_logeta[p] = (c - 0.5 * (d @ (Pinv @ d)) + 0.5 * (b @ mu) - 0.5 * math.log(np.linalg.det(A))
+        w = mu + L @ normals[p]
+        out_poses[p, 0] = optima[p, 0] + co * w[0] - so * w[1]
+        out_poses[p, 1] = optima[p, 1] + so * w[0] + co * w[1]
+        out_poses[p, 2] = (optima[p, 2] + w[2] + math.pi) % (2.0 * math.pi) - math.pi
+        out_logeta[p] = (c - 0.5 * (d @ ((H - H @ Sigma @ H) @ d)) - 0.5 * math.log(np.linalg.det(A))
                          + 0.5 * math.log(np.linalg.det(Pinv)))

@@ -35,7 +35,7 @@ from slam2d.filters import (
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
 from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_one, match_particles
-from slam2d.matching.improved_proposal import laplace_proposal, quadratic_design
+from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -125,8 +125,8 @@ class GMappingParams:
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
         "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
         "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
-        "of the scan's Gaussian (a quadratic fitted to the log-likelihood at +-delta forward, +-llsamplerange "
-        "sideways, +-lasamplerange in heading; flat directions carry no information) and the odometry's, sampled and weighted in closed form")
+        "of the scan's Gaussian (fitted to the likelihood at +-delta forward, +-llsamplerange sideways, "
+        "+-lasamplerange in heading; a direction as flat as that grid carries no information) and the odometry's, sampled and weighted in closed form")
     generateMap: bool = param(
         False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
     map_output: str = param(
@@ -402,12 +402,6 @@ class GMapping(SlamMethod):
         if p.proposal_range > 0.0 and p.proposal == "gaussian":  # as wide as the odometry's spread
             half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
             fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
-        elif p.proposal == "laplace":
-            # forward one cell each way: the cells' ripple along a wall is periodic in it and cancels in the fit;
-            # sideways and in heading the original's small range, so no beam leaves its kernel window
-            fwd = np.array([-p.delta, 0.0, p.delta])
-            left = np.array([-p.llsamplerange, 0.0, p.llsamplerange])
-            ang = np.array([-p.lasamplerange, 0.0, p.lasamplerange])
         else:  # the original's grid (+-1 cm, +-0.005 rad)
             fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
             ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
@@ -416,8 +410,11 @@ class GMapping(SlamMethod):
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
         if p.proposal == "laplace":
-            laplace_proposal(*common, optima, predicted, std, offsets, quadratic_design(offsets), mount, beams.ex,
-                             beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
+            # forward one cell each way: the cells' ripple along a wall is periodic in it and averages out;
+            # sideways and in heading the original's small ranges, so few beams leave their kernel window
+            half = np.array([p.delta, max(p.llsamplerange, 1e-4), max(p.lasamplerange, 1e-5)])
+            laplace_proposal(*common, optima, predicted, std, half, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                             beams.div_score, beams.div_like, normals, sampled, logeta)
             return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
         gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
                           beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
