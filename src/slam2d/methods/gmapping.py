@@ -60,6 +60,11 @@ class GMappingParams:
         "for matching; unset: maxRange")
     maxRange: float | None = param(
         None, unit="m", low=0.0, help="beams longer than this are dropped; unset: the first scan's range_max - 0.01")
+    match_range: float | None = param(
+        None, unit="m", low=0.0, help="not in GMapping: beams longer than this are not used for matching and the "
+        "likelihood (they are still mapped up to maxUrange). Set it a linearUpdate below the laser's reach and every "
+        "matched beam ends where the previous updates' scans have mapped, so moving the pose back does not gain map "
+        "points at the edge of the mapped area (a short laser's corridors otherwise shrink); unset: maxUrange")
     sigma: float = param(
         0.05, unit="m^2", low=1e-9, help="scan-matcher score divisor: a beam scores exp(-d^2/sigma) "
         "(= 2 s^2 for a standard deviation s; 0.05 is s = 0.158 m)")
@@ -280,6 +285,8 @@ class GMapping(SlamMethod):
         r = scan.ranges
         with np.errstate(invalid="ignore"):
             use = (r > 0.0) & (r <= self._max_range) & (r <= self._usable)
+            if p.match_range is not None:
+                use &= r <= p.match_range
         use &= (np.arange(r.shape[0]) % (p.lskip + 1)) == p.lskip
         if not use.any():
             return None
