@@ -429,6 +429,22 @@ def test_gaussian_proposal_tracks_too(arena):
     assert _ate(slam, arena / "truth.tum") < 0.5 * ate_odo
 
 
+def test_match_range_matches_short_beams_and_maps_all():
+    """match_range: beams beyond it are not matched (nor in the likelihood) but are still mapped."""
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    ranges = np.where(np.abs(angles) < 0.5, 5.0, 2.0)  # a far wall ahead, near walls to the sides
+    frame = Frame(0, make_scan(0.0, ranges, angles[0], angles[1] - angles[0], 0.02, 30.0), np.zeros(3))
+    counts = {}
+    for limit in (None, 3.0):
+        slam = GMapping(GMappingParams(particles=2, match_range=limit), seed=0)
+        slam.update(frame)
+        counts[limit] = len(slam._beams(frame.scan))
+        grid = slam.map()
+        far = grid.cell_to_world(np.argwhere(grid.occupied()))
+        assert (np.hypot(far[:, 0], far[:, 1]) > 4.5).any()  # the far wall is in the map either way
+    assert counts[None] == 181 and counts[3.0] == int((ranges <= 3.0).sum())
+
+
 def test_degenerate_input_is_counted_not_fatal():
     """No odometry at first, scans without a return, a 5 m odometry jump, minutes standing still."""
     angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
