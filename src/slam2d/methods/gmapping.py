@@ -130,8 +130,9 @@ class GMappingParams:
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
         "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
         "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
-        "of the scan's Gaussian (fitted to the likelihood at +-delta forward, +-llsamplerange sideways, "
-        "+-lasamplerange in heading; a direction as flat as that grid carries no information) and the odometry's, sampled and weighted in closed form")
+        "of the scan's Gaussian (the log-likelihood's curvature at the optimum by finite differences, +-delta "
+        "forward, +-llsamplerange sideways, +-lasamplerange in heading; a direction without curvature carries no "
+        "information) and the odometry's, sampled and weighted in closed form")
     generateMap: bool = param(
         False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
     map_output: str = param(
