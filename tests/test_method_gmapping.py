@@ -21,7 +21,8 @@ from slam2d.filters import (
 )
 from slam2d.grids.tiled import HITS, TILE, VISITS, TiledMaps
 from slam2d.io.tum import read_tum
-from slam2d.matching.hill_climb import BeamSet, match_particles
+from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_particles
+from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
@@ -249,6 +250,59 @@ def test_odometry_prior_holds_the_climb_where_the_scan_does_not_constrain_it():
     assert slide[1.0] < 0.05
 
 
+def test_improved_proposal_is_as_wide_as_the_odometry_along_a_corridor():
+    """Grisetti et al.'s proposal where the scan is flat: along the corridor tau is the odometry prior.
+
+    Both forms: tau sampled on a grid (proposal=gaussian) and the product of the two Gaussians (laplace).
+
+    The optimum slid 0.08 m along an endless corridor from the predicted pose. On a grid of +-3
+    motion standard deviations the fitted Gaussian is centred near the predicted pose along the
+    corridor with about the prior's 0.1 m spread, and stays tight across it and in heading (the
+    scan's); on the original's +-1 cm grid the draw cannot leave the optimum. The weight factor
+    (log eta) is larger for a particle whose prediction agrees with the scan than one 0.1 m off across.
+    """
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor(angles)
+    n = 3
+    maps = TiledMaps(n, 0.05, (-6, -6, 6, 6))
+    for x in (-0.4, -0.2, 0.0, 0.2, 0.4):
+        maps.register(np.arange(n), np.tile([x, 0.0, 0.0], (n, 1)), np.broadcast_to(ranges, (n, 682)), angles,
+                      max_range=4.0, usable_range=4.0, generate_map=False)
+    beams = BeamSet(np.nan_to_num(ranges), angles, np.isfinite(ranges), np.full(682, 0.05), np.full(682, 0.075))
+    std = np.array([0.1, 0.03, 0.2])
+    optima = np.tile([0.08, 0.0, 0.0], (n, 1))
+    predicted = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.1, 0.0]])
+    normals = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]])
+
+    def draw(offsets):
+        out, logeta = np.empty((n, 3)), np.empty(n)
+        gaussian_proposal(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, optima,
+                          predicted, std, offsets, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy,
+                          beams.div_score, beams.div_like, normals, out, logeta)
+        return out, logeta
+
+    axes = [np.linspace(-3 * s, 3 * s, 7) for s in std]
+    wide, logeta = draw(np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3))
+    assert abs(wide[0, 0]) < 0.03  # the mean along the corridor is the odometry's, not the slid optimum
+    along = wide[1, 0] - wide[0, 0]  # one standard normal along: the fitted standard deviation (L's first column)
+    assert 0.07 < along < 0.13
+    assert np.all(np.abs(wide[:2, 1]) < 0.015) and np.all(np.abs(wide[:2, 2]) < 0.01)  # the scan's
+    assert logeta[0] > logeta[2] + 2.0
+    fine = np.arange(-0.01, 0.0101, 0.01)
+    small = np.stack(np.meshgrid(fine, fine, np.array([-0.005, 0.0, 0.005]), indexing="ij"), axis=-1).reshape(-1, 3)
+    narrow, _ = draw(small)
+    assert np.all(np.abs(narrow[:2, 0] - 0.08) < 0.02)
+    # proposal=laplace: the scan's Gaussian fitted at +-1 cell forward times the odometry's, in closed form
+    product, logeta = np.empty((n, 3)), np.empty(n)
+    laplace_proposal(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, optima,
+                     predicted, std, np.array([0.05, 0.01, 0.005]), np.zeros(3), beams.ex, beams.ey, beams.ux,
+                     beams.uy, beams.div_score, beams.div_like, normals, product, logeta)
+    assert abs(product[0, 0]) < 0.03
+    assert 0.07 < product[1, 0] - product[0, 0] < 0.13
+    assert np.all(np.abs(product[:2, 1]) < 0.015) and np.all(np.abs(product[:2, 2]) < 0.01)
+    assert logeta[0] > logeta[2] + 2.0
+
+
 def test_tracking_prior_leaves_the_filter_alone(arena):
     """tracking_prior only changes the poses reported between updates; the filter's nodes are the same."""
     frames = recording_frames(arena / "recording.log.gz")[:120]
@@ -373,6 +427,22 @@ def test_gaussian_proposal_tracks_too(arena):
     slam = GMapping(GMappingParams(particles=10, proposal="gaussian"), seed=2).run(frames)
     ate_odo = _ate(get_method("odometry")().run(frames), arena / "truth.tum")
     assert _ate(slam, arena / "truth.tum") < 0.5 * ate_odo
+
+
+def test_match_range_matches_short_beams_and_maps_all():
+    """match_range: beams beyond it are not matched (nor in the likelihood) but are still mapped."""
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    ranges = np.where(np.abs(angles) < 0.5, 5.0, 2.0)  # a far wall ahead, near walls to the sides
+    frame = Frame(0, make_scan(0.0, ranges, angles[0], angles[1] - angles[0], 0.02, 30.0), np.zeros(3))
+    counts = {}
+    for limit in (None, 3.0):
+        slam = GMapping(GMappingParams(particles=2, match_range=limit), seed=0)
+        slam.update(frame)
+        counts[limit] = len(slam._beams(frame.scan))
+        grid = slam.map()
+        far = grid.cell_to_world(np.argwhere(grid.occupied()))
+        assert (np.hypot(far[:, 0], far[:, 1]) > 4.5).any()  # the far wall is in the map either way
+    assert counts[None] == 181 and counts[3.0] == int((ranges <= 3.0).sum())
 
 
 def test_degenerate_input_is_counted_not_fatal():

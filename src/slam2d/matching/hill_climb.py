@@ -418,20 +418,27 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
     """Grisetti et al. 2007's improved proposal around each particle's scan-matching optimum.
 
     For each particle, ``tau(x) = p(z | m, x) p(x | x_prev, u)`` is evaluated
-    at ``optimum + offsets[k]`` (the likelihood above; the odometry prior is a
-    Gaussian around ``predicted`` with standard deviations ``prior_std`` in the
-    predicted pose's frame). A Gaussian is fitted to these (mean and
-    covariance weighted by tau), the new pose is drawn from it with the
-    standard normals ``normals[p]``, and ``out_logeta`` is ``log sum tau``,
-    the particle's weight factor.
+    at the optimum moved by ``offsets[k]`` (``(forward, left, dtheta)`` in the
+    optimum's own frame, so a grid stretched along the robot's heading follows
+    a corridor it drives along). ``p(z | m, x)`` is the log-likelihood above;
+    the odometry prior is a Gaussian around ``predicted`` (the particle's pose
+    at the last update moved by the odometry) with standard deviations
+    ``prior_std`` in the predicted pose's frame. A Gaussian is fitted to the
+    samples (mean and covariance weighted by tau): where the scan pins the
+    pose it is the likelihood's, where the scan is flat (along a corridor
+    longer than the laser's reach) it is the odometry's. The new pose is drawn
+    from it with the standard normals ``normals[p]``, and ``out_logeta`` is
+    ``log sum tau``, the particle's weight factor (the grid's cell volume is
+    the same for every particle and cancels in the normalised weights).
     """
     K = offsets.shape[0]
     for p in prange(optima.shape[0]):
         logt = np.empty(K)
         c, s = math.cos(predicted[p, 2]), math.sin(predicted[p, 2])
+        co, so = math.cos(optima[p, 2]), math.sin(optima[p, 2])
         for k in range(K):
-            x = optima[p, 0] + offsets[k, 0]
-            y = optima[p, 1] + offsets[k, 1]
+            x = optima[p, 0] + co * offsets[k, 0] - so * offsets[k, 1]
+            y = optima[p, 1] + so * offsets[k, 0] + co * offsets[k, 1]
             th = optima[p, 2] + offsets[k, 2]
             lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
                            div_s, div_l, True)[1]
@@ -457,10 +464,12 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
         for i in range(3):
             cov[i, i] += 1e-12  # keeps the Cholesky factor defined when one sample dominates
         L = np.linalg.cholesky(cov)
+        v = np.empty(3)
         for i in range(3):
-            v = mu[i]
+            v[i] = mu[i]
             for j in range(i + 1):
-                v += L[i, j] * normals[p, j]
-            out_poses[p, i] = optima[p, i] + v
-        out_poses[p, 2] = (out_poses[p, 2] + math.pi) % (2.0 * math.pi) - math.pi
+                v[i] += L[i, j] * normals[p, j]
+        out_poses[p, 0] = optima[p, 0] + co * v[0] - so * v[1]
+        out_poses[p, 1] = optima[p, 1] + so * v[0] + co * v[1]
+        out_poses[p, 2] = (optima[p, 2] + v[2] + math.pi) % (2.0 * math.pi) - math.pi
         out_logeta[p] = top + math.log(eta)

@@ -35,6 +35,7 @@ from slam2d.filters import (
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
 from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_one, match_particles
+from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import param
@@ -59,6 +60,11 @@ class GMappingParams:
         "for matching; unset: maxRange")
     maxRange: float | None = param(
         None, unit="m", low=0.0, help="beams longer than this are dropped; unset: the first scan's range_max - 0.01")
+    match_range: float | None = param(
+        None, unit="m", low=0.0, help="not in GMapping: beams longer than this are not used for matching and the "
+        "likelihood (they are still mapped up to maxUrange). Set it a linearUpdate below the laser's reach and every "
+        "matched beam ends where the previous updates' scans have mapped, so moving the pose back does not gain map "
+        "points at the edge of the mapped area (a short laser's corridors otherwise shrink); unset: maxUrange")
     sigma: float = param(
         0.05, unit="m^2", low=1e-9, help="scan-matcher score divisor: a beam scores exp(-d^2/sigma) "
         "(= 2 s^2 for a standard deviation s; 0.05 is s = 0.158 m)")
@@ -116,11 +122,22 @@ class GMappingParams:
     llsamplestep: float = param(0.01, unit="m", low=1e-6, help="improved proposal: translation sampling step")
     lasamplerange: float = param(0.005, unit="rad", low=0.0, help="improved proposal: rotation sampling range")
     lasamplestep: float = param(0.005, unit="rad", low=1e-6, help="improved proposal: rotation sampling step")
+    proposal_range: float = param(
+        0.0, unit="std", low=0.0, high=10.0, help="not in GMapping: proposal=gaussian samples on a grid of +-this "
+        "many of the motion model's standard deviations (of the odometry increment since the last update; forward, "
+        "left, heading, in the optimum's frame), at least the ll/la sample ranges, so the fitted Gaussian can be as "
+        "wide as the odometry where the scan is flat; 0: the original's ll/la grid")
+    proposal_points: int = param(
+        5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
-        "hill-climb", choices=("hill-climb", "gaussian"),
+        "hill-climb", choices=("hill-climb", "gaussian", "laplace"),
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
-        "fitted around it and weight by its normaliser (Grisetti et al. 2007; uses ll/la sample range/step)")
+        "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
+        "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
+        "of the scan's Gaussian (the log-likelihood's curvature at the optimum by finite differences, +-delta "
+        "forward, +-llsamplerange sideways, +-lasamplerange in heading; a direction without curvature carries no "
+        "information) and the odometry's, sampled and weighted in closed form")
     generateMap: bool = param(
         False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
     map_output: str = param(
@@ -274,6 +291,8 @@ class GMapping(SlamMethod):
         r = scan.ranges
         with np.errstate(invalid="ignore"):
             use = (r > 0.0) & (r <= self._max_range) & (r <= self._usable)
+            if p.match_range is not None:
+                use &= r <= p.match_range
         use &= (np.arange(r.shape[0]) % (p.lskip + 1)) == p.lskip
         if not use.any():
             return None
@@ -344,7 +363,7 @@ class GMapping(SlamMethod):
         failures = int(n - ok.sum())
         if failures:
             self.diagnostics.count("match_failures", failures)
-        if p.proposal == "gaussian" and ok.any():
+        if p.proposal != "hill-climb" and ok.any():
             out_poses, like = self._gaussian(common, out_poses, like, ok, mount, beams)
         self._state = out_poses
         self._weight += like
@@ -414,17 +433,28 @@ class GMapping(SlamMethod):
         return info
 
     def _gaussian(self, common, optima, like, ok, mount, beams):
-        """Improved proposal for the particles whose match succeeded."""
+        """Improved proposal for the particles whose match succeeded: draw from tau's fitted Gaussian, weight by eta."""
         p = self.params
         delta = se2.relative(self._update_odom, self._odom)
         predicted = se2.compose(self._update_poses, delta)
         std = np.maximum(gmapping_motion_std(delta, p.srr, p.srt, p.str, p.stt), 1e-3)
-        lin = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
-        ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
-        offsets = np.stack(np.meshgrid(lin, lin, ang, indexing="ij"), axis=-1).reshape(-1, 3)
+        if p.proposal_range > 0.0 and p.proposal == "gaussian":  # as wide as the odometry's spread
+            half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
+            fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
+        else:  # the original's grid (+-1 cm, +-0.005 rad)
+            fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
+            ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
+        offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
         normals = self.rng.standard_normal((self._n, 3))
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
+        if p.proposal == "laplace":
+            # forward one cell each way: the cells' ripple along a wall is periodic in it and averages out;
+            # sideways and in heading the original's small ranges, so few beams leave their kernel window
+            half = np.array([p.delta, max(p.llsamplerange, 1e-4), max(p.lasamplerange, 1e-5)])
+            laplace_proposal(*common, optima, predicted, std, half, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                             beams.div_score, beams.div_like, normals, sampled, logeta)
+            return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
         gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
                           beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
         return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)

@@ -1,0 +1,57 @@
+#!/usr/bin/env python3
+"""gmapping on the simulated office (120 s, URG-04LX by default), seeds 0-2, with given settings.
+
+    .venv/bin/python docs/measure_gmapping_proposal.py [--laser urg-04lx] [--world office] [--seeds 0,1,2] \
+        [key=value ...]
+
+A lighter `gmapping-sim-lasers`: the same recordings (written once under --cache), run in-process
+with `run_method` and the settings given, judged as `slam2d evaluate --truth`. Prints per seed the
+ATE (m), map error (mean truth-to-map, m), resamplings and the CPU seconds of the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+from slam2d.methods.runner import run_method
+from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--laser", default="urg-04lx")
+    ap.add_argument("--world", default="office")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--cache", default="/tmp/slam2d-proposal")
+    ap.add_argument("settings", nargs="*")
+    a = ap.parse_args()
+    settings = dict(s.split("=", 1) for s in a.settings)
+    duration = None if a.world == "corridor-loop" else 120.0
+    ates, maps = [], []
+    for seed in (int(s) for s in a.seeds.split(",")):
+        sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
+        if not (sim_dir / "recording.log.gz").exists():
+            write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
+        run_dir = Path(a.cache) / f"run-{a.world}-{a.laser}-{seed}-{abs(hash(tuple(a.settings)))}"
+        cpu = time.process_time()
+        run_method("gmapping", sim_dir / "recording.log.gz", run_dir, settings=settings)
+        cpu = time.process_time() - cpu
+        e = evaluate_run(load_run(run_dir), load_truth(sim_dir))
+        ate = e["trajectory"]["ate"]["translation_m"]["rmse"]
+        err = e["map_truth"]["truth_to_map_m"]["mean"]
+        counts = json.loads((run_dir / "diagnostics.json").read_text())["counters"]
+        ates.append(ate)
+        maps.append(err)
+        print(f"{a.world} {a.laser} seed {seed}: ATE {ate:.3f} m, map {err:.3f} m, "
+              f"{counts.get('resamples', 0)} resamplings, {counts.get('match_failures', 0)} match failures, "
+              f"cpu {cpu:.0f} s", flush=True)
+    print(f"mean ATE {sum(ates) / len(ates):.3f} m, max {max(ates):.3f}; mean map {sum(maps) / len(maps):.3f} m; "
+          f"settings {' '.join(a.settings) or '(defaults)'}")
+
+
+if __name__ == "__main__":
+    main()
