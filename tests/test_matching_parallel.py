@@ -6,23 +6,34 @@ import numpy as np
 import pytest
 
 from slam2d.matching.correlative import (
-    _score_all,
-    _score_all_parallel,
+    _score_poses,
+    _split,
     smear_in_row_bands,
     smear_in_row_order,
 )
+
+
+def _search_sums(threaded, grid, q, half, step):
+    """The exhaustive search's sums over 21 angles, serially or shared among threads as the matcher does."""
+    angles = np.linspace(-0.35, 0.35, 21)
+    sums = np.empty((angles.size, 2 * half + 1, 2 * half + 1))
+    args = (grid, -0.5, -0.4, 0.01, q, 0.9, 1.1, 0.2, angles, half, step)
+    if threaded:
+        _split(lambda a0, a1: _score_poses(*args, a0, a1, sums), angles.size)
+    else:
+        _score_poses(*args, 0, angles.size, sums)
+    return sums
 
 
 @pytest.mark.parametrize("step", [1, 2, 3])
 def test_parallel_exhaustive_search_equals_the_serial_one(step):
     rng = np.random.default_rng(step)
     grid = rng.integers(0, 256, (300, 280)).astype(np.uint8)
-    # Cells inside, across the edges and wholly outside the grid.
-    rows = rng.integers(-60, 340, (21, 250))
-    cols = rng.integers(-60, 320, (21, 250))
-    serial = _score_all(grid, rows, cols, 17, step)
+    # Points whose cells fall inside, across the edges and wholly outside the grid.
+    q = rng.uniform(-1.5, 4.0, (250, 2))
+    serial = _search_sums(False, grid, q, 8, step)
     assert serial.max() > 0
-    assert np.array_equal(_score_all_parallel(grid, rows, cols, 17, step), serial)
+    assert np.array_equal(_search_sums(True, grid, q, 8, step), serial)
 
 
 @pytest.mark.parametrize("bands", [1, 2, 3, 8])
@@ -60,14 +71,14 @@ def test_threads_work_in_a_forked_child():
 
     rng = np.random.default_rng(0)
     grid = rng.integers(0, 256, (200, 200)).astype(np.uint8)
-    rows = rng.integers(0, 160, (8, 100))
-    cols = rng.integers(0, 160, (8, 100))
-    serial = _score_all(grid, rows, cols, 17, 2)
+    q = rng.uniform(-0.5, 1.5, (100, 2))
+    serial = _search_sums(False, grid, q, 8, 2)
+    assert serial.max() > 0
     if correlative._THREADS < 2:
         pytest.skip("threads are off (SLAM2D_THREADS=1 or one CPU)")
     # The parent's worker thread runs before the fork.
-    assert np.array_equal(_score_all_parallel(grid, rows, cols, 17, 2), serial)
+    assert np.array_equal(_search_sums(True, grid, q, 8, 2), serial)
     ctx = multiprocessing.get_context("fork")
     with ctx.Pool(1) as pool:
-        got = pool.apply_async(_score_all_parallel, (grid, rows, cols, 17, 2)).get(timeout=120)
+        got = pool.apply_async(_search_sums, (True, grid, q, 8, 2)).get(timeout=120)
     assert np.array_equal(got, serial)

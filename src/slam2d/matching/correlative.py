@@ -479,28 +479,6 @@ def _score_all(grid, rows, cols, n_steps, step):
     return out
 
 
-@njit(cache=True, nogil=True)
-def _score_angles(grid, rows, cols, n_steps, step, a0, a1, out):
-    """:func:`_score_all` of the angles [a0, a1) into ``out`` (angles, n, n)."""
-    buf = np.empty((n_steps, n_steps), np.int32)
-    for a in range(a0, a1):
-        _score_window(grid, rows, cols, a, 0, 0, n_steps, n_steps, step, buf)
-        for i in range(n_steps):
-            for j in range(n_steps):
-                out[a, i, j] = buf[i, j]
-
-
-def _score_all_parallel(grid, rows, cols, n_steps, step):
-    """:func:`_score_all` with the angles shared among threads.
-
-    Each angle writes only its own slice of integer sums, so the result is the
-    serial one bit for bit, whatever the threads' order.
-    """
-    out = np.zeros((rows.shape[0], n_steps, n_steps))
-    _split(lambda a0, a1: _score_angles(grid, rows, cols, n_steps, step, a0, a1, out), rows.shape[0])
-    return out
-
-
 @njit(cache=True)
 def _max_pool(grid, width):
     """pooled[r, c] = max of grid[r:r + width, c:c + width] (clipped at the edges).
