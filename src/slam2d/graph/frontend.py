@@ -591,20 +591,17 @@ class GraphFrontend:
 
     def _add_edge(self, i: int, j: int, pose_j: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Edge i -> j measuring ``pose_j`` seen from node i's current pose; world covariance rotated into i."""
-        xi = self.graph.poses[i]
-        z = se2.relative(xi, pose_j)
-        c, s = math.cos(xi[2]), math.sin(xi[2])
-        rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-        cov = rot @ covariance @ rot.T
-        cov = 0.5 * (cov + cov.T) + np.eye(3) * 1e-12
-        self.graph.add_edge(i, j, z, np.linalg.inv(cov))
+        z = se2.relative(self.graph.poses[i], pose_j)
+        self.graph.add_edge(i, j, z, np.linalg.inv(self._local_covariance(i, covariance)))
+
+    def _closest_to_node(self, chain: list[int], node: int, pose: NDArray[np.float64]) -> int:
+        """The chain's scan whose reference position is closest to the node's (``pose`` before it has one)."""
+        ref = self.reference_positions()
+        return self._closest_to(chain, ref[node] if node < len(ref) else pose[:2])
 
     def _link_chain_to_scan(self, chain: list[int], node: int, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> int:
         """Karto's LinkChainToScan: an edge from the chain's scan closest to ``pose``; returns that scan."""
-        ref = self.reference_positions()
-        target = ref[node] if node < len(ref) else pose[:2]
-        d2 = ((ref[chain] - target) ** 2).sum(axis=1)
-        closest = int(chain[int(np.argmin(d2))])
+        closest = self._closest_to_node(chain, node, pose)
         if not self._has_edge(closest, node):
             self._add_edge(closest, node, pose, cov)
         return closest
@@ -615,9 +612,7 @@ class GraphFrontend:
         if not self.params.running_link_chain_covariance:
             self._link_chain_to_scan(self._running, node, pose, cov)
             return
-        ref = self.reference_positions()
-        d2 = ((ref[self._running] - ref[node]) ** 2).sum(axis=1)
-        closest = int(self._running[int(np.argmin(d2))])
+        closest = self._closest_to_node(self._running, node, pose)
         if closest == last or self._has_edge(closest, node):
             return  # Karto's edge from the previous node is the sequential one, already added
         z = se2.relative(self.graph.poses[closest], pose)
@@ -1148,10 +1143,13 @@ class GraphFrontend:
 
     def _closest_in_chain(self, chain: list[int], pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the new scan at ``pose`` (LinkChainToScan's choice)."""
-        ref = self.reference_positions()
         node = self.graph.num_nodes - 1
         target = se2.transform_points(pose, self._bary_base[node][None, :])[0] if self.params.use_scan_barycenter else pose[:2]
-        d2 = ((ref[chain] - target) ** 2).sum(axis=1)
+        return self._closest_to(chain, target)
+
+    def _closest_to(self, chain: list[int], target: NDArray[np.float64]) -> int:
+        """The chain's scan whose reference position is closest to ``target`` (the first on a tie)."""
+        d2 = ((self.reference_positions()[chain] - target) ** 2).sum(axis=1)
         return int(chain[int(np.argmin(d2))])
 
     def _local_covariance(self, i: int, covariance: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -438,13 +438,6 @@ class GMapping(SlamMethod):
         delta = se2.relative(self._update_odom, self._odom)
         predicted = se2.compose(self._update_poses, delta)
         std = np.maximum(gmapping_motion_std(delta, p.srr, p.srt, p.str, p.stt), 1e-3)
-        if p.proposal_range > 0.0 and p.proposal == "gaussian":  # as wide as the odometry's spread
-            half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
-            fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
-        else:  # the original's grid (+-1 cm, +-0.005 rad)
-            fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
-            ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
-        offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
         normals = self.rng.standard_normal((self._n, 3))
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
@@ -455,6 +448,13 @@ class GMapping(SlamMethod):
             laplace_proposal(*common, optima, predicted, std, half, mount, beams.ex, beams.ey, beams.ux, beams.uy,
                              beams.div_score, beams.div_like, normals, sampled, logeta)
             return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
+        if p.proposal_range > 0.0:  # as wide as the odometry's spread
+            half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
+            fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
+        else:  # the original's grid (+-1 cm, +-0.005 rad)
+            fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
+            ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
+        offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
         gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
                           beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
         return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
