@@ -187,8 +187,12 @@ class LaserInformation:
     edges_used: int
 
 
-def laser_information(setup: BoundSetup, *, edges: bool = True) -> LaserInformation:
-    """Fisher information of every scan about its pose (and about the walls), whole-array."""
+def laser_information(setup: BoundSetup, *, edges: bool = True, edge_sigma: float = 0.0) -> LaserInformation:
+    """Fisher information of every scan about its pose (and about the walls), whole-array.
+
+    ``edge_sigma`` (m): locate a wall end no better than this across the beam (the bearing's
+    standard deviation is at least ``edge_sigma / distance``); 0 keeps the beam gap's.
+    """
     from slam2d.sim.laser import _Geometry
 
     geometry = _Geometry(setup.world)
@@ -200,14 +204,16 @@ def laser_information(setup: BoundSetup, *, edges: bool = True) -> LaserInformat
     heading = (laser[:, 2][:, None] + setup.angles[None, :]).reshape(-1)
     r, incidence, material = geometry.cast(lx, ly, heading)
     dx, dy = np.cos(heading), np.sin(heading)
+    r = np.where(np.isfinite(r), r, np.nan)  # nothing hit
     hx, hy = lx + r * dx, ly + r * dy
     surface = np.empty(r.shape[0], dtype=np.int64)
     along = np.zeros(r.shape[0])
     _hit_surfaces(hx, hy, geometry.segments, geometry.circles, surface, along)
-    hit = (material >= 0) & (r >= setup.range_min) & (r < setup.range_max) & (surface >= 0)
+    with np.errstate(invalid="ignore"):
+        hit = (material >= 0) & (r >= setup.range_min) & (r < setup.range_max) & (surface >= 0)
 
     m_seg = geometry.segments.shape[0]
-    seg = geometry.segments
+    seg = geometry.segments if m_seg else np.zeros((1, 4))
     # Unit normal of the hit surface: the segment's fixed normal, or the circle's outward one.
     sidx = np.where(hit & (surface < m_seg), surface, 0)
     ex, ey = seg[sidx, 2] - seg[sidx, 0], seg[sidx, 3] - seg[sidx, 1]
@@ -273,7 +279,7 @@ def laser_information(setup: BoundSetup, *, edges: bool = True) -> LaserInformat
     if edges and b > 1:
         e = _edge_rows(setup, geometry, r.reshape(n, b), hit.reshape(n, b), surface.reshape(n, b),
                        along.reshape(n, b), hx.reshape(n, b), hy.reshape(n, b), incidence.reshape(n, b),
-                       laser, poses, keep.reshape(n, b))
+                       laser, poses, keep.reshape(n, b), edge_sigma)
         if e is not None:
             scans.append(e[0])
             weights.append(e[1])
@@ -290,7 +296,7 @@ def laser_information(setup: BoundSetup, *, edges: bool = True) -> LaserInformat
                             n_params, int(rows_beam.shape[0]), n_edges)
 
 
-def _edge_rows(setup, geometry, r, hit, surface, along, hx, hy, incidence, laser, poses, keep):
+def _edge_rows(setup, geometry, r, hit, surface, along, hx, hy, incidence, laser, poses, keep, edge_sigma):
     """Bearing measurements of wall ends seen against something farther (or nothing), per beam gap."""
     m_seg = geometry.segments.shape[0]
     da = setup.angle_increment
@@ -334,7 +340,7 @@ def _edge_rows(setup, geometry, r, hit, surface, along, hx, hy, incidence, laser
     myw = np.sin(th) * setup.mount[0] + np.cos(th) * setup.mount[1]
     gth = gbx * (-myw) + gby * mxw - 1.0
     near_keep = pick(keep)[scan_i, gap_i]
-    weight = near_keep * 12.0 / da**2
+    weight = near_keep / np.maximum(da**2 / 12.0, edge_sigma**2 / rho2)
     pidx = np.full((scan_i.shape[0], 4), -1, dtype=np.int64)
     pidx[:, 0] = 4 * seg_i + 2 * end_i
     pidx[:, 1] = 4 * seg_i + 2 * end_i + 1
@@ -454,17 +460,19 @@ def _alignment_operator(positions: NDArray[np.float64]) -> tuple[NDArray, NDArra
 
 
 def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool = True,
-                   align: bool = True) -> dict[str, Any]:
+                   edge_sigma: float = 0.0, align: bool = True) -> dict[str, Any]:
     """Cramer-Rao bound of the trajectory for a simulated recording (or a :class:`BoundSetup`).
 
     ``map``: ``"known"`` (localisation in the true map) or ``"walls"`` (walls of unknown
     position, estimated with the trajectory: the SLAM bound). ``edges``: count the bearing of
-    wall ends (see the module docstring). ``align``: remove the best rigid alignment first, as
+    wall ends (see the module docstring); ``edge_sigma`` (m) coarsens them to what a map of
+    that precision could locate (then no longer a bound: a what-if). ``align``: remove the best rigid alignment first, as
     the ATE of ``slam2d evaluate`` does.
 
     Returns ``ate_m`` (expected ATE: RMS over scans of the position standard deviation),
     ``heading_deg`` (the same for the heading), per-scan ``position_std_m`` and
-    ``heading_std_deg``, the unaligned ones, and counts.
+    ``heading_std_deg``, ``unaligned`` (the same without the alignment), ``covariance``
+    ``(N, 3, 3)`` (each pose's marginal covariance, unaligned) and counts.
     """
     if map not in ("known", "walls"):
         raise InputError(f"{map!r} is not a map model (known, walls)", field="map")
@@ -474,7 +482,9 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
     n = poses.shape[0]
     if n < 2:
         raise InputError("the bound needs at least two scans", field="scans")
-    laser = laser_information(setup, edges=edges)
+    if not (math.isfinite(edge_sigma) and edge_sigma >= 0.0):
+        raise InputError(f"{edge_sigma!r} must be a distance >= 0", field="edge_sigma")
+    laser = laser_information(setup, edges=edges, edge_sigma=edge_sigma)
     cov = odometry_covariances(setup)
     omega = np.linalg.inv(cov)
     ja, jb = _relative_jacobians(poses[:-1], poses[1:])
@@ -531,6 +541,7 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
         aligned = np.maximum(aligned.reshape(n, 3), 0.0)
         var_pos = aligned[:, 0] + aligned[:, 1]
         var_head = aligned[:, 2]
+    result["covariance"] = pose_cov
     result["ate_m"] = float(np.sqrt(var_pos.mean()))
     result["heading_deg"] = float(np.degrees(np.sqrt(var_head.mean())))
     result["position_std_m"] = np.sqrt(var_pos)
