@@ -844,6 +844,42 @@ def gmapping_sim_lasers(workdir: Path) -> tuple[None, str]:
         notes.append(f"{world} {laser} (ATE / rot / RPE rot per frame / map error, seeds 0-2): " + "; ".join(row))
     return None, " | ".join(notes)
 
+
+def accuracy_bound_sim(_: Path) -> tuple[None, str]:
+    """The Cramer-Rao bound of the trajectory (slam2d.eval.accuracy_bound) on the sim-lasers recordings.
+
+    Office 120 s and corridor-loop, seeds 0-2, URG-04LX and RPLidar A1, the recordings
+    `karto-sim-lasers` and `gmapping-sim-lasers` run on. Per cell, expected ATE (m) after
+    alignment, seeds 0-2: known map; unknown walls (the SLAM bound); unknown walls without the
+    wall ends' bearings; and a what-if with wall ends located only to a 5 cm cell (sigma
+    0.05/sqrt(12) m, not a bound). CPU seconds of the bound alone.
+    """
+    import math
+
+    from slam2d.eval.accuracy_bound import accuracy_bound
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    cells: dict[tuple[str, str], list[str]] = {}
+    cpu = 0.0
+    for laser in SIM_LASERS:
+        for world, duration in SIM_LASER_WORLDS:
+            for seed in (0, 1, 2):
+                sim = simulate(world, SimulationParams(duration=duration, seed=seed, laser=laser))
+                t0 = time.process_time()
+                known = accuracy_bound(sim, map="known")
+                walls = accuracy_bound(sim, map="walls")
+                bare = accuracy_bound(sim, map="walls", edges=False)
+                cell = accuracy_bound(sim, map="walls", edge_sigma=0.05 / math.sqrt(12.0))
+                cpu += time.process_time() - t0
+                cells.setdefault((world, laser), []).append(
+                    f"{known['ate_m']:.4f} / {walls['ate_m']:.4f} ({walls['heading_deg']:.3f} deg, worst pose "
+                    f"{walls['position_std_m'].max():.3f}) / {bare['ate_m']:.4f} / {cell['ate_m']:.4f}")
+    notes = [f"{world} {laser} (expected ATE m, known map / unknown walls (heading, worst pose std) / "
+             f"walls without wall ends / wall ends to 5 cm, seeds 0-2): " + "; ".join(row)
+             for (world, laser), row in cells.items()]
+    notes.append(f"{cpu:.1f} CPU s for the 48 bounds")
+    return None, " | ".join(notes)
+
 #: the set docs/methods/gmapping.md recommends for a laser shorter than the corridors (URG-04LX, 5.6 m)
 GMAPPING_SHORT_RANGE = {"between_updates": "guided", "odometry_prior": "1", "tracking_prior": "1",
                         "match_range": "4.0"}
@@ -1037,6 +1073,11 @@ CASES: list[Case] = [
          "120 s and corridor-loop, seeds 0-2, URG-04LX: ATE, heading, per-frame rotation and map error vs the truth",
          gmapping_sim_urg_short_range, target="office: ATE < 0.10 m, map error < 0.05 m (issue 5)", warmup=False,
          repeat=1),
+    Case("accuracy-bound-sim", "Cramer-Rao bound of the trajectory (`slam2d.eval.accuracy_bound`) on office 120 s "
+         "and corridor-loop, seeds 0-2, URG-04LX and RPLidar A1: the ATE no unbiased method can beat, with the map "
+         "known and with the walls unknown (docs/accuracy_bound.md)", accuracy_bound_sim,
+         target="below every method's ATE; issue 7's 0.05 m reachable only if the walls bound is under it",
+         warmup=False, repeat=1),
     Case("map-floor", "`known-poses` maps (exact poses) of office 120 s and corridor-loop, URG-04LX and RPLidar A1: "
          "map error and ghost walls with walls on the map's cell boundaries, mid-cell, and mid-cell without "
          "grazing beams (> 80 deg)", map_floor, target="the floor of the map metric, well under the methods' "

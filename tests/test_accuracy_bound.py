@@ -177,3 +177,54 @@ def test_bad_map_model_is_an_input_error():
         accuracy_bound(setup, map="grid")
     with pytest.raises(InputError, match="edge_sigma"):
         accuracy_bound(setup, edge_sigma=-1.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("laser", ["rplidar-a1", "urg-04lx"])
+def test_no_method_beats_the_bound(laser):
+    # karto (and the odometry it starts from) on a real simulated recording: if either came out
+    # below the bound, the bound would be wrong. The bound is on the RMS over runs; one run's
+    # error would need a wild fluctuation (several times the bound) to dip under it.
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.methods import get_method
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    sim = simulate("office", SimulationParams(duration=40.0, seed=0, laser=laser))
+    walls = accuracy_bound(sim, map="walls")
+    known = accuracy_bound(sim, map="known")
+    assert 0.0 < known["ate_m"] <= walls["ate_m"]
+    slam = get_method("karto")(seed=0).run(sim.frames())
+    t, p = slam.trajectory()
+    karto = absolute_trajectory_error(associate(t, p, sim.scan_times, sim.scan_truth))["translation_m"]["rmse"]
+    odometry = absolute_trajectory_error(
+        associate(sim.scan_times, sim.odometry[sim.scan_indices], sim.scan_times, sim.scan_truth)
+    )["translation_m"]["rmse"]
+    assert walls["ate_m"] < karto
+    assert walls["ate_m"] < odometry
+
+
+def test_aligned_bound_matches_monte_carlo_through_the_real_alignment():
+    # Draw trajectory errors from the bound's own joint covariance, align each with the ATE's
+    # align_se2 and compare the mean squared ATE with the bound's (linearised) expectation.
+    from slam2d.core import se2
+    from slam2d.eval.accuracy_bound import joint_information
+    from slam2d.eval.trajectory_metrics import align_se2
+
+    world = _world([[0, 0, 4, 0], [4, 0, 4, 4], [4, 4, 0, 4], [0, 4, 0, 0], [2.0, 2.0, 2.3, 2.0]])
+    setup = _setup(world, _square_loop(turns=1), every=10, noise=OdometryNoise(srr=0.3, srt=0.5, str=0.3, stt=0.5))
+    for map_model in ("known", "walls"):
+        r = accuracy_bound(setup, map=map_model)
+        j = joint_information(setup, map=map_model).toarray()
+        cov = np.linalg.inv(j)[: 3 * (r["scans"] - 1), : 3 * (r["scans"] - 1)]
+        np.testing.assert_allclose(cov.reshape(r["scans"] - 1, 3, r["scans"] - 1, 3)[
+            np.arange(r["scans"] - 1), :, np.arange(r["scans"] - 1)], r["covariance"][1:], rtol=1e-6, atol=1e-14)
+        rng = np.random.default_rng(0)
+        chol = np.linalg.cholesky(cov)
+        truth = setup.scan_truth
+        sq = []
+        for _ in range(400):
+            est = truth.copy()
+            est[1:] += (chol @ rng.standard_normal(chol.shape[0])).reshape(-1, 3)
+            aligned = se2.compose(align_se2(est[:, :2], truth[:, :2]), est)
+            sq.append(np.mean(np.sum((aligned[:, :2] - truth[:, :2]) ** 2, axis=1)))
+        assert math.sqrt(np.mean(sq)) == pytest.approx(r["ate_m"], rel=0.05)

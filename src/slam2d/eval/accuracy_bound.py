@@ -70,6 +70,7 @@ __all__ = [
     "odometry_covariances",
     "accuracy_bound",
     "chain_marginals",
+    "joint_information",
 ]
 
 #: Sigma used where the range noise model says 0 (noise-free ranges would give infinite information).
@@ -484,31 +485,17 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
         raise InputError("the bound needs at least two scans", field="scans")
     if not (math.isfinite(edge_sigma) and edge_sigma >= 0.0):
         raise InputError(f"{edge_sigma!r} must be a distance >= 0", field="edge_sigma")
-    laser = laser_information(setup, edges=edges, edge_sigma=edge_sigma)
-    cov = odometry_covariances(setup)
-    omega = np.linalg.inv(cov)
-    ja, jb = _relative_jacobians(poses[:-1], poses[1:])
-    ta = ja.transpose(0, 2, 1)
-    diag = laser.pose.copy()
-    diag[:-1] += ta @ omega @ ja
-    diag[1:] += jb.transpose(0, 2, 1) @ omega @ jb
-    off = ta @ omega @ jb  # block (i, i + 1)
-    # The first pose is known: drop it (its laser information only tells about the map).
-    d1, o1 = diag[1:], off[1:]
+    laser, d1, o1 = _pose_information(setup, edges, edge_sigma)
     m = n - 1
     pose_cov = np.zeros((n, 3, 3))
-    if map == "known":
-        pose_cov[1:] = chain_marginals(np.ascontiguousarray(d1), np.ascontiguousarray(o1))
-        a_mat = None
-    else:
-        a_mat = _block_tridiagonal(d1, o1)
+    pose_cov[1:] = chain_marginals(np.ascontiguousarray(d1), np.ascontiguousarray(o1))
+    lu = spla.splu(_block_tridiagonal(d1, o1).tocsc())
     if map == "walls":
+        # Schur complement on the map: Sigma_poses = A^-1 + X S^-1 X^T with X = A^-1 B, S = C - B^T X.
         b_mat, c_mat, used = _map_blocks(laser, n)
-        lu = spla.splu(a_mat.tocsc())
         x = lu.solve(b_mat)  # A^-1 B, (3m, P)
         schur = c_mat - b_mat.T @ x
         schur_inv = np.linalg.inv(schur)
-        pose_cov[1:] = chain_marginals(np.ascontiguousarray(d1), np.ascontiguousarray(o1))
         xr = x.reshape(m, 3, -1)
         pose_cov[1:] += np.einsum("nip,pq,njq->nij", xr, schur_inv, xr, optimize=True)
 
@@ -516,7 +503,6 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
             y = lu.solve(v)
             return y + x @ (schur_inv @ (b_mat.T @ y))
     else:
-        lu = spla.splu(_block_tridiagonal(d1, o1).tocsc())
         used = 0
 
         def solve(v: NDArray) -> NDArray:
@@ -547,6 +533,38 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
     result["position_std_m"] = np.sqrt(var_pos)
     result["heading_std_deg"] = np.degrees(np.sqrt(var_head))
     return result
+
+
+def _pose_information(setup: BoundSetup, edges: bool, edge_sigma: float) -> tuple[LaserInformation, NDArray, NDArray]:
+    """The laser's information and the poses' block-tridiagonal information (laser + odometry).
+
+    The first pose is known, so it is left out: the blocks are those of poses 1..N-1.
+    """
+    poses = setup.scan_truth
+    laser = laser_information(setup, edges=edges, edge_sigma=edge_sigma)
+    omega = np.linalg.inv(odometry_covariances(setup))
+    ja, jb = _relative_jacobians(poses[:-1], poses[1:])
+    ta = ja.transpose(0, 2, 1)
+    diag = laser.pose.copy()
+    diag[:-1] += ta @ omega @ ja
+    diag[1:] += jb.transpose(0, 2, 1) @ omega @ jb
+    off = ta @ omega @ jb  # block (i, i + 1)
+    return laser, diag[1:], off[1:]
+
+
+def joint_information(setup: BoundSetup, *, map: str = "known", edges: bool = True,
+                      edge_sigma: float = 0.0) -> sp.csr_matrix:
+    """The whole information matrix: poses 1..N-1 (x, y, theta each), then the map parameters seen.
+
+    What :func:`accuracy_bound` inverts, for checks on small cases (its inverse is the bound's
+    joint covariance).
+    """
+    laser, d1, o1 = _pose_information(setup, edges, edge_sigma)
+    a = _block_tridiagonal(d1, o1)
+    if map == "known":
+        return a
+    b, c, _ = _map_blocks(laser, setup.scan_truth.shape[0])
+    return sp.bmat([[a, sp.csr_matrix(b)], [sp.csr_matrix(b.T), sp.csr_matrix(c)]]).tocsr()
 
 
 def _block_tridiagonal(diag: NDArray, off: NDArray) -> sp.csr_matrix:
