@@ -228,3 +228,23 @@ def test_aligned_bound_matches_monte_carlo_through_the_real_alignment():
             aligned = se2.compose(align_se2(est[:, :2], truth[:, :2]), est)
             sq.append(np.mean(np.sum((aligned[:, :2] - truth[:, :2]) ** 2, axis=1)))
         assert math.sqrt(np.mean(sq)) == pytest.approx(r["ate_m"], rel=0.05)
+
+
+@pytest.mark.parametrize("world", ["paper-arena", "office"])
+def test_the_oracle_smoother_reaches_the_bound_on_real_readings(world):
+    # The maximum-likelihood smoother that knows which surface each beam hit, run on what the
+    # simulator actually reported (its range noise, dropouts, odometry drift): its RMS error over
+    # seeds must sit at the bound. A sigma, a dropout rate or an odometry variance counted wrong
+    # by the bound would show here as a ratio far from 1 (a factor 2 in sigma gives 2).
+    from slam2d.eval.accuracy_bound import oracle_smoother
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    for map_model in ("known", "walls"):
+        ates = []
+        for seed in range(4):
+            sim = simulate(world, SimulationParams(duration=20.0, seed=seed))
+            if seed == 0:
+                bound = accuracy_bound(sim, map=map_model)["ate_m"]
+            ates.append(oracle_smoother(sim, map=map_model)["ate_m"])
+        ratio = math.sqrt(np.mean(np.square(ates))) / bound
+        assert 0.75 < ratio < 1.3, (map_model, ratio, ates, bound)
