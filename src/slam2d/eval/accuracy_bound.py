@@ -324,8 +324,12 @@ def _edge_rows(setup, geometry, r, hit, surface, along, hx, hy, incidence, laser
     near_first = rr[:, :-1] <= rr[:, 1:]
     near_r = np.where(near_first, rr[:, :-1], rr[:, 1:])
     far_r = np.where(near_first, rr[:, 1:], rr[:, :-1])
-    pick = lambda a: np.where(near_first, a[:, :-1], a[:, 1:])  # noqa: E731
-    pick_far = lambda a: np.where(near_first, a[:, 1:], a[:, :-1])  # noqa: E731
+
+    def pick(a: NDArray) -> NDArray:  # the nearer beam's value at each gap
+        return np.where(near_first, a[:, :-1], a[:, 1:])
+
+    def pick_far(a: NDArray) -> NDArray:
+        return np.where(near_first, a[:, 1:], a[:, :-1])
     near_s, far_s = pick(surface), pick_far(surface)
     near_t = pick(along)
     near_inc = pick(np.nan_to_num(incidence, nan=0.0))
@@ -501,8 +505,7 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
     ``heading_std_deg``, ``unaligned`` (the same without the alignment), ``covariance``
     ``(N, 3, 3)`` (each pose's marginal covariance, unaligned) and counts.
     """
-    if map not in ("known", "walls"):
-        raise InputError(f"{map!r} is not a map model (known, walls)", field="map")
+    _check_map(map)
     if not isinstance(setup, BoundSetup):
         setup = setup_from_simulation(setup)
     poses = setup.scan_truth
@@ -561,6 +564,11 @@ def accuracy_bound(setup: BoundSetup | Any, *, map: str = "known", edges: bool =
     return result
 
 
+def _check_map(map: str) -> None:
+    if map not in ("known", "walls"):
+        raise InputError(f"{map!r} is not a map model (known, walls)", field="map")
+
+
 def _pose_information(setup: BoundSetup, edges: bool, edge_sigma: float) -> tuple[LaserInformation, NDArray, NDArray]:
     """The laser's information and the poses' block-tridiagonal information (laser + odometry).
 
@@ -585,6 +593,7 @@ def joint_information(setup: BoundSetup, *, map: str = "known", edges: bool = Tr
     What :func:`accuracy_bound` inverts, for checks on small cases (its inverse is the bound's
     joint covariance).
     """
+    _check_map(map)
     laser, d1, o1 = _pose_information(setup, edges, edge_sigma)
     a = _block_tridiagonal(d1, o1)
     if map == "known":
@@ -659,8 +668,7 @@ def oracle_smoother(sim: Any, *, map: str = "walls", edges: bool = True) -> dict
     """
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
 
-    if map not in ("known", "walls"):
-        raise InputError(f"{map!r} is not a map model (known, walls)", field="map")
+    _check_map(map)
     setup = setup_from_simulation(sim)
     poses = setup.scan_truth
     n = poses.shape[0]
