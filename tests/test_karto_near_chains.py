@@ -121,3 +121,28 @@ def test_near_outcome_is_the_same_in_either_order_in_every_branch():
                 # The hot order matched, found the response below the mark and bounded it.
                 kinds.add(f"hot-{hot_out}")
     assert kinds == {"link", "failed", "None", "hot-failed", "hot-None"}, kinds
+
+
+def test_a_request_the_entry_already_holds_keeps_its_extent_and_grid():
+    """GridCache.reserve's shortcut for a request with no node to add (a chain that shrank or stayed)."""
+    from slam2d.matching.correlative import CorrelativeMatcher
+
+    rng = np.random.default_rng(3)
+    parts = [_walls(rng, 3) for _ in range(5)]
+    sig = [np.full(len(q), 0.03) for q in parts]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    lo, hi = np.array([-4.0, -4.0]), np.array([4.0, 4.0])
+    e = cache.reserve([0, 1, 2, 3, 4], lo, hi)
+    before = (e["ext_lo"].copy(), e["ext_hi"].copy(), e["reach"])
+    xlo, xhi, reach = cache._extent([0, 1, 2, 3, 4])
+    assert np.array_equal(before[0], xlo) and np.array_equal(before[1], xhi) and before[2] == reach
+    for subset in ([1, 2], [4], [0, 1, 2, 3, 4]):
+        assert cache.reserve(subset, lo, hi) is e
+        assert np.array_equal(e["ext_lo"], before[0]) and np.array_equal(e["ext_hi"], before[1])
+        assert e["reach"] == before[2]
+    assert cache.builds == 1 and cache.extensions == 0
+    g, ox, oy = cache.materialize(e, lo, hi)
+    fresh = GridCache(m, lambda i: (parts[i], sig[i]))
+    f, fx, fy = fresh.get([0, 1, 2, 3, 4], lo, hi)
+    assert (ox, oy) == (fx, fy) and np.array_equal(g, f)
