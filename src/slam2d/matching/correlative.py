@@ -1954,10 +1954,13 @@ class GridCache:
             if not common or len(have) - common > self.max_extra:
                 continue
             missing = sorted(wanted - have)
-            xlo, xhi, reach = self._extent(missing)
-            xlo = np.minimum(xlo, e["ext_lo"])
-            xhi = np.maximum(xhi, e["ext_hi"])
-            reach = max(reach, e["reach"])
+            if missing:
+                xlo, xhi, reach = self._extent(missing)
+                xlo = np.minimum(xlo, e["ext_lo"])
+                xhi = np.maximum(xhi, e["ext_hi"])
+                reach = max(reach, e["reach"])
+            else:  # what _extent of nothing (inf, -inf, 2 cells) leaves the entry's at
+                xlo, xhi, reach = e["ext_lo"], e["ext_hi"], e["reach"]
             # The reference points (with their smear) the query can reach must lie in the grid.
             need_lo = np.maximum(lo, xlo - reach)
             need_hi = np.minimum(hi, xhi + reach)

@@ -1,0 +1,148 @@
+"""Near chains matched before they are bounded (hot chains) give the outcomes of the bound-first order.
+
+A chain that responded at least half the link threshold from the last node is matched at
+once and bounded only when its response falls below that mark; the front end must add the
+same edges, record the same failures and end with the same trajectory, bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slam2d.core import se2
+from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.matching.correlative import GridCache, MatchResult
+from tests.test_matching_bound import _walls
+
+
+@pytest.fixture(scope="module")
+def office_frames():
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    return simulate("office", SimulationParams(duration=120.0, seed=1)).frames()
+
+
+def _run(frames):
+    from slam2d.methods import get_method
+
+    slam = get_method("karto")(seed=0).run(frames)
+    return slam
+
+
+def _effect(outcome, link):
+    """What the front end does with an outcome: link (the match), record a failure, or nothing."""
+    if isinstance(outcome, MatchResult):
+        if outcome.response > link:
+            return ("link", tuple(outcome.pose), outcome.response, tuple(outcome.covariance.ravel()))
+        return None  # a match that does not link and is not failed: nothing, as a skipped chain
+    return outcome
+
+
+def _same(a, b, link) -> bool:
+    return _effect(a, link) == _effect(b, link)
+
+
+def test_hot_near_chains_get_the_bound_first_outcome(monkeypatch, office_frames):
+    original = GraphFrontend._near_outcome
+    seen = {"hot": 0, "hot_low": 0}
+
+    def checked(self, entry, points, pose, lo, hi, hot):
+        got = original(self, entry, points, pose, lo, hi, hot)
+        if hot:
+            # The bound-first order on the same entry (counters off: the run's own are checked below).
+            diagnostics, self.diagnostics = self.diagnostics, None
+            try:
+                want = original(self, entry, points, pose, lo, hi, False)
+            finally:
+                self.diagnostics = diagnostics
+            assert _same(got, want, self.params.link_match_minimum_response_fine)
+            seen["hot"] += 1
+            seen["hot_low"] += not isinstance(got, MatchResult)
+        return got
+
+    monkeypatch.setattr(GraphFrontend, "_near_outcome", checked)
+    slam = _run(office_frames)
+    assert seen["hot"] > 20
+    assert seen["hot"] > 10
+
+
+def test_hot_near_chains_leave_the_trajectory_bit_for_bit(monkeypatch, office_frames):
+    fast = _run(office_frames)
+    original = GraphFrontend._near_outcome
+    monkeypatch.setattr(GraphFrontend, "_near_outcome",
+                        lambda self, entry, points, pose, lo, hi, hot: original(self, entry, points, pose, lo, hi, False))
+    slow = _run(office_frames)
+    t_fast, p_fast = fast.trajectory()
+    t_slow, p_slow = slow.trajectory()
+    assert np.array_equal(t_fast, t_slow) and np.array_equal(p_fast, p_slow)
+    assert fast.diagnostics.summary["edges"] == slow.diagnostics.summary["edges"]
+    # The hot chains skipped bounds the bound-first order computed.
+    c_fast, c_slow = fast.diagnostics.counters, slow.diagnostics.counters
+    bounds_fast = c_fast.get("near_skipped_bound", 0) + c_fast.get("near_skipped_bound_link", 0)
+    bounds_slow = c_slow.get("near_skipped_bound", 0) + c_slow.get("near_skipped_bound_link", 0)
+    assert bounds_fast <= bounds_slow
+    assert c_slow.get("near_matched_before_bound", 0) == 0
+
+
+def _mixed_scene(seed):
+    """A world of walls and a query seeing a share of them (the rest: walls elsewhere), near its true pose."""
+    rng = np.random.default_rng(seed)
+    world = _walls(rng)
+    truth = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-np.pi, np.pi)])
+    share = (seed % 5) / 4.0  # 0: out of view ... 1: all seen
+    seen = world[rng.random(world.shape[0]) < share][::3]
+    other = _walls(rng, 4)[:: max(1, int(4 * share) + 1)]
+    q = se2.transform_points(se2.inverse(truth), np.vstack([seen, other]))
+    prior = truth + np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.2, 0.2)])
+    return world, q, prior
+
+
+def test_near_outcome_is_the_same_in_either_order_in_every_branch():
+    """Direct checks over scenes and link thresholds that reach every branch, including a hot chain's
+    match falling below the failure mark (bounded then: failed, or skipped when the bound is in between)."""
+    kinds = set()
+    for seed in range(10):
+        world, q, prior = _mixed_scene(seed)
+        sig = np.full(world.shape[0], 0.03)
+        for link in (0.3, 0.6, 0.8, 0.95):
+            outcomes = []
+            for hot in (False, True):
+                fe = GraphFrontend(GraphSlamParams(link_match_minimum_response_fine=link))
+                fe._seq_cache = GridCache(fe.sequential, lambda i: (world, sig))
+                lo, hi = fe.sequential.search_box(q, prior)
+                entry = fe._seq_cache.reserve([0], lo, hi)
+                outcomes.append(fe._near_outcome(entry, q, prior, lo, hi, hot))
+            cold, hot_out = outcomes
+            assert _same(cold, hot_out, link), (seed, link)
+            effect = _effect(cold, link)
+            kinds.add(effect[0] if isinstance(effect, tuple) else str(effect))
+            if not isinstance(hot_out, MatchResult):
+                # The hot order matched, found the response below the mark and bounded it.
+                kinds.add(f"hot-{hot_out}")
+    assert kinds == {"link", "failed", "None", "hot-failed", "hot-None"}, kinds
+
+
+def test_a_request_the_entry_already_holds_keeps_its_extent_and_grid():
+    """GridCache.reserve's shortcut for a request with no node to add (a chain that shrank or stayed)."""
+    from slam2d.matching.correlative import CorrelativeMatcher
+
+    rng = np.random.default_rng(3)
+    parts = [_walls(rng, 3) for _ in range(5)]
+    sig = [np.full(len(q), 0.03) for q in parts]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    lo, hi = np.array([-4.0, -4.0]), np.array([4.0, 4.0])
+    e = cache.reserve([0, 1, 2, 3, 4], lo, hi)
+    before = (e["ext_lo"].copy(), e["ext_hi"].copy(), e["reach"])
+    xlo, xhi, reach = cache._extent([0, 1, 2, 3, 4])
+    assert np.array_equal(before[0], xlo) and np.array_equal(before[1], xhi) and before[2] == reach
+    for subset in ([1, 2], [4], [0, 1, 2, 3, 4]):
+        assert cache.reserve(subset, lo, hi) is e
+        assert np.array_equal(e["ext_lo"], before[0]) and np.array_equal(e["ext_hi"], before[1])
+        assert e["reach"] == before[2]
+    assert cache.builds == 1 and cache.extensions == 0
+    g, ox, oy = cache.materialize(e, lo, hi)
+    fresh = GridCache(m, lambda i: (parts[i], sig[i]))
+    f, fx, fy = fresh.get([0, 1, 2, 3, 4], lo, hi)
+    assert (ox, oy) == (fx, fy) and np.array_equal(g, f)
