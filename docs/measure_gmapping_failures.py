@@ -44,6 +44,7 @@ def main() -> None:
     settings = dict(s.split("=", 1) for s in a.settings)
     duration = None if a.world == "corridor-loop" else 120.0
     original = gm.match_particles
+    original_hold = gm.hold_flat_direction
     for seed in (int(s) for s in a.seeds.split(",")):
         sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
         sim = simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser))
@@ -78,10 +79,21 @@ def main() -> None:
                          "score_min": float(score.min()), "score_med": float(np.median(score)),
                          "along_need": need @ fwd, "along_moved": moved @ fwd,
                          "cross_need": need @ left, "cross_moved": moved @ left, "ok": ok.copy(),
-                         "head": head, "since": j, "turn": float(true_inc[2]), "dist": float(np.hypot(*true_inc[:2]))})
+                         "head": head, "since": j, "turn": float(true_inc[2]), "dist": float(np.hypot(*true_inc[:2])),
+                         "fwd": fwd, "left": left, "flat": 0})
             state["last"] = i
 
+        def spy_hold(*args, m=m, rows=rows):
+            original_hold(*args)
+            if args[9] is not m._state or not rows:  # a tracked scan's climb
+                return
+            r = rows[-1]
+            moved = args[10][:, :2] - args[9][:, :2]
+            r["along_moved"], r["cross_moved"] = moved @ r["fwd"], moved @ r["left"]
+            r["flat"] = int((args[-1] > 0).sum())
+
         gm.match_particles = spy
+        gm.hold_flat_direction = spy_hold
         run_dir = Path(a.cache) / f"run-{a.world}-{a.laser}-{seed}"
         run_method(m, sim_dir / "recording.log.gz", run_dir)
         e = evaluate_run(load_run(run_dir), load_truth(sim_dir))
@@ -106,7 +118,7 @@ def main() -> None:
             moved = np.concatenate([r["along_moved"][r["ok"]] for r, s in zip(rows, sel) if s])
             cneed = np.concatenate([r["cross_need"][r["ok"]] for r, s in zip(rows, sel) if s])
             cmoved = np.concatenate([r["cross_moved"][r["ok"]] for r, s in zip(rows, sel) if s])
-            print(f"  {name}: {sel.sum()} updates; along track rms error before the climb {np.sqrt(np.mean(need ** 2)):.3f} m, "
+            print(f"  {name}: {sel.sum()} updates, {sum(r['flat'] for r, s in zip(rows, sel) if s)} matches held; along track rms error before the climb {np.sqrt(np.mean(need ** 2)):.3f} m, "
                   f"after {np.sqrt(np.mean((need - moved) ** 2)):.3f} m, climb moved rms {np.sqrt(np.mean(moved ** 2)):.3f} m; "
                   f"across {np.sqrt(np.mean(cneed ** 2)):.3f} -> {np.sqrt(np.mean((cneed - cmoved) ** 2)):.3f} m")
 
