@@ -844,7 +844,8 @@ def gmapping_sim_lasers(workdir: Path) -> tuple[None, str]:
         notes.append(f"{world} {laser} (ATE / rot / RPE rot per frame / map error, seeds 0-2): " + "; ".join(row))
     return None, " | ".join(notes)
 
-#: the set docs/methods/gmapping.md recommends for a laser shorter than the corridors (URG-04LX, 5.6 m)
+#: the short-range set docs/methods/gmapping.md recommended before flat_ratio (URG-04LX, 5.6 m; match_range
+#: chosen on seeds 0-2); it now recommends GMAPPING_SHORT_RANGE_FLAT below
 GMAPPING_SHORT_RANGE = {"between_updates": "guided", "odometry_prior": "1", "tracking_prior": "1",
                         "match_range": "4.0"}
 
