@@ -53,7 +53,7 @@ from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 
-__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal"]
+__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction"]
 
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
@@ -473,3 +473,82 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
         out_poses[p, 1] = optima[p, 1] + so * v[0] + co * v[1]
         out_poses[p, 2] = (optima[p, 2] + v[2] + math.pi) % (2.0 * math.pi) - math.pi
         out_logeta[p] = top + math.log(eta)
+
+
+@njit(cache=True, inline="always")
+def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y, th, mount, ex, ey, ux, uy, div_s,
+              div_l, step, ratio):
+    """:func:`hold_flat_direction` for one pose: ``(x, y, flat)``, ``flat`` 0 (kept), 1 (one axis held) or 2 (both)."""
+    s0 = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+                   False)[0]
+    sxp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y, th, mount, ex, ey, ux, uy,
+                    div_s, div_l, False)[0]
+    sxm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y, th, mount, ex, ey, ux, uy,
+                    div_s, div_l, False)[0]
+    syp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y + step, th, mount, ex, ey, ux, uy,
+                    div_s, div_l, False)[0]
+    sym = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y - step, th, mount, ex, ey, ux, uy,
+                    div_s, div_l, False)[0]
+    spp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y + step, th, mount, ex, ey, ux,
+                    uy, div_s, div_l, False)[0]
+    smm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y - step, th, mount, ex, ey, ux,
+                    uy, div_s, div_l, False)[0]
+    spm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y - step, th, mount, ex, ey, ux,
+                    uy, div_s, div_l, False)[0]
+    smp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y + step, th, mount, ex, ey, ux,
+                    uy, div_s, div_l, False)[0]
+    h2 = step * step
+    # the score's information (minus its curvature) in x, y by central differences: a slope cancels
+    a = -(sxp + sxm - 2.0 * s0) / h2
+    c = -(syp + sym - 2.0 * s0) / h2
+    b = -(spp + smm - spm - smp) / (4.0 * h2)
+    mean = 0.5 * (a + c)
+    rad = math.sqrt(0.25 * (a - c) * (a - c) + b * b)
+    big, small = mean + rad, mean - rad
+    if big <= 0.0:  # no curvature at all: the scan fixes no translation, the odometry's is kept
+        return start[0], start[1], 2
+    if small >= ratio * big:
+        return x, y, 0
+    # the eigenvector of the smallest eigenvalue: the direction the scan does not constrain
+    if abs(b) > 1e-300:
+        vx, vy = small - c, b
+    elif a <= c:
+        vx, vy = 1.0, 0.0
+    else:
+        vx, vy = 0.0, 1.0
+    n = math.hypot(vx, vy)
+    vx, vy = vx / n, vy / n
+    along = (x - start[0]) * vx + (y - start[1]) * vy  # how far the climb moved along it: undone
+    return x - along * vx, y - along * vy, 1
+
+
+@njit(cache=True, parallel=True)
+def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which, starts, poses, ok, mount, ex, ey,
+                        ux, uy, div_s, div_l, step, ratio, out_like, out_flat):
+    """Undo a climb's move along the direction its score does not constrain (not in GMapping).
+
+    For each pose ``poses[i]`` matched on map ``which[i]`` from ``starts[i]``
+    (``ok[i]`` False: left alone), the score's 2 x 2 translation information at the
+    pose is taken by central differences of ``step`` (m; one cell: the cells' ripple
+    along a wall is periodic in it); a linear slope, such as beams that gain map
+    points by moving back into the mapped area, cancels in them. When its smaller
+    eigenvalue is below ``ratio`` times the larger (a corridor whose ends are out of
+    the laser's reach), the pose's component along that eigenvector is set back to
+    the start's, the odometry's: the climb only slid there, on the lattice's ripple
+    or toward the edge of the map. With no curvature at all the start's translation
+    is kept. The heading stays the climb's. ``poses`` is changed in place,
+    ``out_like[i]`` is the log-likelihood at the pose kept (as ``match_particles``
+    computes it) and ``out_flat[i]`` 0 (unchanged), 1 (one direction held) or 2 (both).
+    """
+    for i in prange(poses.shape[0]):
+        out_flat[i] = 0
+        if not ok[i]:
+            continue
+        p = which[i]
+        x, y, flat = _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, starts[i], poses[i, 0],
+                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio)
+        out_flat[i] = flat
+        if flat:
+            poses[i, 0], poses[i, 1] = x, y
+            out_like[i] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, poses[i, 2], mount,
+                                    ex, ey, ux, uy, div_s, div_l, True)[1]

@@ -34,7 +34,7 @@ from slam2d.filters import (
 )
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
-from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, match_one, match_particles
+from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, hold_flat_direction, match_one, match_particles
 from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -91,6 +91,11 @@ class GMappingParams:
         0.0, low=0.0, help="not in GMapping: the same odometry prior for the climbs of the scans between updates "
         "(between_updates=matched or guided), with the covariance of the odometry increment since the last matched "
         "scan; 0: off")
+    flat_ratio: float = param(
+        0.0, low=0.0, high=1.0, help="not in GMapping: after every climb (the particles' and the tracked scans') "
+        "the score's translation curvature at the optimum is taken by central differences of one cell; when its "
+        "smaller eigenvalue is below this times the larger (a corridor longer than the laser's reach) the climb's "
+        "move along that direction is undone, the odometry's kept (counted as degenerate_matches); 0: off")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -176,6 +181,8 @@ class GMapping(SlamMethod):
         "weight_entropy": "entropy of the normalised importance weights, max ln N [nats]",
         "resampled": "1 when the particles were resampled",
         "match_failures": "particles whose scan match failed (odometry used) [particles]",
+        "degenerate_matches": "flat_ratio: particles whose climb was undone along an unconstrained direction "
+        "[particles]",
         "best_score": "scan-matching score of the best particle [beams]",
         "tiles": "map tiles in use over all particles [tiles]",
     }
@@ -330,8 +337,28 @@ class GMapping(SlamMethod):
             self.diagnostics.count("tracking_failures")
             self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
             return None
-        self._track_pose, self._track_odom = np.array([x, y, th]), self._odom
+        pose = np.array([[x, y, th]])
+        self._hold_flat(np.asarray(frame.scan.mount, dtype=np.float64), beams, np.array([best], dtype=np.int64),
+                        start[None], pose, np.ones(1, dtype=np.bool_), np.zeros(1), count="degenerate_tracking")
+        self._track_pose, self._track_odom = pose[0], self._odom
         return self._track_pose
+
+    def _hold_flat(self, mount, beams: BeamSet, which, starts, poses, ok, like,
+                   count: str = "degenerate_matches") -> int:
+        """``flat_ratio``: undo the climbs' moves along directions their score does not constrain; count them."""
+        p = self.params
+        if p.flat_ratio <= 0.0:
+            return 0
+        maps = self._maps
+        flat = np.zeros(poses.shape[0], dtype=np.int64)
+        hold_flat_direction(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
+                            p.kernelSize, p.free_cell_check, which, starts, poses, ok, mount, beams.ex, beams.ey,
+                            beams.ux, beams.uy, beams.div_score, beams.div_like, maps.resolution, p.flat_ratio,
+                            like, flat)
+        held = int((flat > 0).sum())
+        if held:
+            self.diagnostics.count(count, held)
+        return held
 
     def _filter_update(self, frame: Frame, beams: BeamSet | None) -> dict[str, float]:
         p = self.params
@@ -360,6 +387,7 @@ class GMapping(SlamMethod):
             take = ok2 & (~ok | (score2 > score))
             out_poses[take], score[take], like[take] = poses2[take], score2[take], like2[take]
             ok |= ok2
+        degenerate = self._hold_flat(mount, beams, np.arange(n, dtype=np.int64), self._state, out_poses, ok, like)
         failures = int(n - ok.sum())
         if failures:
             self.diagnostics.count("match_failures", failures)
@@ -390,7 +418,7 @@ class GMapping(SlamMethod):
         self._store_node(parents, scan)
         return {
             "updated": 1.0, "neff": neff, "entropy": published_entropy(self._weight), "weight_entropy": h_w,
-            "resampled": float(resampled), "match_failures": float(failures),
+            "resampled": float(resampled), "match_failures": float(failures), "degenerate_matches": float(degenerate),
             "best_score": best_score,
             "tiles": float(maps.tiles_in_use),
         }

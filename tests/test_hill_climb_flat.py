@@ -1,0 +1,110 @@
+"""``hold_flat_direction`` (gmapping ``flat_ratio``): a climb's slide along a direction its score does not fix is undone."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slam2d.cli import main
+from slam2d.grids.tiled import TiledMaps
+from slam2d.matching.hill_climb import BeamSet, hold_flat_direction, match_particles
+from slam2d.methods.gmapping import GMapping, GMappingParams
+from tests.conftest import recording_frames
+
+
+def _corridor(angles, reach=4.0):
+    """Ranges from the origin to two endless walls at y = +-1 (nothing along the corridor within ``reach``)."""
+    s = np.sin(angles)
+    with np.errstate(divide="ignore"):
+        r = np.where(np.abs(s) > 1e-9, 1.0 / np.abs(s), np.inf)
+    return np.where(r < reach, r, np.nan)
+
+
+def _room(angles):
+    """Ranges from (0, 0) to the walls of a 4 x 3 m room centred 0.3 m ahead."""
+    c, s = np.cos(angles), np.sin(angles)
+    with np.errstate(divide="ignore"):
+        tx = np.where(c > 0, 2.3 / c, np.where(c < 0, -1.7 / c, np.inf))
+        ty = np.where(s > 0, 1.5 / s, np.where(s < 0, -1.5 / s, np.inf))
+    return np.minimum(tx, ty)
+
+
+def _mapped(ranges, angles, n, poses_x):
+    maps = TiledMaps(n, 0.05, (-6, -6, 6, 6))
+    for x in poses_x:  # mapped from a few poses, so cells have a stable mean hit point
+        maps.register(np.arange(n), np.tile([x, 0.0, 0.0], (n, 1)), np.broadcast_to(ranges, (n, ranges.size)), angles,
+                      max_range=4.0, usable_range=4.0, generate_map=False)
+    use = np.isfinite(ranges)
+    return maps, BeamSet(np.nan_to_num(ranges), angles, use, np.full(ranges.size, 0.05), np.full(ranges.size, 0.075))
+
+
+def _climb_and_hold(maps, beams, start, ratio):
+    n = start.shape[0]
+    out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
+    common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
+    match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
+                    beams.div_like, 0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
+    climbed = out.copy()
+    flat = np.zeros(n, dtype=np.int64)
+    hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
+                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, like, flat)
+    return climbed, out, like, flat, ok
+
+
+def test_the_climb_along_an_endless_corridor_is_undone_and_the_rest_kept():
+    """Along the corridor the climb slides on the cells' ripple; held, the pose keeps the start's x.
+
+    Across the corridor and in heading the climb's correction stays; the log-likelihood is the held pose's.
+    """
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor(angles)
+    start = np.array([[0.013, 0.06, 0.04], [-0.021, -0.06, -0.04], [0.032, 0.05, 0.0], [0.0, -0.05, 0.03]])
+    maps, beams = _mapped(ranges, angles, start.shape[0], (-0.4, -0.2, 0.0, 0.2, 0.4))
+    climbed, held, like, flat, ok = _climb_and_hold(maps, beams, start, 0.1)
+    assert ok.all()
+    assert np.abs(climbed[:, 0] - start[:, 0]).max() > 0.1  # GMapping's climb rides the ripple
+    assert np.all(flat == 1)
+    # the odometry's component along x (the flat eigenvector is x up to the cells' ripple)
+    np.testing.assert_allclose(held[:, 0], start[:, 0], atol=1e-4)
+    np.testing.assert_allclose(held[:, 1], climbed[:, 1], atol=1e-3)  # across and heading: the climb's
+    np.testing.assert_array_equal(held[:, 2], climbed[:, 2])
+    assert np.all(np.abs(held[:, 1]) < 0.01)
+    assert np.all(like > -0.5 / 0.075 * beams.ex.size)  # evaluated at the held pose: the beams still match
+
+
+def test_a_room_that_fixes_the_pose_is_left_alone():
+    """Where the scan sees walls in two directions nothing is held: the climb's pose is returned unchanged."""
+    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
+    ranges = _room(angles)
+    start = np.array([[0.08, -0.05, 0.04], [-0.06, 0.07, -0.03]])
+    maps, beams = _mapped(ranges, angles, start.shape[0], (0.0, 0.0, 0.0))
+    climbed, held, _, flat, ok = _climb_and_hold(maps, beams, start, 0.1)
+    assert ok.all() and np.all(flat == 0)
+    np.testing.assert_array_equal(held, climbed)
+    assert np.all(np.hypot(held[:, 0], held[:, 1]) < 0.02)
+
+
+def test_ratio_zero_changes_nothing_and_a_failed_match_is_skipped():
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor(angles)
+    start = np.array([[0.013, 0.06, 0.04], [3.0, 3.0, 0.0]])  # the second has no map point near any beam
+    maps, beams = _mapped(ranges, angles, start.shape[0], (-0.4, 0.0, 0.4))
+    climbed, held, _, flat, ok = _climb_and_hold(maps, beams, start, 0.0)
+    assert ok[0] and not ok[1]
+    assert np.all(flat == 0)
+    np.testing.assert_array_equal(held, climbed)
+
+
+def test_gmapping_flat_ratio_counts_held_matches_and_is_reproducible(tmp_path):
+    """In a simulated corridor (URG-04LX) flat_ratio holds particle and tracked matches, counted; same seed, same bits."""
+    assert main(["simulate", "corridor-loop", "--out", str(tmp_path), "--duration", "25", "--seed", "0"]) == 0
+    frames = recording_frames(tmp_path / "recording.log.gz")
+    short = {"between_updates": "guided", "odometry_prior": 1.0, "tracking_prior": 1.0}
+    held = GMapping(GMappingParams(particles=8, flat_ratio=0.1, **short), seed=3).run(frames)
+    again = GMapping(GMappingParams(particles=8, flat_ratio=0.1, **short), seed=3).run(frames)
+    plain = GMapping(GMappingParams(particles=8, **short), seed=3).run(frames)
+    c = held.diagnostics.counters
+    assert c.get("degenerate_matches", 0) > 0 and c.get("degenerate_tracking", 0) > 0
+    assert np.nansum(held.diagnostics.array("degenerate_matches")) == c["degenerate_matches"]
+    assert np.array_equal(held.trajectory()[1], again.trajectory()[1])
+    assert "degenerate_matches" not in plain.diagnostics.counters
+    assert not np.array_equal(held.trajectory()[1], plain.trajectory()[1])
