@@ -7,6 +7,7 @@ from slam2d.filters.particles import (
     published_entropy,
     weight_entropy,
     systematic_resample,
+    replace_negligible,
 )
 
 __all__ = [
@@ -16,4 +17,5 @@ __all__ = [
     "published_entropy",
     "weight_entropy",
     "systematic_resample",
+    "replace_negligible",
 ]
