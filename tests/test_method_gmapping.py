@@ -16,7 +16,6 @@ from slam2d.filters import (
     effective_sample_size,
     normalized_weights,
     published_entropy,
-    replace_negligible,
     systematic_resample,
     weight_entropy,
 )
@@ -81,35 +80,6 @@ def test_systematic_resampling_gives_floor_or_ceil_of_n_w_children():
         counts = np.bincount(idx, minlength=n)
         assert np.all(counts >= np.floor(n * w) - 1e-9) and np.all(counts <= np.ceil(n * w) + 1e-9)
         assert counts.sum() == n
-
-
-def test_replace_negligible_kills_and_splits_keeping_the_weighted_set():
-    w = np.array([0.3, 1e-9, 0.2, 0.4, 1e-8, 0.1])
-    w /= w.sum()
-    value = np.array([1.0, 50.0, 2.0, 3.0, -40.0, 4.0])  # what the particles carry (a pose coordinate)
-    for u in (0.0, 0.5, 0.999):
-        parents, new = replace_negligible(w, 0.01, u)
-        kept = parents == np.arange(6)
-        assert list(np.flatnonzero(~kept)) == [1, 4]  # only the negligible ones are replaced
-        assert np.all(w[parents[~kept]] > 0.01 / 6)  # by copies of the others
-        assert new.sum() == pytest.approx(1.0) and np.all(new > 0)
-        # a copied particle shares its weight with its copies: each line keeps its weight
-        for j in np.flatnonzero(kept):
-            assert new[parents == j].sum() == pytest.approx(w[j] / w[kept].sum())
-        # so the weighted mean of what they carry is unchanged (up to the dropped negligible weight)
-        assert np.dot(new, value[parents]) == pytest.approx(np.dot(w[kept], value[kept]) / w[kept].sum())
-    parents, new = replace_negligible(np.full(4, 0.25), 0.5, 0.3)  # none below: the identity
-    assert np.array_equal(parents, np.arange(4)) and np.allclose(new, 0.25)
-
-
-def test_negligible_weight_replaces_hopeless_particles_without_resampling(arena):
-    frames = recording_frames(arena / "recording.log.gz")[:150]
-    params = GMappingParams(particles=10, negligible_weight=0.01, resampleThreshold=0.1, srr=0.3, srt=0.5)
-    a = GMapping(params, seed=3).run(frames)
-    assert a.diagnostics.counters.get("replaced_particles", 0) > 0
-    assert np.array_equal(a.trajectory()[1], GMapping(params, seed=3).run(frames).trajectory()[1])
-    off = GMapping(GMappingParams(particles=10, resampleThreshold=0.1, srr=0.3, srt=0.5), seed=3).run(frames)
-    assert "replaced_particles" not in off.diagnostics.counters
 
 
 # --------------------------------------------------------------------------- motion model

@@ -7,7 +7,6 @@ from slam2d.filters.particles import (
     published_entropy,
     weight_entropy,
     systematic_resample,
-    replace_negligible,
 )
 
 __all__ = [
@@ -17,5 +16,4 @@ __all__ = [
     "published_entropy",
     "weight_entropy",
     "systematic_resample",
-    "replace_negligible",
 ]

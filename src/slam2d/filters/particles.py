@@ -18,7 +18,6 @@ __all__ = [
     "weight_entropy",
     "published_entropy",
     "systematic_resample",
-    "replace_negligible",
     "backtrack",
 ]
 
@@ -79,37 +78,6 @@ def systematic_resample(weights: ArrayLike, u: float) -> NDArray[np.int64]:
     cum /= cum[-1]
     targets = (u + np.arange(n)) / n
     return np.minimum(np.searchsorted(cum, targets, side="right"), n - 1).astype(np.int64)
-
-
-def replace_negligible(weights: ArrayLike, floor: float, u: float) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Kill and split: the particles of normalised weight below ``floor / N`` become copies of the others.
-
-    The others keep their place; the replacements are drawn among them by weight with N_dead
-    equally spaced pointers from one offset ``u`` (low variance, as :func:`systematic_resample`),
-    and a particle copied c times shares its weight with its copies: each of the c + 1 gets
-    ``w / (c + 1)``. The weighted set is the same distribution as before up to the negligible
-    weights dropped, but unlike a full resampling no particle of non-negligible weight loses its
-    line, so particles whose weights differ only by noise are not thinned out.
-
-    Returns ``(parents, weights)``: the parent of every particle (itself when kept) and the new
-    normalised weights. With no particle under the floor, ``parents`` is the identity.
-    """
-    w = np.asarray(weights, dtype=np.float64)
-    n = w.shape[0]
-    parents = np.arange(n, dtype=np.int64)
-    dead = w < floor / n
-    k = int(dead.sum())
-    if k == 0 or k == n:
-        return parents, w / w.sum()
-    live = np.where(dead, 0.0, w)
-    cum = np.cumsum(live)
-    cum /= cum[-1]
-    src = np.minimum(np.searchsorted(cum, (u + np.arange(k)) / k, side="right"), n - 1)
-    parents[dead] = src
-    copies = np.bincount(src, minlength=n)
-    new = live / (1.0 + copies)
-    new[dead] = new[src]
-    return parents, new / new.sum()
 
 
 @njit(cache=True)

@@ -29,7 +29,6 @@ from slam2d.filters import (
     effective_sample_size,
     normalized_weights,
     published_entropy,
-    replace_negligible,
     systematic_resample,
     weight_entropy,
 )
@@ -114,11 +113,6 @@ class GMappingParams:
         -1.0, unit="s", help="also update after this long without one; negative: never")
     resampleThreshold: float = param(
         0.5, low=0.0, high=1.0, help="resample when Neff < resampleThreshold * particles")
-    negligible_weight: float = param(
-        0.0, low=0.0, high=1.0, help="not in GMapping: at an update without resampling, every particle whose "
-        "normalised weight is below this / particles is replaced by a copy of another drawn by weight, and a copied "
-        "particle shares its weight with its copies (kill and split): hopeless particles (a climb that missed its "
-        "map) are recycled without thinning out the others' lines; 0: off")
     xmin: float = param(-100.0, unit="m", help="initial map extent, relative to the first pose (the map grows)")
     ymin: float = param(-100.0, unit="m", help="initial map extent, relative to the first pose")
     xmax: float = param(100.0, unit="m", help="initial map extent, relative to the first pose")
@@ -387,16 +381,6 @@ class GMapping(SlamMethod):
             self._weight = np.zeros(n)
             maps.resample(parents)
             self.diagnostics.count("resamples")
-        elif p.negligible_weight > 0.0:
-            kept, w_new = replace_negligible(w, p.negligible_weight, float(self.rng.random()))
-            replaced = int(np.sum(kept != np.arange(n)))
-            if replaced:
-                parents = kept
-                self._state = self._state[parents]
-                self._weight_sum = self._weight_sum[parents]
-                self._weight = np.log(w_new / w_new.max()) * (p.ogain * n)  # the same weights, in GMapping's units
-                maps.resample(parents)
-                self.diagnostics.count("replaced_particles", replaced)
         self._register(np.arange(n, dtype=np.int64), scan)
         self._linear = self._angular = 0.0
         self._last_update_time = frame.timestamp
