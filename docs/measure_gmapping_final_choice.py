@@ -16,9 +16,13 @@ resampling, its normalised weight and the resampling's parents. Printed:
   error *relative to the start* (the reference moved so that its pose at the first scan is the
   first odometry pose; no other alignment): the returned particle's, the nearest's, how many are
   within ``--good`` m;
-* every resampling before the loop where some particle was within ``--good`` m: its time and
-  Neff, the good particles' share of the weight times N (the children they should get), the
-  children they got, and whether any of them has descendants at the loop.
+* every ``--window`` seconds up to the loop: the particles' weighted mean error relative to the
+  start, the nearest particle's, and the weighted standard deviation of their heading;
+* every resampling before the loop where some particle was within ``--good`` m: its time, Neff,
+  the lines it kept, the good particles' share of the weight times N (the children they should
+  get), the children they got, and whether any of them has descendants at the loop.
+
+``--save FILE.npz`` keeps the per-update arrays for further looks.
 """
 
 from __future__ import annotations
@@ -59,6 +63,8 @@ def main() -> None:
     ap.add_argument("--loop-radius", type=float, default=2.0, help="m")
     ap.add_argument("--loop-gap", type=float, default=200.0, help="s")
     ap.add_argument("--good", type=float, default=0.2, help="m: a particle this close to the truth is 'right'")
+    ap.add_argument("--window", type=float, default=50.0, help="s")
+    ap.add_argument("--save", type=Path, default=None, help="write the per-update arrays here (.npz)")
     a = ap.parse_args()
     settings = dict(s.split("=", 1) for s in a.set)
     rt, rp = read_tum(Path(a.log).parent / "reference.tum")
@@ -120,6 +126,14 @@ def main() -> None:
     print(f"first loop return: t = {times[loop]:.0f} s (update {loop}); the particles' error relative to the start "
           f"there (before its resampling): the best by weightSum {e[chosen[loop - 1]]:.2f} m, nearest "
           f"{np.nanmin(e):.2f} m, {int(np.sum(e < a.good))} within {a.good} m; Neff {neffs[loop]:.1f}")
+    heading = (pre[..., 2] - truths[:, None, 2] + np.pi) % (2 * np.pi) - np.pi
+    print("| t (s) | weighted mean error (m) | nearest (m) | heading sd (rad) |")
+    print("|---|---|---|---|")
+    for lo in np.arange(a.window * np.ceil(times[0] / a.window), times[loop] + 1e-9, a.window):
+        k = min(int(np.searchsorted(times, lo)), loop)
+        h = float(np.dot(weights[k], heading[k]))
+        print(f"| {times[k]:.0f} | {np.dot(weights[k], err[k]):.2f} | {np.nanmin(err[k]):.2f} | "
+              f"{np.sqrt(np.dot(weights[k], (heading[k] - h) ** 2)):.3f} |")
     # which particles at update k (before its resampling) have descendants at the loop (before its resampling)
     reach = np.ones(n, dtype=bool)
     reaches = np.zeros((loop + 1, n), dtype=bool)
@@ -145,9 +159,9 @@ def main() -> None:
               f"{'yes' if reaches[k][good].any() else 'no'} |")
     print("last update with a right particle whose line reaches the loop: "
           + (f"t = {times[last]:.0f} s" if last is not None else "none"))
-    out = Path(f"/tmp/gmapping-final-choice-s{a.seed}.npz")
-    np.savez(out, times=times, truths=truths, pre=pre, weights=weights, parents=parents, neffs=np.array(neffs),
-             resampled=np.array(resampled), ates=ates)
+    if a.save is not None:
+        np.savez(a.save, times=times, truths=truths, pre=pre, weights=weights, parents=parents,
+                 neffs=np.array(neffs), resampled=np.array(resampled), ates=ates)
 
 
 if __name__ == "__main__":
