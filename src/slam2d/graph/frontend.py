@@ -104,6 +104,24 @@ class GraphSlamParams(GridParams):
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
     )
+    between_nodes_seeded_window: float = param(
+        0.2, unit="m", low=0.0,
+        help="a scan that adds no node is first searched over only this side of its coarse x, y lattice (and "
+        "between_nodes_seeded_angle), around the last scan's matched pose plus the odometry since it; the full "
+        "window is searched when a pose responding within 0.1 of that part's best lies on its edge, when it "
+        "responds more than between_nodes_seeded_drop below the last scan, or when its coarse headings are "
+        "ambiguous (odometry_fusion); 0 always searches the full window (not in Karto; a speed-up: where the "
+        "part holds the full search's best and its covariance band, the result is the full search's bit for bit)",
+    )
+    between_nodes_seeded_angle: float = param(
+        6.0 * _DEG, unit="rad", low=0.0,
+        help="half-width of the coarse angles of the seeded search of between_nodes_seeded_window (not in Karto)",
+    )
+    between_nodes_seeded_drop: float = param(
+        0.05, low=0.0, high=1.0,
+        help="the seeded search of between_nodes_seeded_window is kept only when its unpenalised response is at "
+        "most this below the last matched scan's (not in Karto; consecutive scans overlap almost wholly)",
+    )
     predict_from_last_scan: bool = param(
         True,
         help="when the last scan's matched pose plus the odometry since it gives a heading more than half "
@@ -654,17 +672,22 @@ class GraphFrontend:
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
                              values: dict[str, float] | None = None, last_response: float = math.nan,
-                             matcher: CorrelativeMatcher | None = None):
+                             matcher: CorrelativeMatcher | None = None, seed: NDArray[np.float64] | None = None):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
         With ``values`` (a new node's log) a stuck or weak match is searched again over the
         recovery window first. With ``odometry_fusion`` a match whose coarse heading is
         ambiguous is fused with the prediction, unless it is a recovery (which has just shown
         the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
+        With ``seed`` (a scan that adds no node) the between-node matcher searches near it first
+        (:meth:`_seeded_match`).
         """
         p = self.params
-        result = self._match(matcher or self.sequential, self._seq_cache, self._running, points, predicted,
-                             penalize=True, refine=True)
+        if seed is not None:
+            result = self._seeded_match(points, predicted, seed, last_response)
+        else:
+            result = self._match(matcher or self.sequential, self._seq_cache, self._running, points, predicted,
+                                 penalize=True, refine=True)
         recovered = False
         if values is not None:
             result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
@@ -687,6 +710,28 @@ class GraphFrontend:
             pose = predicted
             cov = _odometry_covariance()
         return pose, cov, result
+
+    def _seeded_match(self, points, predicted, seed, last_response: float):
+        """The between-node match of ``points`` from ``predicted``, searched near ``seed`` first.
+
+        The grid is the one the full search asks for, so the cache evolves the same either way.
+        The seeded part stands for the full window unless its band reaches its edge, its
+        response drops from the last scan's (NaN: no reference, so never kept), or its coarse
+        headings are ambiguous enough for odometry_fusion to weigh them (decided on the full
+        surface).
+        """
+        p = self.params
+        m = self.between
+        grid = self._seq_cache.get(self._running, *m.search_box(points, predicted))
+        half = int(round(0.5 * p.between_nodes_seeded_window / (2.0 * m.resolution)))
+        steps = int(round(p.between_nodes_seeded_angle / m.coarse_angle_resolution))
+        near = m.match_near(points, predicted, seed, grid, half_steps=half, angle_steps=steps)
+        if (near is not None and near.raw_response >= last_response - p.between_nodes_seeded_drop
+                and not (p.odometry_fusion and near.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2)):
+            self._count("between_nodes_seeded")
+            return near
+        self._count("between_nodes_full_searches")
+        return m.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
 
     # ----------------------------------------------------------------- the main step
 
@@ -750,7 +795,10 @@ class GraphFrontend:
             # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
             # never drawn as a reference, so it needs no sigmas.
             points, _ = self._scan_points(scan, None, use)
-            pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between)
+            seeded = p.between_nodes_seeded_window > 0 and chained is not None
+            pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between,
+                                                      last_response=last_response,
+                                                      seed=chained if seeded else None)
             self._frame_degenerate = self._degenerate(fcov, self.between)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)

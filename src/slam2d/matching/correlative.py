@@ -1096,6 +1096,23 @@ def _score_poses(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles
                 sums[a, i, j] = buf[i, j]
 
 
+@njit(cache=True)
+def _score_part(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, a0, a1, half, step, i_lo, j_lo, n,
+                sums):
+    """:func:`_score_poses` for the angles [a0, a1) and the n x n translations from (i_lo, j_lo) only: the
+    same cells and integer sums as the whole window's at those poses (the rest of ``sums`` untouched)."""
+    m = q.shape[0]
+    rows = np.empty((1, m), np.int64)
+    cols = np.empty((1, m), np.int64)
+    buf = np.empty((n, n), np.int32)
+    for a in range(a0, a1):
+        _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, -half * step, rows, cols)
+        _score_window(grid, rows, cols, 0, i_lo, j_lo, n, n, step, buf)
+        for i in range(n):
+            for j in range(n):
+                sums[a, i_lo + i, j_lo + j] = buf[i, j]
+
+
 @njit(cache=True, nogil=True)
 def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, order, half, step, px, py,
                         pt, penalize, dvp, avp, min_dp, min_ap, floor, chunk, sums):
@@ -1766,6 +1783,12 @@ class CorrelativeMatcher:
         # The coarse angles are offsets from the prior's heading, which the pruned search scores
         # first and in full; an angle it leaves unscored (only with min_response) is over the band below.
         prior_drop = float(best - max(resp[n_half].max(), 0.0))
+        return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
+                                  refine, lookups)
+
+    def _finish_match(self, g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize, refine,
+                      lookups) -> MatchResult:
+        """The fine stage after a coarse search (``cov`` holds its x, y covariance) and the result."""
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
@@ -1777,15 +1800,82 @@ class CorrelativeMatcher:
             # fine step cannot leave its +-1 cell. The heading variance is the spread of the fine
             # angles at the best x, y.
             pose, best, raw, cov[2, 2], runs = _fine_stage(
-                g, float(ox), float(oy), res, np.ascontiguousarray(q), pose, float(prior[0]), float(prior[1]),
-                float(prior[2]), angles, penalize, self.distance_variance_penalty, self.angle_variance_penalty,
-                self.minimum_distance_penalty, self.minimum_angle_penalty, int(self.fine_recentre),
-                self.fine_angle_step**2, 1000.0 * self.fine_angle_step**2)
+                g, float(ox), float(oy), self.resolution, np.ascontiguousarray(q), pose, float(prior[0]),
+                float(prior[1]), float(prior[2]), angles, penalize, self.distance_variance_penalty,
+                self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty,
+                int(self.fine_recentre), self.fine_angle_step**2, 1000.0 * self.fine_angle_step**2)
             lookups += runs * angles.shape[0] * 9 * q.shape[0]
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
+
+    def match_near(
+        self,
+        query_points: NDArray[np.float64],
+        prior: NDArray[np.float64],
+        seed: NDArray[np.float64],
+        grid: tuple[NDArray[np.uint8], float, float],
+        *,
+        half_steps: int,
+        angle_steps: int,
+        penalize: bool = True,
+    ) -> MatchResult | None:
+        """:meth:`match` (refined) with its coarse search cut to the part of its window nearest ``seed``;
+        None when that part cannot stand for the whole window.
+
+        The part is +-``half_steps`` coarse x, y steps and +-``angle_steps`` coarse angles of the
+        full search's own lattice (centred on ``prior``, the penalty's zero) around the lattice
+        pose nearest ``seed``, scored with the full search's arithmetic; the rest of the window
+        counts as unscored. When the full surface's best and every pose within the covariance
+        band of it lie in the part, the result is :meth:`match`'s bit for bit. The part cannot
+        see a better pose outside it, so it gives up (None: search the whole window) when a pose
+        within the band of its best lies on an edge of the part inside the window (a peak
+        running out of it, a corridor) or nothing responds; the caller also rejects a weak best.
+        """
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        seed = np.asarray(seed, dtype=np.float64).reshape(3)
+        q = np.ascontiguousarray(np.asarray(query_points, dtype=np.float64).reshape(-1, 2))
+        if q.shape[0] == 0 or not (np.all(np.isfinite(prior)) and np.all(np.isfinite(seed))):
+            return None
+        g, ox, oy = grid
+        res = self.resolution
+        step_m = 2.0 * res
+        big = self._coarse_half
+        n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
+        h, k = min(int(half_steps), big), min(int(angle_steps), n_half)
+        # The part's lowest lattice indices (x, y, angle), kept inside the window.
+        j_lo = min(max(int(round((seed[0] - prior[0]) / step_m)), h - big), big - h) + big - h
+        i_lo = min(max(int(round((seed[1] - prior[1]) / step_m)), h - big), big - h) + big - h
+        d_theta = math.remainder(float(seed[2]) - float(prior[2]), 2.0 * math.pi)
+        a_lo = min(max(int(round(d_theta / self.coarse_angle_resolution)), k - n_half), n_half - k) + n_half - k
+        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        n_steps = 2 * big + 1
+        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
+        _score_part(g, ox, oy, res, q, float(prior[0]), float(prior[1]), float(prior[2]), angles, a_lo,
+                    a_lo + 2 * k + 1, big, 2, i_lo, j_lo, 2 * h + 1, sums)
+        offs = (np.arange(n_steps) - big) * step_m
+        pose, best, raw, resp = _finish_search(
+            sums, q.shape[0], offs, angles, float(prior[0]), float(prior[1]), float(prior[2]), float(prior[0]),
+            float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty, self.angle_variance_penalty,
+            self.minimum_distance_penalty, self.minimum_angle_penalty)
+        if not best > 0.0:
+            return None
+        band = resp[a_lo:a_lo + 2 * k + 1, i_lo:i_lo + 2 * h + 1, j_lo:j_lo + 2 * h + 1] >= best - _COVARIANCE_BAND
+        # Edges of the part that are the window's own edges hide nothing.
+        if ((a_lo > 0 and band[0].any()) or (a_lo + 2 * k < 2 * n_half and band[-1].any())
+                or (i_lo > 0 and band[:, 0].any()) or (i_lo + 2 * h < 2 * big and band[:, -1].any())
+                or (j_lo > 0 and band[:, :, 0].any()) or (j_lo + 2 * h < 2 * big and band[:, :, -1].any())):
+            return None
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, step_m)
+        heading_var = _heading_spread(resp, angles, best, self.coarse_angle_resolution**2 / 12.0)
+        # The prior's heading over the whole window is not known: over any drop unless its best is in the band.
+        at_prior = float(resp[n_half].max())
+        prior_drop = float(best - at_prior) if at_prior >= best - _COVARIANCE_BAND else math.inf
+        lookups = (2 * k + 1) * (2 * h + 1) ** 2 * q.shape[0]
+        return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
+                                  True, lookups)
 
     def places(
         self,
