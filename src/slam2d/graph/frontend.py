@@ -479,6 +479,7 @@ class GraphFrontend:
         self._bary_base = np.zeros((0, 2))
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
+        self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
         self.optimizations: list[dict[str, float]] = []
@@ -540,7 +541,10 @@ class GraphFrontend:
         ``sig`` None: the points only (a scan matched as a query, never drawn), sigmas None.
         """
         p = self.params
-        points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
+        cos, sin = self._beam_directions(scan)
+        r = scan.ranges[use]
+        # Scan.points()' arithmetic, with the beam directions' cos and sin computed once per layout.
+        points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
             return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
@@ -552,6 +556,14 @@ class GraphFrontend:
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         return points, sigmas
+
+    def _beam_directions(self, scan) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        key = (scan.angle_min, scan.angle_increment, scan.num_beams)
+        got = self._directions.get(key)
+        if got is None:
+            a = scan.angles
+            got = self._directions[key] = (np.cos(a), np.sin(a))
+        return got
 
     def _world_points(self, i: int) -> NDArray[np.float64]:
         w = self._world[i]
