@@ -104,23 +104,24 @@ class GraphSlamParams(GridParams):
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
     )
-    between_nodes_seeded_window: float = param(
+    seeded_search_window: float = param(
         0.2, unit="m", low=0.0,
-        help="a scan that adds no node is first searched over only this side of its coarse x, y lattice (and "
-        "between_nodes_seeded_angle), around the last scan's matched pose plus the odometry since it; the full "
-        "window is searched when a pose responding within 0.1 of that part's best lies on its edge, when it "
-        "responds more than between_nodes_seeded_drop below the last scan, or when its coarse headings are "
-        "ambiguous (odometry_fusion); 0 always searches the full window (not in Karto; a speed-up: where the "
-        "part holds the full search's best and its covariance band, the result is the full search's bit for bit)",
+        help="a sequential match (a new node's, and with match_between_nodes every other scan's) first searches "
+        "only this side of its coarse x, y lattice (and seeded_search_angle) around the last scan's matched pose "
+        "plus the odometry since it (the prediction when scans between nodes are not matched); it searches its "
+        "whole window when a pose responding within 0.1 of that part's best lies on the part's edge, when the "
+        "part's best responds more than seeded_search_drop below the last scan, or when its coarse headings are "
+        "ambiguous (odometry_fusion); 0 always searches the whole window (not in Karto; a speed-up: where the "
+        "part holds the whole search's best and its covariance band, the match is the whole search's bit for bit)",
     )
-    between_nodes_seeded_angle: float = param(
+    seeded_search_angle: float = param(
         6.0 * _DEG, unit="rad", low=0.0,
-        help="half-width of the coarse angles of the seeded search of between_nodes_seeded_window (not in Karto)",
+        help="half-width of the coarse angles of the seeded search of seeded_search_window (not in Karto)",
     )
-    between_nodes_seeded_drop: float = param(
+    seeded_search_drop: float = param(
         0.05, low=0.0, high=1.0,
-        help="the seeded search of between_nodes_seeded_window is kept only when its unpenalised response is at "
-        "most this below the last matched scan's (not in Karto; consecutive scans overlap almost wholly)",
+        help="the seeded search of seeded_search_window is kept only when its unpenalised response is at most "
+        "this below the last matched scan's (not in Karto; consecutive scans overlap almost wholly)",
     )
     predict_from_last_scan: bool = param(
         True,
@@ -691,15 +692,15 @@ class GraphFrontend:
         recovery window first. With ``odometry_fusion`` a match whose coarse heading is
         ambiguous is fused with the prediction, unless it is a recovery (which has just shown
         the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
-        With ``seed`` (a scan that adds no node) the between-node matcher searches near it first
-        (:meth:`_seeded_match`).
+        With ``seed`` the match searches near it first (:meth:`_seeded_match`).
         """
         p = self.params
-        if seed is not None:
-            result = self._seeded_match(points, predicted, seed, last_response)
+        matcher = matcher or self.sequential
+        if seed is not None and p.seeded_search_window > 0:
+            result = self._seeded_match(matcher, points, predicted, seed, last_response)
         else:
-            result = self._match(matcher or self.sequential, self._seq_cache, self._running, points, predicted,
-                                 penalize=True, refine=True)
+            result = self._match(matcher, self._seq_cache, self._running, points, predicted, penalize=True,
+                                 refine=True)
         recovered = False
         if values is not None:
             result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
@@ -723,27 +724,26 @@ class GraphFrontend:
             cov = _odometry_covariance()
         return pose, cov, result
 
-    def _seeded_match(self, points, predicted, seed, last_response: float):
-        """The between-node match of ``points`` from ``predicted``, searched near ``seed`` first.
+    def _seeded_match(self, matcher: CorrelativeMatcher, points, predicted, seed, last_response: float):
+        """The sequential match of ``points`` from ``predicted``, searched near ``seed`` first.
 
-        The grid is the one the full search asks for, so the cache evolves the same either way.
-        The seeded part stands for the full window unless its band reaches its edge, its
+        The grid is the one the whole search asks for, so the cache evolves the same either way.
+        The seeded part stands for the whole window unless its band reaches its edge, its
         response drops from the last scan's (NaN: no reference, so never kept), or its coarse
-        headings are ambiguous enough for odometry_fusion to weigh them (decided on the full
+        headings are ambiguous enough for odometry_fusion to weigh them (decided on the whole
         surface).
         """
         p = self.params
-        m = self.between
-        grid = self._seq_cache.get(self._running, *m.search_box(points, predicted))
-        half = int(round(0.5 * p.between_nodes_seeded_window / (2.0 * m.resolution)))
-        steps = int(round(p.between_nodes_seeded_angle / m.coarse_angle_resolution))
-        near = m.match_near(points, predicted, seed, grid, half_steps=half, angle_steps=steps)
-        if (near is not None and near.raw_response >= last_response - p.between_nodes_seeded_drop
+        grid = self._seq_cache.get(self._running, *matcher.search_box(points, predicted))
+        half = int(round(0.5 * p.seeded_search_window / (2.0 * matcher.resolution)))
+        steps = int(round(p.seeded_search_angle / matcher.coarse_angle_resolution))
+        near = matcher.match_near(points, predicted, seed, grid, half_steps=half, angle_steps=steps)
+        if (near is not None and near.raw_response >= last_response - p.seeded_search_drop
                 and not (p.odometry_fusion and near.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2)):
-            self._count("between_nodes_seeded")
+            self._count("seeded_matches")
             return near
-        self._count("between_nodes_full_searches")
-        return m.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
+        self._count("seeded_matches_searched_whole")
+        return matcher.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
 
     # ----------------------------------------------------------------- the main step
 
@@ -787,6 +787,8 @@ class GraphFrontend:
                     predicted = np.array([predicted[0], predicted[1], chained[2]])
                 else:
                     predicted = chained
+        # Where the seeded search looks first: the last scan's pose, if matched, plus the odometry since it.
+        seed = chained if self._matches_between_nodes(last) and chained is not None else predicted
         moved = self._moved_enough(odom, frame.timestamp)
         if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
@@ -807,10 +809,8 @@ class GraphFrontend:
             # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
             # never drawn as a reference, so it needs no sigmas.
             points, _ = self._scan_points(scan, None, use)
-            seeded = p.between_nodes_seeded_window > 0 and chained is not None
             pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between,
-                                                      last_response=last_response,
-                                                      seed=chained if seeded else None)
+                                                      last_response=last_response, seed=seed)
             self._frame_degenerate = self._degenerate(fcov, self.between)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
@@ -822,7 +822,7 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response)
+            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response, seed=seed)
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
