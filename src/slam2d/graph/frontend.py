@@ -106,9 +106,9 @@ class GraphSlamParams(GridParams):
     )
     seeded_search_window: float = param(
         0.2, unit="m", low=0.0,
-        help="a sequential match (a new node's, and with match_between_nodes every other scan's) first searches "
-        "only this side of its coarse x, y lattice (and seeded_search_angle) around the last scan's matched pose "
-        "plus the odometry since it (the prediction when scans between nodes are not matched); it searches its "
+        help="with match_between_nodes, a sequential match (of a scan that adds no node, or of a node right after "
+        "one) first searches only this side of its coarse x, y lattice (and seeded_search_angle) around the last "
+        "scan's matched pose plus the odometry since it; it searches its "
         "whole window when a pose responding within 0.1 of that part's best lies on the part's edge, when the "
         "part's best responds more than seeded_search_drop below the last scan, or when its coarse headings are "
         "ambiguous (odometry_fusion); 0 always searches the whole window (not in Karto; a speed-up: where the "
@@ -494,6 +494,7 @@ class GraphFrontend:
         self._last_odom: NDArray[np.float64] | None = None
         self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
+        self._after_between = False  # whether the last frame was matched between nodes
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
@@ -787,8 +788,12 @@ class GraphFrontend:
                     predicted = np.array([predicted[0], predicted[1], chained[2]])
                 else:
                     predicted = chained
-        # Where the seeded search looks first: the last scan's pose, if matched, plus the odometry since it.
-        seed = chained if self._matches_between_nodes(last) and chained is not None else predicted
+        # Where the seeded search looks first: the last scan's matched pose plus the odometry since it,
+        # when that scan was matched between nodes (a few cm back). A node right after a node is
+        # searched whole: its prediction can be decimetres off, where a second peak outside the
+        # part can hold poses within the covariance band (intel: once in 905 nodes).
+        seed = chained if self._matches_between_nodes(last) and chained is not None else None
+        after_between, self._after_between = self._after_between, False
         moved = self._moved_enough(odom, frame.timestamp)
         if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
@@ -815,6 +820,7 @@ class GraphFrontend:
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
+            self._after_between = True
             return None
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
         points, sigmas = self._scan_points(scan, sig, use)
@@ -822,7 +828,8 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response, seed=seed)
+            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response,
+                                                          seed=seed if after_between else None)
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
