@@ -104,3 +104,13 @@ def test_quaternion_round_trip(yaw):
 def test_pose_shape_is_checked():
     with pytest.raises(ValueError, match="3 components"):
         se2.compose([1.0, 2.0], [0.0, 0.0, 0.0])
+
+
+@given(pose, pose, arrays(np.float64, (4, 2), elements=st.floats(-50, 50)))
+def test_one_pose_paths_are_the_stacked_ones_bit_for_bit(a, b, pts):
+    """compose, relative and transform_points take a scalar path for one float64 pose: same numbers."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    assert np.array_equal(se2.compose(a, b), se2.compose(a[None], b[None])[0])
+    assert np.array_equal(se2.relative(a, b), se2.relative(a[None], b[None])[0])
+    assert np.array_equal(se2.transform_points(a, pts), se2.transform_points(a[None], pts[None])[0])
+    assert se2.compose(a, b).shape == (3,) and se2.transform_points(a, pts).shape == (4, 2)

@@ -112,6 +112,18 @@ def test_frames_between_nodes_are_matched_not_dead_reckoned(karto_run, loop_sim)
     assert rms(step_old) > 3 * rms(step) and rms(h_old[~node_old]) > 3 * rms(heading[~is_node])
 
 
+def test_seeded_sequential_matches_change_no_pose(karto_run, loop_sim):
+    """The seeded search (seeded_search_window) is a speed-up only: off, every frame's pose is the same
+    bit for bit. Both of its ways are taken: kept (the part held the answer) and the whole window."""
+    counts = karto_run.diagnostics.counters
+    assert counts["seeded_matches"] > 0 and counts["seeded_matches_searched_whole"] > 0, dict(counts)
+    whole = _run("karto", loop_sim.frames(), seeded_search_window=0.0)
+    assert "seeded_matches" not in whole.diagnostics.counters
+    t, p = karto_run.trajectory()
+    t0, p0 = whole.trajectory()
+    assert np.array_equal(t, t0) and np.array_equal(p, p0)
+
+
 def test_a_smaller_window_between_nodes_keeps_the_heading_fix(loop_sim):
     """Scans that add no node matched over +-8 cm and +-10 deg (a seventh of the default's poses) still get the nodes' heading."""
     small = _run("karto", loop_sim.frames(), between_nodes_search_dimension=0.16,

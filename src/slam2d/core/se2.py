@@ -8,6 +8,8 @@ Python loop runs per pose. Angles that come out are wrapped to ``[-pi, pi)``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -34,6 +36,22 @@ def as_poses(poses: ArrayLike) -> Poses:
     return arr
 
 
+def _one(a) -> list[float] | None:
+    """A single float64 pose as three Python floats (the per-scan case), else None.
+
+    The scalar paths below do the array paths' arithmetic in the same order (and math's
+    cos/sin/% give numpy's results), so they return the same numbers without the cost of
+    numpy on three-element arrays.
+    """
+    if type(a) is np.ndarray and a.shape == (3,) and a.dtype == np.float64:
+        return a.tolist()
+    return None
+
+
+def _wrap(t: float) -> float:
+    return (t + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64]:
     """Wrap angles (radians) to ``[-pi, pi)``."""
     a = np.asarray(angle, dtype=np.float64)
@@ -42,6 +60,11 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64]:
 
 def compose(a: ArrayLike, b: ArrayLike) -> Poses:
     """``a ⊕ b``: the pose ``b``, given in the frame of ``a``, expressed in ``a``'s parent frame."""
+    one_a, one_b = _one(a), _one(b)
+    if one_a is not None and one_b is not None:
+        (a0, a1, a2), (b0, b1, b2) = one_a, one_b
+        c, s = math.cos(a2), math.sin(a2)
+        return np.array([a0 + c * b0 - s * b1, a1 + s * b0 + c * b1, _wrap(a2 + b2)])
     a = as_poses(a)
     b = as_poses(b)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -61,6 +84,12 @@ def inverse(a: ArrayLike) -> Poses:
 
 def relative(a: ArrayLike, b: ArrayLike) -> Poses:
     """``⊖a ⊕ b``: the pose ``b`` expressed in the frame of ``a`` (odometry increments, edges)."""
+    one_a, one_b = _one(a), _one(b)
+    if one_a is not None and one_b is not None:
+        (a0, a1, a2), (b0, b1, b2) = one_a, one_b
+        c, s = math.cos(a2), math.sin(a2)
+        dx, dy = b0 - a0, b1 - a1
+        return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b2 - a2)])
     a = as_poses(a)
     b = as_poses(b)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -87,8 +116,17 @@ def interpolate(a: ArrayLike, b: ArrayLike, t: ArrayLike) -> Poses:
 
 def transform_points(pose: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
     """Map points ``(N, 2)`` from the frame of ``pose`` to its parent frame."""
-    pose = as_poses(pose)
+    one = _one(pose)
     pts = np.asarray(points, dtype=np.float64)
+    if one is not None and pts.ndim == 2 and pts.shape[1] == 2:
+        x0, y0, t = one
+        c, s = math.cos(t), math.sin(t)
+        out = np.empty(pts.shape)
+        px, py = pts[:, 0], pts[:, 1]
+        out[:, 0] = x0 + c * px - s * py
+        out[:, 1] = y0 + s * px + c * py
+        return out
+    pose = as_poses(pose)
     c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
     x = pose[..., 0, None] + c[..., None] * pts[..., 0] - s[..., None] * pts[..., 1]
     y = pose[..., 1, None] + s[..., None] * pts[..., 0] + c[..., None] * pts[..., 1]

@@ -104,6 +104,25 @@ class GraphSlamParams(GridParams):
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
     )
+    seeded_search_window: float = param(
+        0.2, unit="m", low=0.0,
+        help="with match_between_nodes, a sequential match (of a scan that adds no node, or of a node right after "
+        "one) first searches only this side of its coarse x, y lattice (and seeded_search_angle) around the last "
+        "scan's matched pose plus the odometry since it; it searches its "
+        "whole window when a pose responding within 0.1 of that part's best lies on the part's edge, when the "
+        "part's best responds more than seeded_search_drop below the last scan, or when its coarse headings are "
+        "ambiguous (odometry_fusion); 0 always searches the whole window (not in Karto; a speed-up: where the "
+        "part holds the whole search's best and its covariance band, the match is the whole search's bit for bit)",
+    )
+    seeded_search_angle: float = param(
+        6.0 * _DEG, unit="rad", low=0.0,
+        help="half-width of the coarse angles of the seeded search of seeded_search_window (not in Karto)",
+    )
+    seeded_search_drop: float = param(
+        0.05, low=0.0, high=1.0,
+        help="the seeded search of seeded_search_window is kept only when its unpenalised response is at most "
+        "this below the last matched scan's (not in Karto; consecutive scans overlap almost wholly)",
+    )
     predict_from_last_scan: bool = param(
         True,
         help="when the last scan's matched pose plus the odometry since it gives a heading more than half "
@@ -461,6 +480,7 @@ class GraphFrontend:
         self._bary_base = np.zeros((0, 2))
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
+        self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
         self.optimizations: list[dict[str, float]] = []
@@ -476,6 +496,7 @@ class GraphFrontend:
         self._last_odom: NDArray[np.float64] | None = None
         self._ref_cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._frame_pose: NDArray[np.float64] | None = None  # the last frame's pose (world)
+        self._after_between = False  # whether the last frame was matched between nodes
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
@@ -524,7 +545,10 @@ class GraphFrontend:
         ``sig`` None: the points only (a scan matched as a query, never drawn), sigmas None.
         """
         p = self.params
-        points = se2.transform_points(scan.mount, scan.points()[use[scan.valid]])
+        cos, sin = self._beam_directions(scan)
+        r = scan.ranges[use]
+        # Scan.points()' arithmetic, with the beam directions' cos and sin computed once per layout.
+        points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
             return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
@@ -536,6 +560,14 @@ class GraphFrontend:
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         return points, sigmas
+
+    def _beam_directions(self, scan) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        key = (scan.angle_min, scan.angle_increment, scan.num_beams)
+        got = self._directions.get(key)
+        if got is None:
+            a = scan.angles
+            got = self._directions[key] = (np.cos(a), np.sin(a))
+        return got
 
     def _world_points(self, i: int) -> NDArray[np.float64]:
         w = self._world[i]
@@ -656,17 +688,22 @@ class GraphFrontend:
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
                              values: dict[str, float] | None = None, last_response: float = math.nan,
-                             matcher: CorrelativeMatcher | None = None):
+                             matcher: CorrelativeMatcher | None = None, seed: NDArray[np.float64] | None = None):
         """The sequential match of ``points`` against the running scans from ``predicted``: (pose, covariance, result).
 
         With ``values`` (a new node's log) a stuck or weak match is searched again over the
         recovery window first. With ``odometry_fusion`` a match whose coarse heading is
         ambiguous is fused with the prediction, unless it is a recovery (which has just shown
         the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
+        With ``seed`` the match searches near it first (:meth:`_seeded_match`).
         """
         p = self.params
-        result = self._match(matcher or self.sequential, self._seq_cache, self._running, points, predicted,
-                             penalize=True, refine=True)
+        matcher = matcher or self.sequential
+        if seed is not None and p.seeded_search_window > 0:
+            result = self._seeded_match(matcher, points, predicted, seed, last_response)
+        else:
+            result = self._match(matcher, self._seq_cache, self._running, points, predicted, penalize=True,
+                                 refine=True)
         recovered = False
         if values is not None:
             result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
@@ -689,6 +726,27 @@ class GraphFrontend:
             pose = predicted
             cov = _odometry_covariance()
         return pose, cov, result
+
+    def _seeded_match(self, matcher: CorrelativeMatcher, points, predicted, seed, last_response: float):
+        """The sequential match of ``points`` from ``predicted``, searched near ``seed`` first.
+
+        The grid is the one the whole search asks for, so the cache evolves the same either way.
+        The seeded part stands for the whole window unless its band reaches its edge, its
+        response drops from the last scan's (NaN: no reference, so never kept), or its coarse
+        headings are ambiguous enough for odometry_fusion to weigh them (decided on the whole
+        surface).
+        """
+        p = self.params
+        grid = self._seq_cache.get(self._running, *matcher.search_box(points, predicted))
+        half = int(round(0.5 * p.seeded_search_window / (2.0 * matcher.resolution)))
+        steps = int(round(p.seeded_search_angle / matcher.coarse_angle_resolution))
+        near = matcher.match_near(points, predicted, seed, grid, half_steps=half, angle_steps=steps)
+        if (near is not None and near.raw_response >= last_response - p.seeded_search_drop
+                and not (p.odometry_fusion and near.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2)):
+            self._count("seeded_matches")
+            return near
+        self._count("seeded_matches_searched_whole")
+        return matcher.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
 
     # ----------------------------------------------------------------- the main step
 
@@ -732,6 +790,12 @@ class GraphFrontend:
                     predicted = np.array([predicted[0], predicted[1], chained[2]])
                 else:
                     predicted = chained
+        # Where the seeded search looks first: the last scan's matched pose plus the odometry since it,
+        # when that scan was matched between nodes (a few cm back). A node right after a node is
+        # searched whole: its prediction can be decimetres off, where a second peak outside the
+        # part can hold poses within the covariance band (intel: once in 905 nodes).
+        seed = chained if self._matches_between_nodes(last) and chained is not None else None
+        after_between, self._after_between = self._after_between, False
         moved = self._moved_enough(odom, frame.timestamp)
         if not moved and not self._matches_between_nodes(last):
             self.anchor, self.offset = last, offset
@@ -752,11 +816,13 @@ class GraphFrontend:
             # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
             # never drawn as a reference, so it needs no sigmas.
             points, _ = self._scan_points(scan, None, use)
-            pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between)
+            pose, fcov, _ = self._sequential_estimate(points, predicted, matcher=self.between,
+                                                      last_response=last_response, seed=seed)
             self._frame_degenerate = self._degenerate(fcov, self.between)
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
+            self._after_between = True
             return None
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
         points, sigmas = self._scan_points(scan, sig, use)
@@ -764,7 +830,8 @@ class GraphFrontend:
         pose = predicted
         cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
-            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response)
+            pose, cov, result = self._sequential_estimate(points, predicted, values, last_response,
+                                                          seed=seed if after_between else None)
             values["response"] = result.response
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:

@@ -1097,9 +1097,13 @@ def _score_poses(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles
 
 
 @njit(cache=True, nogil=True)
-def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, order, half, step, px, py,
-                        pt, penalize, dvp, avp, min_dp, min_ap, floor, chunk, sums):
-    """:func:`_score_poses` over every angle, skipping the angles that cannot matter: (lookups done).
+def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0, angles, order, half, step, i_lo,
+                        j_lo, n_part, px, py, pt, penalize, dvp, avp, min_dp, min_ap, floor, chunk, sums):
+    """:func:`_score_poses` over the angles in ``order``, skipping those that cannot matter: (lookups done).
+
+    Only the n_part x n_part translations from (i_lo, j_lo) of the window are scored (the
+    whole window: 0, 0, 2 half + 1), with the whole window's cells, so with its sums; the rest
+    of ``sums`` is left as it is.
 
     Angles are scored in ``order`` (the prior's heading first), their points in chunks of
     ``chunk``; after each chunk, the sums so far plus a full cell for every point still to
@@ -1117,19 +1121,19 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
     norm = float(n * _SCALE)
     rows = np.empty((1, n), np.int64)
     cols = np.empty((1, n), np.int64)
-    buf = np.empty((n_steps, n_steps), np.int32)
+    buf = np.empty((n_part, n_part), np.int32)
     offs = (np.arange(n_steps) - half) * (step * resolution)
     two_pi = 2 * np.pi
-    # The distance penalty of every translation and its largest value.
+    # The distance penalty of every translation and its largest value over the part.
     pdist = np.ones((n_steps, n_steps))
     pd_max = 1.0
     if penalize:
         _distance_penalties(offs, x0, y0, px, py, dvp, min_dp, pdist)
-        pd_max = pdist.max()
+        pd_max = pdist[i_lo:i_lo + n_part, j_lo:j_lo + n_part].max()
     best = -np.inf
     band = _COVARIANCE_BAND + 1e-9
     lookups = 0
-    for idx in range(na):
+    for idx in range(order.shape[0]):
         a = order[idx]
         pa = 1.0
         if penalize:
@@ -1137,20 +1141,20 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
             dth = (dth + np.pi) % two_pi - np.pi
             pa = max(1.0 - _PENALTY_GAIN * dth * dth / avp, min_ap)
         _cells_at(q, x0, y0, theta0 + angles[a], origin_x, origin_y, resolution, first, rows, cols)
-        for i in range(n_steps):
-            for j in range(n_steps):
+        for i in range(n_part):
+            for j in range(n_part):
                 buf[i, j] = 0
         pruned = False
         k0 = 0
         while k0 < n:
             k1 = min(k0 + chunk, n)
-            _accumulate(grid, rows, cols, 0, k0, k1, 0, 0, n_steps, n_steps, step, buf)
-            lookups += (k1 - k0) * n_steps * n_steps
+            _accumulate(grid, rows, cols, 0, k0, k1, i_lo, j_lo, n_part, n_part, step, buf)
+            lookups += (k1 - k0) * n_part * n_part
             k0 = k1
             if k0 < n:
                 top = buf[0, 0]
-                for i in range(n_steps):
-                    for j in range(n_steps):
+                for i in range(n_part):
+                    for j in range(n_part):
                         if buf[i, j] > top:
                             top = buf[i, j]
                 bound = (float(top) + (n - k0) * _SCALE) / norm
@@ -1160,17 +1164,17 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
                     pruned = True
                     break
         if pruned:
-            for i in range(n_steps):
-                for j in range(n_steps):
-                    sums[a, i, j] = -1.0
+            for i in range(n_part):
+                for j in range(n_part):
+                    sums[a, i_lo + i, j_lo + j] = -1.0
             continue
-        for i in range(n_steps):
-            for j in range(n_steps):
+        for i in range(n_part):
+            for j in range(n_part):
                 v = buf[i, j]
-                sums[a, i, j] = v
+                sums[a, i_lo + i, j_lo + j] = v
                 r = v / norm
                 if penalize:
-                    r = r * (pdist[i, j] * pa) if r >= 0 else -1.0
+                    r = r * (pdist[i_lo + i, j_lo + j] * pa) if r >= 0 else -1.0
                 if r > best:
                     best = r
     return lookups
@@ -1604,8 +1608,8 @@ class CorrelativeMatcher:
             args = (float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
                     self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
             lookups = _score_poses_pruned(grid, origin[0], origin[1], res, q, cx, cy, ct, angles,
-                                          np.argsort(np.abs(angles), kind="stable"), half, step, *args[:8],
-                                          -1.0, _PRUNE_CHUNK, sums)
+                                          np.argsort(np.abs(angles), kind="stable"), half, step, 0, 0, n_steps,
+                                          *args[:8], -1.0, _PRUNE_CHUNK, sums)
             offs = (np.arange(n_steps) - half) * (step * res)
             pose, best, raw_best, resp = _finish_search(sums, n_points, offs, angles, cx, cy, ct, *args)
             return pose, best, float(raw_best), resp, offs, int(lookups)
@@ -1766,6 +1770,12 @@ class CorrelativeMatcher:
         # The coarse angles are offsets from the prior's heading, which the pruned search scores
         # first and in full; an angle it leaves unscored (only with min_response) is over the band below.
         prior_drop = float(best - max(resp[n_half].max(), 0.0))
+        return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
+                                  refine, lookups)
+
+    def _finish_match(self, g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize, refine,
+                      lookups) -> MatchResult:
+        """The fine stage after a coarse search (``cov`` holds its x, y covariance) and the result."""
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
             n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
@@ -1777,15 +1787,88 @@ class CorrelativeMatcher:
             # fine step cannot leave its +-1 cell. The heading variance is the spread of the fine
             # angles at the best x, y.
             pose, best, raw, cov[2, 2], runs = _fine_stage(
-                g, float(ox), float(oy), res, np.ascontiguousarray(q), pose, float(prior[0]), float(prior[1]),
-                float(prior[2]), angles, penalize, self.distance_variance_penalty, self.angle_variance_penalty,
-                self.minimum_distance_penalty, self.minimum_angle_penalty, int(self.fine_recentre),
-                self.fine_angle_step**2, 1000.0 * self.fine_angle_step**2)
+                g, float(ox), float(oy), self.resolution, np.ascontiguousarray(q), pose, float(prior[0]),
+                float(prior[1]), float(prior[2]), angles, penalize, self.distance_variance_penalty,
+                self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty,
+                int(self.fine_recentre), self.fine_angle_step**2, 1000.0 * self.fine_angle_step**2)
             lookups += runs * angles.shape[0] * 9 * q.shape[0]
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
         pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
+
+    def match_near(
+        self,
+        query_points: NDArray[np.float64],
+        prior: NDArray[np.float64],
+        seed: NDArray[np.float64],
+        grid: tuple[NDArray[np.uint8], float, float],
+        *,
+        half_steps: int,
+        angle_steps: int,
+        penalize: bool = True,
+    ) -> MatchResult | None:
+        """:meth:`match` (refined) with its coarse search cut to the part of its window nearest ``seed``;
+        None when that part cannot stand for the whole window.
+
+        The part is +-``half_steps`` coarse x, y steps and +-``angle_steps`` coarse angles of the
+        full search's own lattice (centred on ``prior``, the penalty's zero) around the lattice
+        pose nearest ``seed``, scored with the full search's arithmetic; the rest of the window
+        counts as unscored. When the full surface's best and every pose within the covariance
+        band of it lie in the part, the result is :meth:`match`'s bit for bit. The part cannot
+        see a better pose outside it, so it gives up (None: search the whole window) when a pose
+        within the band of its best lies on an edge of the part inside the window (a peak
+        running out of it, a corridor) or nothing responds; the caller also rejects a weak best.
+        """
+        prior = np.asarray(prior, dtype=np.float64).reshape(3)
+        seed = np.asarray(seed, dtype=np.float64).reshape(3)
+        q = np.ascontiguousarray(np.asarray(query_points, dtype=np.float64).reshape(-1, 2))
+        if q.shape[0] == 0 or not (np.all(np.isfinite(prior)) and np.all(np.isfinite(seed))):
+            return None
+        g, ox, oy = grid
+        res = self.resolution
+        step_m = 2.0 * res
+        big = self._coarse_half
+        n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
+        h, k = min(int(half_steps), big), min(int(angle_steps), n_half)
+        # The part's lowest lattice indices (x, y, angle), kept inside the window.
+        j_lo = min(max(int(round((seed[0] - prior[0]) / step_m)), h - big), big - h) + big - h
+        i_lo = min(max(int(round((seed[1] - prior[1]) / step_m)), h - big), big - h) + big - h
+        d_theta = math.remainder(float(seed[2]) - float(prior[2]), 2.0 * math.pi)
+        a_seed = min(max(int(round(d_theta / self.coarse_angle_resolution)), -n_half), n_half) + n_half
+        a_lo = min(max(a_seed - n_half, k - n_half), n_half - k) + n_half - k
+        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        n_steps = 2 * big + 1
+        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
+        # The part's angles nearest the seed's first: the best found early prunes the others.
+        part = np.arange(a_lo, a_lo + 2 * k + 1)
+        order = part[np.argsort(np.abs(part - a_seed), kind="stable")]
+        lookups = _score_poses_pruned(g, ox, oy, res, q, float(prior[0]), float(prior[1]), float(prior[2]), angles,
+                                      order, big, 2, i_lo, j_lo, 2 * h + 1, float(prior[0]), float(prior[1]),
+                                      float(prior[2]), penalize, self.distance_variance_penalty,
+                                      self.angle_variance_penalty, self.minimum_distance_penalty,
+                                      self.minimum_angle_penalty, -1.0, _PRUNE_CHUNK, sums)
+        offs = (np.arange(n_steps) - big) * step_m
+        pose, best, raw, resp = _finish_search(
+            sums, q.shape[0], offs, angles, float(prior[0]), float(prior[1]), float(prior[2]), float(prior[0]),
+            float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty, self.angle_variance_penalty,
+            self.minimum_distance_penalty, self.minimum_angle_penalty)
+        if not best > 0.0:
+            return None
+        band = resp[a_lo:a_lo + 2 * k + 1, i_lo:i_lo + 2 * h + 1, j_lo:j_lo + 2 * h + 1] >= best - _COVARIANCE_BAND
+        # Edges of the part that are the window's own edges hide nothing.
+        if ((a_lo > 0 and band[0].any()) or (a_lo + 2 * k < 2 * n_half and band[-1].any())
+                or (i_lo > 0 and band[:, 0].any()) or (i_lo + 2 * h < 2 * big and band[:, -1].any())
+                or (j_lo > 0 and band[:, :, 0].any()) or (j_lo + 2 * h < 2 * big and band[:, :, -1].any())):
+            return None
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, step_m)
+        heading_var = _heading_spread(resp, angles, best, self.coarse_angle_resolution**2 / 12.0)
+        # The prior's heading over the whole window is not known: over any drop unless its best is in the band.
+        at_prior = float(resp[n_half].max())
+        prior_drop = float(best - at_prior) if at_prior >= best - _COVARIANCE_BAND else math.inf
+        return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
+                                  True, lookups)
 
     def places(
         self,
