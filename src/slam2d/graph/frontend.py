@@ -221,6 +221,13 @@ class GraphSlamParams(GridParams):
         "scan carries whatever the steps since it got wrong (aces: a 4 deg turn fused with the odometry, "
         "claimed 2.2 deg, was frozen by such an edge claiming 0.5 deg)",
     )
+    grid_keep_tolerance: float = param(
+        0.0, unit="m", low=0.0,
+        help="after an optimisation a cached sequential or near-chain correlation grid is kept when none "
+        "of its scans' points moved more than this (translation plus rotation times the scan's reach); "
+        "0 (Karto) draws every grid again; half the sequential cell (0.005) keeps each point within "
+        "its cell's rounding (not in Karto)",
+    )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
     )
@@ -455,6 +462,7 @@ class GraphFrontend:
         self._points: list[NDArray[np.float64]] = []
         self._sigmas: list[NDArray[np.float64]] = []
         self._ref: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []  # as a reference (gaps filled)
+        self._reach = np.zeros(0)  # per node: its farthest reference point from the robot (see _moved_nodes)
         self._world: list[NDArray[np.float64] | None] = []
         self._odom: list[NDArray[np.float64]] = []
         self._times: list[float] = []
@@ -1259,17 +1267,34 @@ class GraphFrontend:
                 return True
         return False
 
+    def _moved_nodes(self, before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.bool_] | None:
+        """Per node, whether one of its reference points moved more than ``grid_keep_tolerance`` (None: all).
+
+        A point x (base frame) moves by at most |dt| + 2 |sin(dtheta / 2)| |x|.
+        """
+        tol = self.params.grid_keep_tolerance
+        if tol <= 0 or before.shape != after.shape:
+            return None
+        n = len(self._ref)
+        if self._reach.size < n:  # each node's farthest reference point, computed once
+            new = [float(np.sqrt((r[0] ** 2).sum(axis=1)).max()) if len(r[0]) else 0.0 for r in self._ref[self._reach.size:]]
+            self._reach = np.concatenate([self._reach, np.asarray(new, dtype=np.float64)])
+        d = after[:n] - before[:n]
+        shift = np.hypot(d[:, 0], d[:, 1]) + 2.0 * np.abs(np.sin(0.5 * d[:, 2])) * self._reach[:n]
+        return shift > tol
+
     def optimize(self) -> tuple[float, float]:
         """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
         if self.graph.num_edges == 0:
             return 0.0, 0.0
         res = self.backend.optimize(self.graph)
+        before = self.graph.poses
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses
         else:
             self._count("optimizer_failures")
         self._world = [None] * len(self._world)
-        self._seq_cache.invalidate()
+        self._seq_cache.invalidate(self._moved_nodes(before, self.graph.poses))
         self._loop_cache.invalidate()
         self._tried.clear()
         self._near_failed.clear()
@@ -1305,6 +1330,8 @@ class GraphFrontend:
             "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
             # Grids actually drawn (a build whose near chain the response bound skipped may never be).
             "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
+            "grid_points_smeared": {"sequential": self._seq_cache.smeared, "loop": self._loop_cache.smeared},
+            "grid_kept": self._seq_cache.kept,
         }
 
 

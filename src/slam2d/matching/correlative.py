@@ -1901,11 +1901,34 @@ class GridCache:
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
         self.draws = 0  # grids actually drawn
+        self.smeared = 0  # points smeared into grids (book-keeping)
+        self.kept = 0  # entries kept across an optimisation (see invalidate)
 
-    def invalidate(self) -> None:
-        self._entries.clear()
-        self._known[:] = False
-        self._blocks.clear()
+    def invalidate(self, moved=None) -> None:
+        """Forget grids drawn at poses that have changed: all of them, or those holding a ``moved`` node.
+
+        ``moved`` (bool per node; nodes past its end count as moved) lets the caller keep the
+        entries whose scans all moved less than it tolerates: their grids and bounds stay as
+        drawn, scans added later are drawn at their new poses.
+        """
+        if moved is None:
+            self._entries.clear()
+            self._known[:] = False
+            self._blocks.clear()
+            return
+        moved = np.asarray(moved, dtype=bool)
+
+        def stale(n: int) -> bool:
+            return n >= moved.size or bool(moved[n])
+
+        keep = [e for e in self._entries if not any(stale(n) for n in e["nodes"])]
+        self.kept += len(keep)
+        self._entries[:] = keep
+        k = min(moved.size, self._known.size)
+        self._known[:k] &= ~moved[:k]
+        self._known[k:] = False
+        for n in [n for n in self._blocks if stale(n)]:
+            del self._blocks[n]
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
@@ -2036,12 +2059,14 @@ class GridCache:
                                old[0][0] - m_old, old[0][1] - m_old, old[1][0] + m_old, old[1][1] + m_old)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                self.smeared += int(keep.size)
         if e["n_drawn"] < len(parts):
             pts, sig = _concat(parts[e["n_drawn"]:])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                self.smeared += int(keep.size)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
         if not inside:
