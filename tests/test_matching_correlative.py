@@ -339,3 +339,23 @@ def test_grid_cache_keeps_entries_whose_scans_did_not_move():
     assert cache.kept == 1
     cache.get([0, 1], lo, hi)
     assert cache.builds == 4
+
+
+def test_grid_cache_reserve_looser_superset_on_request():
+    """reserve(max_extra=k) reuses an entry holding up to k scans not asked for; the default allowance does not."""
+    m = CorrelativeMatcher()
+    parts = [ROOM[i::16] for i in range(16)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    cache = GridCache(m, lambda i: (parts[i], sig[i]), max_extra=10)
+    lo, hi = np.array([-3.0, -2.0]), np.array([3.0, 2.0])
+    cache.get(list(range(16)), lo, hi)
+    e = cache.reserve([0, 1, 2], lo, hi)  # 13 extra: a new entry
+    assert cache.builds == 2 and e["nodes"] == {0, 1, 2}
+    e = cache.reserve([3, 4], lo, hi, max_extra=14)  # the 16-scan entry, 14 extra
+    assert cache.builds == 2 and len(e["nodes"]) == 16
+    g, ox, oy = cache.materialize(e, lo, hi)
+    rows, cols = g.shape
+    box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+    fresh, _, _ = m.correlation_grid(np.vstack(parts), np.concatenate(sig), np.array([ox, oy]), box_hi, clip=False)
+    # Drawn where a query inside (lo, hi) reads it, the superset grid equals the fresh one there.
+    assert g.shape == fresh.shape and np.array_equal(g, fresh)

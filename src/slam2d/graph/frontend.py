@@ -228,6 +228,12 @@ class GraphSlamParams(GridParams):
         "0 (Karto) draws every grid again; half the sequential cell (0.005) keeps each point within "
         "its cell's rounding (not in Karto)",
     )
+    near_chain_grid_extra: int = param(
+        10, unit="scans", low=0,
+        help="a near chain is matched on a cached grid holding at most this many scans besides its own "
+        "(neighbours of the same pass), extended by the chain's missing scans, instead of a new grid "
+        "(Karto draws the chain alone; 10 is the sequential matcher's own allowance)",
+    )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
     )
@@ -920,7 +926,7 @@ class GraphFrontend:
             chain = list(range(a, b))
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
-            entry = self._seq_cache.reserve(chain, lo, hi)
+            entry = self._seq_cache.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
             # Hot: like a chain that responded well from the last node, its grid already drawn (a first
             # draw costs more than the bound it would spare).
             warm = entry["grid"] is not None and any(ha < b and a < hb for ha, hb in hot)

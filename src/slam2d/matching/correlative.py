@@ -1960,7 +1960,7 @@ class GridCache:
         """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
         return self.materialize(self.reserve(nodes, lo, hi), lo, hi)
 
-    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> dict:
+    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64], *, max_extra: int | None = None) -> dict:
         """The entry :meth:`get` would return, with its book-keeping done but its smearing deferred.
 
         Which entry serves a request, and which nodes it then holds, depend only on
@@ -1971,10 +1971,11 @@ class GridCache:
         order-free, so the grid equals the one drawn at once).
         """
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
+        extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
         for k, e in enumerate(self._entries):
             have = e["nodes"]
             common = len(have & wanted)
-            if not common or len(have) - common > self.max_extra:
+            if not common or len(have) - common > extra:
                 continue
             missing = sorted(wanted - have)
             if missing:
