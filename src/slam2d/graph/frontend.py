@@ -228,6 +228,11 @@ class GraphSlamParams(GridParams):
         "0 (Karto) draws every grid again; half the sequential cell (0.005) keeps each point within "
         "its cell's rounding (not in Karto)",
     )
+    grid_cache_entries: int = param(
+        8, unit="grids", low=1,
+        help="1 cm correlation grids (running scans, near chains) kept for reuse, the least recently used "
+        "dropped first (not in Karto, which draws every grid anew)",
+    )
     near_chain_grid_extra: int = param(
         10, unit="scans", low=0,
         help="a near chain is matched on a cached grid holding at most this many scans besides its own "
@@ -461,7 +466,7 @@ class GraphFrontend:
         self.between = self.sequential.with_window(p.between_nodes_search_dimension)
         self.between.coarse_angle_offset = p.between_nodes_angle_offset
         self.backend = get_backend(p.backend)
-        self._seq_cache = GridCache(self.sequential, self._node_reference)
+        self._seq_cache = GridCache(self.sequential, self._node_reference, max_entries=p.grid_cache_entries)
         self._loop_cache = GridCache(self.loop, self._node_reference)
         self.graph = PoseGraph()
         # Per node: points (base frame), their range sigmas, odometry, time, base-frame barycentre.
@@ -979,8 +984,10 @@ class GraphFrontend:
                 # failed: it is tried again from the next pose, as a match that nearly linked is.
                 self._count("near_skipped_bound_link")
                 return None
-        result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
-                                       grid=self._seq_cache.materialize(entry, lo, hi))
+        smeared = self._seq_cache.smeared
+        grid = self._seq_cache.materialize(entry, lo, hi)
+        self._count("near_points_smeared", self._seq_cache.smeared - smeared)
+        result = self.sequential.match(None, None, points, pose, penalize=False, refine=True, grid=grid)
         if result.response >= fail:
             return result
         if bound is None:
