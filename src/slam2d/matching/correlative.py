@@ -1972,7 +1972,10 @@ class GridCache:
         """
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
+        wmin, wmax = (min(wanted), max(wanted)) if wanted else (0, -1)
         for k, e in enumerate(self._entries):
+            if e["span"][1] < wmin or e["span"][0] > wmax:
+                continue  # no node in common (a cheap test first: up to 32 entries per request)
             have = e["nodes"]
             common = len(have & wanted)
             if not common or len(have) - common > extra:
@@ -1998,6 +2001,7 @@ class GridCache:
                     e["sigma"] = None
                 e["order"].extend(missing)
                 have.update(missing)
+                e["span"] = (min(e["span"][0], missing[0]), max(e["span"][1], missing[-1]))
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
             self._entries.insert(0, self._entries.pop(k))
@@ -2013,7 +2017,8 @@ class GridCache:
         e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
              "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
              "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": self._sigma_of(order_nodes),
-             "parts": [], "order": list(order_nodes)}
+             "parts": [], "order": list(order_nodes),
+             "span": (order_nodes[0], order_nodes[-1]) if order_nodes else (0, -1)}  # least and most node
         self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
