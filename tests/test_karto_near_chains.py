@@ -146,3 +146,28 @@ def test_a_request_the_entry_already_holds_keeps_its_extent_and_grid():
     fresh = GridCache(m, lambda i: (parts[i], sig[i]))
     f, fx, fy = fresh.get([0, 1, 2, 3, 4], lo, hi)
     assert (ox, oy) == (fx, fy) and np.array_equal(g, f)
+
+
+def test_moved_nodes_bounds_every_point_shift():
+    """_moved_nodes flags a node exactly when one of its points moved more than grid_keep_tolerance."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(3)
+    refs = [(rng.uniform(-8, 8, (50, 2)), np.full(50, 0.03)) for _ in range(6)]
+    refs.append((np.zeros((0, 2)), np.zeros(0)))  # a node without points moves with its pose only
+    before = rng.uniform(-5, 5, (7, 3))
+    after = before.copy()
+    after[1, :2] += 0.003  # 3 mm: kept
+    after[2, 2] += 0.0001  # 0.1 mrad, up to 1.1 mm at 11 m: kept
+    after[3, 2] += 0.002  # 2 mrad: up to 2.3 cm: moved
+    after[4, 0] += 0.02  # moved
+    after[6, :2] += 0.003  # no points: 4.2 mm, kept
+    fake = SimpleNamespace(params=GraphSlamParams(grid_keep_tolerance=0.005), _ref=refs, _reach=np.zeros(0))
+    moved = GraphFrontend._moved_nodes(fake, before, after)
+    for i, (pts, _) in enumerate(refs):
+        shift = np.hypot(*(se2.transform_points(after[i], pts) - se2.transform_points(before[i], pts)).T) if len(pts) else [0.0]
+        if not moved[i]:
+            assert np.max(shift) <= 0.005  # a kept node's points all moved within the tolerance
+    assert moved.tolist() == [False, False, False, True, True, False, False]
+    fake.params = GraphSlamParams()  # 0: every grid is drawn again
+    assert GraphFrontend._moved_nodes(fake, before, after) is None

@@ -298,3 +298,64 @@ def test_points_sharing_a_cell_are_drawn_once_to_the_same_grid(bands):
     outside = len(set(zip(cu[~inside], cv[~inside])))  # beyond it, repeats are merged where found
     assert cells + outside <= sx.size <= cells + (~inside).sum()
     assert sx.size == start[-1] < px.size
+
+
+def test_grid_cache_keeps_entries_whose_scans_did_not_move():
+    """invalidate(moved): an entry holding a moved node is drawn again, the others are reused as drawn."""
+    m = CorrelativeMatcher()
+    parts = [ROOM[i::4].copy() for i in range(4)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    lo, hi = np.array([-3.0, -2.0]), np.array([3.0, 2.0])
+    g01 = cache.get([0, 1], lo, hi)[0].copy()
+    cache.get([2, 3], lo, hi)
+    assert cache.builds == 2
+    # Nodes 0, 1 moved by 4 mm (within a 5 mm tolerance: not flagged), node 2 by more.
+    parts[0] = parts[0] + 0.004
+    parts[1] = parts[1] + 0.004
+    parts[2] = parts[2] + 0.05
+    cache.invalidate(np.array([False, False, True, False]))
+    assert cache.kept == 1
+    g, ox, oy = cache.get([0, 1], lo, hi)
+    assert cache.builds == 2 and np.array_equal(g, g01)  # reused, not redrawn
+    # The kept grid differs from a fresh draw of the moved points by at most the kernel's slope
+    # times the shift plus a cell's rounding.
+    rows, cols = g.shape
+    box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+    fresh, _, _ = m.correlation_grid(np.vstack(parts[:2]), np.concatenate(sig[:2]), np.array([ox, oy]), box_hi, clip=False)
+    assert not np.array_equal(g, fresh)
+    slope = 255.0 / (0.03 * math.sqrt(math.e))  # per metre, of a Gaussian of sigma 3 cm scaled to 255
+    shift = math.hypot(0.004, 0.004) + math.sqrt(2.0) * m.resolution
+    assert np.abs(g.astype(int) - fresh.astype(int)).max() <= slope * shift + 1
+    # The entry holding node 2 is gone: asking for it draws a new grid with its new points.
+    g2, ox2, oy2 = cache.get([2, 3], lo, hi)
+    assert cache.builds == 3
+    rows, cols = g2.shape
+    box_hi = np.array([ox2 + (cols - 1) * m.resolution, oy2 + (rows - 1) * m.resolution])
+    fresh2, _, _ = m.correlation_grid(np.vstack(parts[2:]), np.concatenate(sig[2:]), np.array([ox2, oy2]), box_hi, clip=False)
+    assert np.array_equal(g2, fresh2)
+    # A node the mask does not cover (added after it) counts as moved.
+    cache.invalidate(np.array([False]))
+    assert cache.kept == 1
+    cache.get([0, 1], lo, hi)
+    assert cache.builds == 4
+
+
+def test_grid_cache_reserve_looser_superset_on_request():
+    """reserve(max_extra=k) reuses an entry holding up to k scans not asked for; the default allowance does not."""
+    m = CorrelativeMatcher()
+    parts = [ROOM[i::16] for i in range(16)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    cache = GridCache(m, lambda i: (parts[i], sig[i]), max_extra=10)
+    lo, hi = np.array([-3.0, -2.0]), np.array([3.0, 2.0])
+    cache.get(list(range(16)), lo, hi)
+    e = cache.reserve([0, 1, 2], lo, hi)  # 13 extra: a new entry
+    assert cache.builds == 2 and e["nodes"] == {0, 1, 2}
+    e = cache.reserve([3, 4], lo, hi, max_extra=14)  # the 16-scan entry, 14 extra
+    assert cache.builds == 2 and len(e["nodes"]) == 16
+    g, ox, oy = cache.materialize(e, lo, hi)
+    rows, cols = g.shape
+    box_hi = np.array([ox + (cols - 1) * m.resolution, oy + (rows - 1) * m.resolution])
+    fresh, _, _ = m.correlation_grid(np.vstack(parts), np.concatenate(sig), np.array([ox, oy]), box_hi, clip=False)
+    # Drawn where a query inside (lo, hi) reads it, the superset grid equals the fresh one there.
+    assert g.shape == fresh.shape and np.array_equal(g, fresh)

@@ -240,6 +240,26 @@ class GraphSlamParams(GridParams):
         "scan carries whatever the steps since it got wrong (aces: a 4 deg turn fused with the odometry, "
         "claimed 2.2 deg, was frozen by such an edge claiming 0.5 deg)",
     )
+    grid_keep_tolerance: float = param(
+        0.0, unit="m", low=0.0,
+        help="after an optimisation a cached sequential or near-chain correlation grid is kept when none "
+        "of its scans' points moved more than this (translation plus rotation times the scan's reach); "
+        "0 (Karto) draws every grid again; half the sequential cell (0.005) keeps each point within "
+        "its cell's rounding (not in Karto)",
+    )
+    grid_cache_entries: int = param(
+        32, unit="grids", low=1,
+        help="1 cm correlation grids (running scans, near chains) kept for reuse, the least recently used "
+        "dropped first (not in Karto, which draws every grid anew); 32 (8 before) lets a near chain find "
+        "its pass's grid again after the other chains' requests: on fr079 26 % fewer points smeared, "
+        "about 7 % less CPU, 80 MB more peak memory",
+    )
+    near_chain_grid_extra: int = param(
+        10, unit="scans", low=0,
+        help="a near chain is matched on a cached grid holding at most this many scans besides its own "
+        "(neighbours of the same pass), extended by the chain's missing scans, instead of a new grid "
+        "(Karto draws the chain alone; 10 is the sequential matcher's own allowance)",
+    )
     link_scan_maximum_distance: float = param(
         10.0, unit="m", low=0.0, help="near chains are looked for within this distance [LinkScanMaximumDistance]"
     )
@@ -467,13 +487,14 @@ class GraphFrontend:
         self.between = self.sequential.with_window(p.between_nodes_search_dimension)
         self.between.coarse_angle_offset = p.between_nodes_angle_offset
         self.backend = get_backend(p.backend)
-        self._seq_cache = GridCache(self.sequential, self._node_reference)
+        self._seq_cache = GridCache(self.sequential, self._node_reference, max_entries=p.grid_cache_entries)
         self._loop_cache = GridCache(self.loop, self._node_reference)
         self.graph = PoseGraph()
         # Per node: points (base frame), their range sigmas, odometry, time, base-frame barycentre.
         self._points: list[NDArray[np.float64]] = []
         self._sigmas: list[NDArray[np.float64]] = []
         self._ref: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []  # as a reference (gaps filled)
+        self._reach = np.zeros(0)  # per node: its farthest reference point from the robot (see _moved_nodes)
         self._world: list[NDArray[np.float64] | None] = []
         self._odom: list[NDArray[np.float64]] = []
         self._times: list[float] = []
@@ -979,7 +1000,7 @@ class GraphFrontend:
             chain = list(range(a, b))
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
-            entry = self._seq_cache.reserve(chain, lo, hi)
+            entry = self._seq_cache.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
             # Hot: like a chain that responded well from the last node, its grid already drawn (a first
             # draw costs more than the bound it would spare).
             warm = entry["grid"] is not None and any(ha < b and a < hb for ha, hb in hot)
@@ -1032,8 +1053,10 @@ class GraphFrontend:
                 # failed: it is tried again from the next pose, as a match that nearly linked is.
                 self._count("near_skipped_bound_link")
                 return None
-        result = self.sequential.match(None, None, points, pose, penalize=False, refine=True,
-                                       grid=self._seq_cache.materialize(entry, lo, hi))
+        smeared = self._seq_cache.smeared
+        grid = self._seq_cache.materialize(entry, lo, hi)
+        self._count("near_points_smeared", self._seq_cache.smeared - smeared)
+        result = self.sequential.match(None, None, points, pose, penalize=False, refine=True, grid=grid)
         if result.response >= fail:
             return result
         if bound is None:
@@ -1326,17 +1349,34 @@ class GraphFrontend:
                 return True
         return False
 
+    def _moved_nodes(self, before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.bool_] | None:
+        """Per node, whether one of its reference points moved more than ``grid_keep_tolerance`` (None: all).
+
+        A point x (base frame) moves by at most |dt| + 2 |sin(dtheta / 2)| |x|.
+        """
+        tol = self.params.grid_keep_tolerance
+        if tol <= 0 or before.shape != after.shape:
+            return None
+        n = len(self._ref)
+        if self._reach.size < n:  # each node's farthest reference point, computed once
+            new = [float(np.sqrt((r[0] ** 2).sum(axis=1)).max()) if len(r[0]) else 0.0 for r in self._ref[self._reach.size:]]
+            self._reach = np.concatenate([self._reach, np.asarray(new, dtype=np.float64)])
+        d = after[:n] - before[:n]
+        shift = np.hypot(d[:, 0], d[:, 1]) + 2.0 * np.abs(np.sin(0.5 * d[:, 2])) * self._reach[:n]
+        return shift > tol
+
     def optimize(self) -> tuple[float, float]:
         """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
         if self.graph.num_edges == 0:
             return 0.0, 0.0
         res = self.backend.optimize(self.graph)
+        before = self.graph.poses
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses
         else:
             self._count("optimizer_failures")
         self._world = [None] * len(self._world)
-        self._seq_cache.invalidate()
+        self._seq_cache.invalidate(self._moved_nodes(before, self.graph.poses))
         self._loop_cache.invalidate()
         self._tried.clear()
         self._near_failed.clear()
@@ -1372,6 +1412,8 @@ class GraphFrontend:
             "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
             # Grids actually drawn (a build whose near chain the response bound skipped may never be).
             "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
+            "grid_points_smeared": {"sequential": self._seq_cache.smeared, "loop": self._loop_cache.smeared},
+            "grid_kept": self._seq_cache.kept,
         }
 
 

@@ -122,6 +122,8 @@ class GraphSlam(SlamMethod):
                 "grid_builds": s["grid_builds"],
                 "grid_extensions": s["grid_extensions"],
                 "grid_draws": s["grid_draws"],
+                "grid_points_smeared": s["grid_points_smeared"],
+                "grid_kept": s["grid_kept"],
             }
         )
 

@@ -1984,11 +1984,34 @@ class GridCache:
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
         self.draws = 0  # grids actually drawn
+        self.smeared = 0  # points smeared into grids (book-keeping)
+        self.kept = 0  # entries kept across an optimisation (see invalidate)
 
-    def invalidate(self) -> None:
-        self._entries.clear()
-        self._known[:] = False
-        self._blocks.clear()
+    def invalidate(self, moved=None) -> None:
+        """Forget grids drawn at poses that have changed: all of them, or those holding a ``moved`` node.
+
+        ``moved`` (bool per node; nodes past its end count as moved) lets the caller keep the
+        entries whose scans all moved less than it tolerates: their grids and bounds stay as
+        drawn, scans added later are drawn at their new poses.
+        """
+        if moved is None:
+            self._entries.clear()
+            self._known[:] = False
+            self._blocks.clear()
+            return
+        moved = np.asarray(moved, dtype=bool)
+
+        def stale(n: int) -> bool:
+            return n >= moved.size or bool(moved[n])
+
+        keep = [e for e in self._entries if not any(stale(n) for n in e["nodes"])]
+        self.kept += len(keep)
+        self._entries[:] = keep
+        k = min(moved.size, self._known.size)
+        self._known[:k] &= ~moved[:k]
+        self._known[k:] = False
+        for n in [n for n in self._blocks if stale(n)]:
+            del self._blocks[n]
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
@@ -2020,7 +2043,7 @@ class GridCache:
         """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
         return self.materialize(self.reserve(nodes, lo, hi), lo, hi)
 
-    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> dict:
+    def reserve(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64], *, max_extra: int | None = None) -> dict:
         """The entry :meth:`get` would return, with its book-keeping done but its smearing deferred.
 
         Which entry serves a request, and which nodes it then holds, depend only on
@@ -2031,10 +2054,14 @@ class GridCache:
         order-free, so the grid equals the one drawn at once).
         """
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
+        extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
+        wmin, wmax = (min(wanted), max(wanted)) if wanted else (0, -1)
         for k, e in enumerate(self._entries):
+            if e["span"][1] < wmin or e["span"][0] > wmax:
+                continue  # no node in common (a cheap test first: up to 32 entries per request)
             have = e["nodes"]
             common = len(have & wanted)
-            if not common or len(have) - common > self.max_extra:
+            if not common or len(have) - common > extra:
                 continue
             missing = sorted(wanted - have)
             if missing:
@@ -2057,6 +2084,7 @@ class GridCache:
                     e["sigma"] = None
                 e["order"].extend(missing)
                 have.update(missing)
+                e["span"] = (min(e["span"][0], missing[0]), max(e["span"][1], missing[-1]))
                 e["ext_lo"], e["ext_hi"], e["reach"] = xlo, xhi, reach
                 self.extensions += 1
             self._entries.insert(0, self._entries.pop(k))
@@ -2072,7 +2100,8 @@ class GridCache:
         e = {"grid": None, "box": (blo, bhi), "nodes": wanted, "lo": np.array([ox, oy]),
              "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
              "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": self._sigma_of(order_nodes),
-             "parts": [], "order": list(order_nodes)}
+             "parts": [], "order": list(order_nodes),
+             "span": (order_nodes[0], order_nodes[-1]) if order_nodes else (0, -1)}  # least and most node
         self._entries.insert(0, e)
         del self._entries[self.max_entries:]
         self.builds += 1
@@ -2119,12 +2148,14 @@ class GridCache:
                                old[0][0] - m_old, old[0][1] - m_old, old[1][0] + m_old, old[1][1] + m_old)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                self.smeared += int(keep.size)
         if e["n_drawn"] < len(parts):
             pts, sig = _concat(parts[e["n_drawn"]:])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                self.smeared += int(keep.size)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
         if not inside:
