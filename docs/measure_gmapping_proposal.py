@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""gmapping on the simulated office (120 s, URG-04LX by default), seeds 0-2, with given settings.
+"""gmapping (or ``--method``) on the simulated office (120 s, URG-04LX by default), seeds 0-2, with given settings.
 
-    .venv/bin/python docs/measure_gmapping_proposal.py [--laser urg-04lx] [--world office] [--seeds 0,1,2] \
-        [key=value ...]
+    .venv/bin/python docs/measure_gmapping_proposal.py [--method gmapping] [--laser urg-04lx] [--world office] \
+        [--seeds 0,1,2] [key=value ...]
     .venv/bin/python docs/measure_gmapping_proposal.py --log ../shared/datasets/intel/intel.clf.gz \
         [--seeds 0,1,2,3,4] [key=value ...]
 
@@ -27,6 +27,7 @@ from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
 
 def main() -> None:
     ap = argparse.ArgumentParser()
+    ap.add_argument("--method", default="gmapping", help="any registered method (karto's sweep on its page used this)")
     ap.add_argument("--laser", default="urg-04lx")
     ap.add_argument("--world", default="office")
     ap.add_argument("--seeds", default="0,1,2")
@@ -40,9 +41,9 @@ def main() -> None:
         reference = load_reference(log.parent / "reference.tum")
         ates = []
         for seed in (int(s) for s in a.seeds.split(",")):
-            run_dir = Path(a.cache) / f"run-{log.parent.name}-{seed}-{abs(hash(tuple(a.settings)))}"
+            run_dir = Path(a.cache) / f"run-{a.method}-{log.parent.name}-{seed}-{abs(hash(tuple(a.settings)))}"
             cpu = time.process_time()
-            run_method("gmapping", log, run_dir, settings=settings, seed=seed)
+            run_method(a.method, log, run_dir, settings=settings, seed=seed)
             cpu = time.process_time() - cpu
             ate = evaluate_run(load_run(run_dir), reference)["trajectory"]["ate"]["translation_m"]["rmse"]
             counts = json.loads((run_dir / "diagnostics.json").read_text())["counters"]
@@ -57,9 +58,9 @@ def main() -> None:
         sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
         if not (sim_dir / "recording.log.gz").exists():
             write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
-        run_dir = Path(a.cache) / f"run-{a.world}-{a.laser}-{seed}-{abs(hash(tuple(a.settings)))}"
+        run_dir = Path(a.cache) / f"run-{a.method}-{a.world}-{a.laser}-{seed}-{abs(hash(tuple(a.settings)))}"
         cpu = time.process_time()
-        run_method("gmapping", sim_dir / "recording.log.gz", run_dir, settings=settings)
+        run_method(a.method, sim_dir / "recording.log.gz", run_dir, settings=settings)
         cpu = time.process_time() - cpu
         e = evaluate_run(load_run(run_dir), load_truth(sim_dir))
         ate = e["trajectory"]["ate"]["translation_m"]["rmse"]
