@@ -60,7 +60,7 @@ from numpy.typing import NDArray
 
 from slam2d.core import se2
 from slam2d.errors import InputError
-from slam2d.sensors.motion_noise import LATERAL_COUPLING, OdometryNoise
+from slam2d.sensors.motion_noise import OdometryNoise, step_variances
 from slam2d.sensors.range_noise import ConstantSigma, RangeNoiseModel, dropout_probability
 
 __all__ = [
@@ -396,14 +396,7 @@ def odometry_covariances(setup: BoundSetup) -> NDArray[np.float64]:
     truth = setup.odometry_truth
     idx = setup.scan_indices
     steps = se2.relative(truth[:-1], truth[1:])
-    adx, ady, adt = np.abs(steps[:, 0]), np.abs(steps[:, 1]), np.abs(steps[:, 2])
-    D, A = noise.reference_distance, noise.reference_rotation
-    srr2, sxy2 = noise.srr**2, (LATERAL_COUPLING * noise.srr) ** 2
-    var = np.stack([
-        D * (srr2 * adx + sxy2 * ady) + A * noise.str**2 * adt,
-        D * (srr2 * ady + sxy2 * adx) + A * noise.str**2 * adt,
-        A * noise.stt**2 * adt + D * noise.srt**2 * np.hypot(steps[:, 0], steps[:, 1]),
-    ], axis=1)
+    var = step_variances(steps, noise)
     if np.any(idx[1:] - idx[:-1] <= 0):
         raise InputError("scan indices must increase", field="scan_indices")
     per = np.diff(idx)

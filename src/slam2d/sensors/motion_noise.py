@@ -57,7 +57,10 @@ from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.params import param, validate
 
-__all__ = ["OdometryNoise", "simulate_odometry", "odometry_increments", "gmapping_motion_std", "draw_from_motion"]
+__all__ = [
+    "OdometryNoise", "simulate_odometry", "step_variances", "odometry_increments", "gmapping_motion_std",
+    "draw_from_motion",
+]
 
 # GMapping's coupling of lateral and forward translation noise (motionmodel.cpp: sxy = 0.3 * srr).
 LATERAL_COUPLING = 0.3
@@ -120,29 +123,42 @@ def odometry_increments(poses: ArrayLike) -> NDArray[np.float64]:
     return se2.relative(p[:-1], p[1:])
 
 
+def step_variances(increments: ArrayLike, noise: OdometryNoise) -> NDArray[np.float64]:
+    """Variances ``(N, 3)`` (x, y, heading) of the noise :func:`simulate_odometry` adds to each increment.
+
+    ``increments`` are true steps ``(dx, dy, dtheta)`` in the frame of the earlier pose. The one
+    place the simulated odometry's noise model is written: the simulator draws from it and
+    ``slam2d.eval.accuracy_bound`` counts it.
+    """
+    d = np.asarray(increments, dtype=np.float64).reshape(-1, 3)
+    adx, ady, adt = np.abs(d[:, 0]), np.abs(d[:, 1]), np.abs(d[:, 2])
+    dist = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+    D, A = float(noise.reference_distance), float(noise.reference_rotation)
+    srr2, sxy2 = float(noise.srr) * float(noise.srr), (LATERAL_COUPLING * float(noise.srr)) ** 2
+    str_, stt, srt = float(noise.str), float(noise.stt), float(noise.srt)
+    return np.stack([
+        D * (srr2 * adx + sxy2 * ady) + A * str_ * str_ * adt,
+        D * (srr2 * ady + sxy2 * adx) + A * str_ * str_ * adt,
+        A * stt * stt * adt + D * srt * srt * dist,
+    ], axis=1)
+
+
 @njit(cache=True)
 def _integrate_odometry(
     start: NDArray[np.float64],
     increments: NDArray[np.float64],
+    variances: NDArray[np.float64],
     normals: NDArray[np.float64],
     uniforms: NDArray[np.float64],
-    srr: float, srt: float, str_: float, stt: float,
-    ref_distance: float, ref_rotation: float,
     radius_scale: float, track_scale: float,
     slip_probability: float, slip_gain: float,
 ) -> NDArray[np.float64]:
     n = increments.shape[0]
     out = np.empty((n + 1, 3))
     out[0, 0], out[0, 1], out[0, 2] = start[0], start[1], start[2]
-    srr2 = srr * srr
-    sxy2 = (LATERAL_COUPLING * srr) ** 2
     for k in range(n):
         dx, dy, dth = increments[k, 0], increments[k, 1], increments[k, 2]
-        adx, ady, adth = abs(dx), abs(dy), abs(dth)
-        dist = math.sqrt(dx * dx + dy * dy)
-        var_x = ref_distance * (srr2 * adx + sxy2 * ady) + ref_rotation * str_ * str_ * adth
-        var_y = ref_distance * (srr2 * ady + sxy2 * adx) + ref_rotation * str_ * str_ * adth
-        var_t = ref_rotation * stt * stt * adth + ref_distance * srt * srt * dist
+        var_x, var_y, var_t = variances[k, 0], variances[k, 1], variances[k, 2]
         gain = slip_gain if uniforms[k] < slip_probability else 1.0
         ox = dx * radius_scale * gain + math.sqrt(var_x) * normals[k, 0]
         oy = dy * radius_scale * gain + math.sqrt(var_y) * normals[k, 1]
@@ -190,10 +206,8 @@ def simulate_odometry(
     normals = rng.standard_normal((steps, 3))
     uniforms = rng.random(steps)
     return _integrate_odometry(
-        np.ascontiguousarray(poses[0]), np.ascontiguousarray(increments), normals, uniforms,
-        float(noise.srr), float(noise.srt), float(noise.str), float(noise.stt),
-        float(noise.reference_distance), float(noise.reference_rotation),
-        float(noise.wheel_radius_scale), float(noise.track_width_scale),
+        np.ascontiguousarray(poses[0]), np.ascontiguousarray(increments), step_variances(increments, noise),
+        normals, uniforms, float(noise.wheel_radius_scale), float(noise.track_width_scale),
         float(noise.slip_probability), 1.0 / (1.0 - float(noise.slip_fraction)),
     )
 
