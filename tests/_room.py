@@ -17,12 +17,18 @@ def _box_hits(px, py, dx, dy, box, inside):
     with np.errstate(divide="ignore", invalid="ignore"):
         tx1, tx2 = (xmin - px) / dx, (xmax - px) / dx
         ty1, ty2 = (ymin - py) / dy, (ymax - py) / dy
-    if inside:  # leaving the box: the nearest positive exit
-        t = np.fmin(np.where(dx > 0, tx2, tx1), np.where(dy > 0, ty2, ty1))
+    if inside:  # leaving the box: the nearest positive exit (a ray parallel to two walls never meets them)
+        t = np.fmin(np.where(dx > 0, tx2, np.where(dx < 0, tx1, np.inf)),
+                    np.where(dy > 0, ty2, np.where(dy < 0, ty1, np.inf)))
         return np.where(np.isfinite(t) & (t > 0), t, np.inf)
     tmin = np.fmax(np.fmin(tx1, tx2), np.fmin(ty1, ty2))
     tmax = np.fmin(np.fmax(tx1, tx2), np.fmax(ty1, ty2))
     return np.where((tmax >= tmin) & (tmin > 0), tmin, np.inf)
+
+
+def box_ranges(angles, box, origin=(0.0, 0.0)):
+    """Exact ranges along world bearings ``angles`` from ``origin`` to the walls of ``box`` (xmin, ymin, xmax, ymax)."""
+    return _box_hits(origin[0], origin[1], np.cos(angles), np.sin(angles), box, True)
 
 
 def room_scan(pose, n=361, fov=np.radians(240), max_range=20.0, t=0.0):

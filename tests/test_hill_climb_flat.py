@@ -8,6 +8,7 @@ from slam2d.cli import main
 from slam2d.grids.tiled import TiledMaps
 from slam2d.matching.hill_climb import BeamSet, hold_flat_direction, match_particles
 from slam2d.methods.gmapping import GMapping, GMappingParams
+from tests._room import box_ranges
 from tests.conftest import recording_frames
 
 
@@ -21,11 +22,7 @@ def _corridor(angles, reach=4.0):
 
 def _room(angles):
     """Ranges from (0, 0) to the walls of a 4 x 3 m room centred 0.3 m ahead."""
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, 2.3 / c, np.where(c < 0, -1.7 / c, np.inf))
-        ty = np.where(s > 0, 1.5 / s, np.where(s < 0, -1.5 / s, np.inf))
-    return np.minimum(tx, ty)
+    return box_ranges(angles, (-1.7, -1.5, 2.3, 1.5))
 
 
 def _mapped(ranges, angles, n, poses_x):

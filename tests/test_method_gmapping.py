@@ -27,6 +27,7 @@ from slam2d.methods import get_method
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 from slam2d.sensors.range_noise import ConstantSigma
+from tests._room import box_ranges
 from tests.conftest import dataset_file, recording_frames, run_ate
 
 
@@ -162,11 +163,7 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
 
 def _room(angles):
     """Ranges along world bearings ``angles`` from the origin in a 6 m x 4 m room (x -2.8..3.2, y -1.9..2.1)."""
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide="ignore"):
-        tx = np.where(c > 0, 3.2 / c, np.where(c < 0, -2.8 / c, np.inf))
-        ty = np.where(s > 0, 2.1 / s, np.where(s < 0, -1.9 / s, np.inf))
-    return np.minimum(tx, ty)
+    return box_ranges(angles, (-2.8, -1.9, 3.2, 2.1))
 
 
 def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
