@@ -338,7 +338,7 @@ class GMapping(SlamMethod):
             self._track_pose, self._track_odom = start, self._odom  # carry on from the odometry's pose
             return None
         pose = np.array([[x, y, th]])
-        if self.params.flat_ratio > 0.0:  # (the arguments cost more than the off switch)
+        if self.params.flat_ratio > 0.0:  # skip building the arguments when it is off (every tracked scan)
             self._hold_flat(np.asarray(frame.scan.mount, dtype=np.float64), beams, np.array([best], dtype=np.int64),
                             start[None], pose, np.ones(1, dtype=np.bool_), np.zeros(1), count="degenerate_tracking")
         self._track_pose, self._track_odom = pose[0], self._odom
