@@ -1,0 +1,172 @@
+"""Wall ends in one laser scan: door jambs and box corners, as points with a covariance.
+
+Along a corridor longer than the laser's reach the beams on the two walls say nothing about
+where along it the robot is; the few beams where a wall *ends* in front of something farther
+do (docs/accuracy_bound.md: with a URG-04LX in the simulated office the bound is 1.3 cm with
+the wall ends' bearings and 16 cm without). A correlative score over hundreds of wall points
+draws little of that out, so the graph front end can take the ends as landmarks
+(:mod:`slam2d.graph.wall_end_landmarks`).
+
+A wall end is the *nearer* beam at a range jump: beam k hits a surface, the next beam (and the
+one after it, so a single dropout or a noisy reading is not taken for a doorway) returns more
+than ``jump`` farther or nothing. The surface's true end lies somewhere between beam k's and
+beam k+1's bearings. Checks that it really ends there:
+
+* the near surface is one run of ``run`` beams without a jump (a lone point is clutter); its
+  line is their least-squares fit;
+* that line does not carry on to the far point: a
+  wall seen at a grazing angle has points ever further apart, and past some range the step
+  between two beams on the *same* wall exceeds the jump (the wall occluding nothing but
+  itself);
+* the line meets the next beam's ray in front of the laser and within its range less half a
+  jump: otherwise the wall may simply run out of range (no return) rather than end;
+* the beam meets the surface at less than ``max_incidence`` from its normal: near grazing
+  the end's position along the wall is ill-defined (and a round post's silhouette, which
+  moves with the viewer, is always seen grazing).
+
+The point is where the near line meets the ray half-way between the two bearings; its
+covariance is a uniform error along the line over the gap between the two rays
+(``gap^2 / 12``) and the range sigma across it. Everything is whole-array numpy over the
+beams; both sides (the wall ending at increasing and at decreasing beam index) are the same
+test on the reversed arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+
+__all__ = ["WallEnds", "detect_wall_ends"]
+
+
+@dataclass(frozen=True)
+class WallEnds:
+    """Wall ends of one scan, in the robot (base) frame.
+
+    ``points`` (K, 2) m; ``covariances`` (K, 2, 2) m^2; ``beams`` (K,) index of the nearer beam;
+    ``side`` (K,) +1 when the wall ends towards increasing beam index, -1 towards decreasing;
+    ``direction`` (K, 2) unit vector along the wall, from the end into the wall.
+    """
+
+    points: NDArray[np.float64]
+    covariances: NDArray[np.float64]
+    beams: NDArray[np.int64]
+    side: NDArray[np.int64]
+    direction: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+
+def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.float64], *, jump: float,
+              run: int, continuation: float, max_incidence: float, range_max: float):
+    """Ends of walls towards increasing index: (beam k, end point, along-wall sigma, across sigma, wall direction)."""
+    n = r.shape[0]
+    empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
+    if n < run + 2:
+        return empty
+    ok = ~np.isnan(r)
+    rr = np.where(ok, r, np.inf)  # no return counts as farther than anything
+    k = np.arange(run - 1, n - 2)  # beam k needs run-1 beams before it and two after
+    near = ok[k] & (rr[k + 1] > rr[k] + jump) & (rr[k + 2] > rr[k] + jump)
+    for j in range(1, run):  # the near surface: a run of beams without a jump (run is a handful)
+        a, b = k - j, k - j + 1
+        with np.errstate(invalid="ignore"):
+            near &= ok[a] & ok[b] & (np.abs(rr[a] - rr[b]) <= jump)
+    k = k[near]
+    if k.size == 0:
+        return empty
+    c, s = np.cos(ang), np.sin(ang)
+    pk = np.stack([r[k] * c[k], r[k] * s[k]], axis=-1)
+    # The near wall's direction: the principal axis of the run's points (a least-squares line),
+    # pointing from the run's first point towards its end.
+    idx = k[:, None] - np.arange(run)[None, :]
+    pts = np.stack([r[idx] * c[idx], r[idx] * s[idx]], axis=-1)
+    q = pts - pts.mean(axis=1, keepdims=True)
+    sxx, syy, sxy = (q[..., 0] ** 2).sum(1), (q[..., 1] ** 2).sum(1), (q[..., 0] * q[..., 1]).sum(1)
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    u = np.stack([np.cos(phi), np.sin(phi)], axis=-1)
+    d = pk - pts[:, -1]
+    u = np.where(((u * d).sum(axis=1) < 0)[:, None], -u, u)  # along the wall, towards its end
+    good = (sxx + syy) > 1e-12
+
+    def hit(bearing):
+        """Where the ray at ``bearing`` meets the near line: distance along the ray (inf if never in front)."""
+        ray = np.stack([np.cos(bearing), np.sin(bearing)], axis=-1)
+        # t * ray = pk + s * u  ->  t = cross(pk, u) / cross(ray, u)
+        den = ray[:, 0] * u[:, 1] - ray[:, 1] * u[:, 0]
+        num = pk[:, 0] * u[:, 1] - pk[:, 1] * u[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = num / den
+        return np.where(np.abs(den) > 1e-12, t, np.inf), ray
+
+    t_next, ray_next = hit(ang[k + 1])
+    t_mid, ray_mid = hit(0.5 * (ang[k] + ang[k + 1]))
+    # Incidence at the end: the angle between beam k and the wall's normal.
+    beam = np.stack([c[k], s[k]], axis=-1)
+    cos_inc = np.abs(beam[:, 0] * u[:, 1] - beam[:, 1] * u[:, 0])
+    good &= cos_inc >= math.cos(max_incidence)
+    # The wall, carried on, must meet the next ray in front of the laser and within its reach,
+    # and the far reading must not lie on it (a grazing wall occluding only itself).
+    # (Within the reach less half a jump: noise must not let a wall running out of range pass.)
+    good &= np.isfinite(t_next) & (t_next > 0) & (t_next < range_max - 0.5 * jump) & np.isfinite(t_mid) & (t_mid > 0)
+    far = r[k + 1]
+    on_line = np.isfinite(far) & (np.abs(far - t_next) <= continuation + 0.05 * far)
+    good &= ~on_line
+    k, u, t_next, t_mid, ray_next, ray_mid, pk, sig_k = (
+        k[good], u[good], t_next[good], t_mid[good], ray_next[good], ray_mid[good], pk[good], sig[k[good]])
+    point = t_mid[:, None] * ray_mid
+    gap = np.hypot(*(t_next[:, None] * ray_next - pk).T)  # along the wall, between the two rays
+    along = gap / math.sqrt(12.0)
+    return k, point, along, sig_k, -u
+
+
+def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float = 0.3, run: int = 5,
+                     continuation: float = 0.05, max_incidence: float = math.radians(70.0),
+                     max_range: float = math.inf) -> WallEnds:
+    """The wall ends of ``scan`` (a :class:`~slam2d.core.scan.LaserScan`) in the robot frame.
+
+    ``sigmas``: per-beam range sigma (m, NaN for no return, e.g. from
+    :func:`~slam2d.sensors.beam_model.beam_sigmas`) or one value. ``jump`` (m): least range
+    step from the near beam to the next two; ``run`` (beams): length of the near surface
+    without a jump; ``continuation`` (m, plus 5 % of the range): a far reading this close to the
+    near wall carried on is the same wall; ``max_incidence`` (rad); ``max_range`` (m): nearer
+    beams beyond it are not used (a far end is located coarsely and is rarely needed).
+    """
+    r = np.array(scan.ranges, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        r[r > max_range] = np.nan
+    ang = np.asarray(scan.angles, dtype=np.float64)
+    sig = np.broadcast_to(np.asarray(sigmas, dtype=np.float64), r.shape)
+    sig = np.where(np.isfinite(sig), sig, 0.0)
+    kw = dict(jump=jump, run=max(int(run), 2), continuation=continuation, max_incidence=max_incidence,
+              range_max=float(min(scan.range_max, max_range)))
+    k1, p1, a1, s1, u1 = _one_side(r, ang, sig, **kw)
+    k2, p2, a2, s2, u2 = _one_side(r[::-1].copy(), ang[::-1].copy(), sig[::-1].copy(), **kw)
+    k2 = r.shape[0] - 1 - k2
+    k = np.concatenate([k1, k2])
+    pts = np.concatenate([p1, p2])
+    along = np.concatenate([a1, a2])
+    across = np.concatenate([s1, s2])
+    u = np.concatenate([u1, u2])
+    side = np.concatenate([np.ones(k1.size, np.int64), -np.ones(k2.size, np.int64)])
+    # Covariance: along the wall a uniform error over the gap, across it the range sigma
+    # (a floor of a millimetre keeps it invertible when no sigma is known).
+    across = np.maximum(across, 1e-3)
+    nrm = np.stack([-u[:, 1], u[:, 0]], axis=-1)
+    cov = (along**2)[:, None, None] * u[:, :, None] * u[:, None, :] + (across**2)[:, None, None] * nrm[:, :, None] * nrm[:, None, :]
+    # Laser frame -> robot frame.
+    m = np.asarray(scan.mount, dtype=np.float64)
+    if np.any(m != 0):
+        pts = se2.transform_points(m, pts) if pts.size else pts
+        c, s = math.cos(m[2]), math.sin(m[2])
+        rot = np.array([[c, -s], [s, c]])
+        cov = rot @ cov @ rot.T
+        u = u @ rot.T
+    return WallEnds(points=pts.reshape(-1, 2), covariances=cov.reshape(-1, 2, 2), beams=k.astype(np.int64),
+                    side=side, direction=u.reshape(-1, 2))
