@@ -64,6 +64,7 @@ from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, GridCache
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
+from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams
 
 __all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
 
@@ -71,7 +72,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass
-class GraphSlamParams(GridParams):
+class GraphSlamParams(GridParams, WallEndParams):
     """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
 
     Squared quantities are given squared (m^2, rad^2) and angles in radians:
@@ -525,6 +526,7 @@ class GraphFrontend:
         self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
         self.offset = np.zeros(3)
+        self.wall_ends = WallEndLandmarks(p, diagnostics) if p.wall_end_landmarks else None
 
     # ----------------------------------------------------------------- small helpers
 
@@ -892,6 +894,8 @@ class GraphFrontend:
                 self._steps.append(se2.relative(self._odom[last], odom))
         self._running.append(node)
         self._trim_running()
+        if self.wall_ends is not None:
+            self.wall_ends.observe(self, node, scan, sig)
         closed = 0
         if p.do_loop_closing and node > 0:
             closed = self._try_close_loop(node, points)
@@ -1369,7 +1373,8 @@ class GraphFrontend:
         """Run the back end over the whole graph and keep its poses: (cost before, cost after)."""
         if self.graph.num_edges == 0:
             return 0.0, 0.0
-        res = self.backend.optimize(self.graph)
+        res = (self.backend.optimize(self.graph) if self.wall_ends is None
+               else self.wall_ends.optimize(self.backend, self.graph))
         before = self.graph.poses
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses

@@ -108,7 +108,7 @@ class GraphSlam(SlamMethod):
 
     def finish(self) -> None:
         fe = self.frontend
-        if fe.loop_closures and fe.graph.num_edges:
+        if (fe.loop_closures or (fe.wall_ends is not None and fe.wall_ends.pending)) and fe.graph.num_edges:
             fe.optimize()  # a last pass over the edges added since the last closure
         s = fe.summary()
         self.diagnostics.summary.update(

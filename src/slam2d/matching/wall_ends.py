@@ -127,7 +127,7 @@ def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.
 
 
 def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float = 0.3, run: int = 5,
-                     continuation: float = 0.05, max_incidence: float = math.radians(70.0),
+                     continuation: float = 0.05, max_incidence: float = math.radians(80.0),
                      max_range: float = math.inf) -> WallEnds:
     """The wall ends of ``scan`` (a :class:`~slam2d.core.scan.LaserScan`) in the robot frame.
 
