@@ -210,6 +210,7 @@ class WallEndLandmarks:
             self._seen[ids] = 0
             self._nl += k_new
             best[new] = ids
+            self._count("wall_end_landmarks", k_new)
         use = best >= 0
         lm = best[use]
         info = np.linalg.inv(ends.covariances[use])
