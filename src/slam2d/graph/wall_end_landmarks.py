@@ -57,6 +57,12 @@ class WallEndParams:
         "incidence the end is ill-defined along the wall (its along-wall sigma, the gap between two beams "
         "over the square root of 12, grows as 1 / cos)",
     )
+    wall_end_open_incidence: float = param(
+        70.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi / 2,
+        help="where no return follows a wall end for three beams (a door into a room beyond the reach, or a "
+        "grazing wall losing its returns), the largest incidence at which it is taken (wall_end_landmarks): "
+        "in the simulated corridor loop a grazing wall's lost returns otherwise pass for doors",
+    )
     wall_end_maximum_range: float = param(
         math.inf, unit="m", low=0.0, help="wall ends farther than this are not used (wall_end_landmarks)"
     )
@@ -153,7 +159,8 @@ class WallEndLandmarks:
         p = self.params
         sig = np.fmax(np.where(np.isfinite(sigmas), sigmas, 0.0), p.wall_end_range_sigma)
         ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
-                                max_incidence=p.wall_end_maximum_incidence, max_range=p.wall_end_maximum_range)
+                                max_incidence=p.wall_end_maximum_incidence, open_incidence=p.wall_end_open_incidence,
+                                max_range=p.wall_end_maximum_range)
         self._count("wall_ends_detected", len(ends))
         added = 0
         if len(ends):

@@ -13,13 +13,16 @@ than ``jump`` farther or nothing. The surface's true end lies somewhere between 
 beam k+1's bearings. Checks that it really ends there:
 
 * the near surface is one run of ``run`` beams without a jump (a lone point is clutter); its
-  line is their least-squares fit;
-* that line does not carry on to the far point: a
-  wall seen at a grazing angle has points ever further apart, and past some range the step
-  between two beams on the *same* wall exceeds the jump (the wall occluding nothing but
-  itself);
+  line is their least-squares fit, and the end beam's range continues those before it (a
+  real laser's beam at an edge can return a mix of both surfaces);
+* (a wall seen at a grazing angle has points ever further apart, and past some range the step
+  between two beams on the *same* wall exceeds the jump: the wall occluding nothing but itself,
+  which the test below refuses);
 * the line meets the next beam's ray in front of the laser and within its range less half a
   jump: otherwise the wall may simply run out of range (no return) rather than end;
+* the first beam after the end with a return (at most two lost returns later: dark and grazing
+  walls lose returns) passes *behind* the line carried on: a reading on it is the same wall at a
+  grazing angle, one in front of it something hiding the wall's continuation;
 * the beam meets the surface at less than ``max_incidence`` from its normal: near grazing
   the end's position along the wall is ill-defined (and a round post's silhouette, which
   moves with the viewer, is always seen grazing).
@@ -64,7 +67,7 @@ class WallEnds:
 
 
 def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.float64], *, jump: float,
-              run: int, continuation: float, max_incidence: float, range_max: float):
+              run: int, continuation: float, max_incidence: float, open_incidence: float, range_max: float):
     """Ends of walls towards increasing index: (beam k, end point, along-wall sigma, across sigma, wall direction)."""
     n = r.shape[0]
     empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
@@ -94,6 +97,16 @@ def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.
     d = pk - pts[:, -1]
     u = np.where(((u * d).sum(axis=1) < 0)[:, None], -u, u)  # along the wall, towards its end
     good = (sxx + syy) > 1e-12
+    # The end beam itself must continue the ranges of the beams before it (a straight-line fit of
+    # range over beam index, extrapolated one beam, within three sigmas of the prediction): a real
+    # laser's beam at an edge can return a mix of the near and far surface, between them.
+    m = run - 1
+    x = np.arange(m, dtype=np.float64) - 0.5 * (m - 1)
+    prev = r[idx[:, :0:-1]]  # beams k-run+1 .. k-1, in index order
+    slope = (prev * x).sum(axis=1) / (x * x).sum()
+    guess = prev.mean(axis=1) + slope * (0.5 * (m - 1) + 1.0)
+    spread = math.sqrt(1.0 + 1.0 / m + (0.5 * (m - 1) + 1.0) ** 2 / (x * x).sum())
+    good &= np.abs(r[k] - guess) <= 3.0 * spread * np.maximum(sig[k], 0.003)
 
     def hit(bearing):
         """Where the ray at ``bearing`` meets the near line: distance along the ray (inf if never in front)."""
@@ -105,37 +118,58 @@ def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.
             t = num / den
         return np.where(np.abs(den) > 1e-12, t, np.inf), ray
 
+    # The evidence that the wall ends: the first beam after k with a return (j; at most two lost
+    # returns between, since a dark or grazing wall loses returns too) must pass *behind* the wall
+    # carried on. A far reading on that line is the same wall seen at a grazing angle (occluding only
+    # itself); one in front of it is something occluding the wall's continuation: either way the
+    # wall need not end here.
+    nxt = np.where(ok, np.arange(n), n)
+    nxt = np.minimum.accumulate(nxt[::-1])[::-1]
+    j = nxt[k + 1]
+    # No return for more than two beams (an open door into a room beyond the reach, or a grazing
+    # wall losing its returns): taken only where a wall carried on would be seen at no more than
+    # open_incidence and well within the reach three beams on; the end is then placed between beam
+    # k and k + 1.
+    gone = j > k + 3
+    j = np.where(gone, k + 1, np.minimum(j, n - 1))
     t_next, ray_next = hit(ang[k + 1])
-    t_mid, ray_mid = hit(0.5 * (ang[k] + ang[k + 1]))
+    t_j, ray_j = hit(ang[j])
+    t_mid, ray_mid = hit(0.5 * (ang[k] + ang[j]))
     # Incidence at the end: the angle between beam k and the wall's normal.
     beam = np.stack([c[k], s[k]], axis=-1)
     cos_inc = np.abs(beam[:, 0] * u[:, 1] - beam[:, 1] * u[:, 0])
     good &= cos_inc >= math.cos(max_incidence)
-    # The wall, carried on, must meet the next ray in front of the laser and within its reach,
-    # and the far reading must not lie on it (a grazing wall occluding only itself).
-    # (Within the reach less half a jump: noise must not let a wall running out of range pass.)
+    t_far, _ = hit(ang[np.minimum(k + 3, n - 1)])
+    good &= ~gone | ((cos_inc >= math.cos(open_incidence)) & np.isfinite(t_far) & (t_far > 0)
+                     & (t_far < range_max - jump))
+    # The wall, carried on, must meet the next ray in front of the laser and within its reach (less
+    # half a jump: noise must not let a wall running out of range pass).
     good &= np.isfinite(t_next) & (t_next > 0) & (t_next < range_max - 0.5 * jump) & np.isfinite(t_mid) & (t_mid > 0)
-    far = r[k + 1]
-    on_line = np.isfinite(far) & (np.abs(far - t_next) <= continuation + 0.05 * far)
-    good &= ~on_line
-    k, u, t_next, t_mid, ray_next, ray_mid, pk, sig_k = (
-        k[good], u[good], t_next[good], t_mid[good], ray_next[good], ray_mid[good], pk[good], sig[k[good]])
+    far = np.where(gone, np.inf, r[j])
+    in_front = np.isfinite(t_j) & (t_j > 0)
+    with np.errstate(invalid="ignore"):
+        good &= ~in_front | gone | (far > t_j + continuation + 0.05 * far)
+    # The end lies between beam k and beam j (a lost return between may have been the wall).
+    k, u, t_end, t_mid, ray_end, ray_mid, pk, sig_k = (
+        k[good], u[good], t_j[good], t_mid[good], ray_j[good], ray_mid[good], pk[good], sig[k[good]])
+    t_end = np.where(np.isfinite(t_end) & (t_end > 0), t_end, 2.0 * t_mid - np.hypot(pk[:, 0], pk[:, 1]))
     point = t_mid[:, None] * ray_mid
-    gap = np.hypot(*(t_next[:, None] * ray_next - pk).T)  # along the wall, between the two rays
+    gap = np.hypot(*(t_end[:, None] * ray_end - pk).T)  # along the wall, between the two rays
     along = gap / math.sqrt(12.0)
     return k, point, along, sig_k, -u
 
 
 def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float = 0.3, run: int = 5,
                      continuation: float = 0.05, max_incidence: float = math.radians(80.0),
-                     max_range: float = math.inf) -> WallEnds:
+                     open_incidence: float = math.radians(70.0), max_range: float = math.inf) -> WallEnds:
     """The wall ends of ``scan`` (a :class:`~slam2d.core.scan.LaserScan`) in the robot frame.
 
     ``sigmas``: per-beam range sigma (m, NaN for no return, e.g. from
     :func:`~slam2d.sensors.beam_model.beam_sigmas`) or one value. ``jump`` (m): least range
     step from the near beam to the next two; ``run`` (beams): length of the near surface
     without a jump; ``continuation`` (m, plus 5 % of the range): a far reading this close to the
-    near wall carried on is the same wall; ``max_incidence`` (rad); ``max_range`` (m): nearer
+    near wall carried on is the same wall; ``max_incidence`` (rad), ``open_incidence`` (rad) where
+    no return follows for three beams; ``max_range`` (m): nearer
     beams beyond it are not used (a far end is located coarsely and is rarely needed).
     """
     r = np.array(scan.ranges, dtype=np.float64)
@@ -145,6 +179,7 @@ def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float =
     sig = np.broadcast_to(np.asarray(sigmas, dtype=np.float64), r.shape)
     sig = np.where(np.isfinite(sig), sig, 0.0)
     kw = dict(jump=jump, run=max(int(run), 2), continuation=continuation, max_incidence=max_incidence,
+              open_incidence=min(open_incidence, max_incidence),
               range_max=float(min(scan.range_max, max_range)))
     k1, p1, a1, s1, u1 = _one_side(r, ang, sig, **kw)
     k2, p2, a2, s2, u2 = _one_side(r[::-1].copy(), ang[::-1].copy(), sig[::-1].copy(), **kw)
