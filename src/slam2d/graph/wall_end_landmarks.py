@@ -71,6 +71,12 @@ class WallEndParams:
         help="least range sigma of a wall end (a sensor model's per-beam sigma is used when larger) "
         "(wall_end_landmarks)",
     )
+    wall_end_bearing_sigma: float = param(
+        0.0, unit="rad", low=0.0,
+        help="bearing sigma of a wall end added in quadrature to the beam gap's uniform error (a real beam's "
+        "width: partly on the edge it can still return the near surface) (wall_end_landmarks); 0 = rays, as "
+        "the simulator's",
+    )
     wall_end_pose_sigma: float = param(
         0.05, unit="m", low=0.0,
         help="the new scan's position uncertainty against the landmarks, added in quadrature when associating "
@@ -160,7 +166,7 @@ class WallEndLandmarks:
         sig = np.fmax(np.where(np.isfinite(sigmas), sigmas, 0.0), p.wall_end_range_sigma)
         ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
                                 max_incidence=p.wall_end_maximum_incidence, open_incidence=p.wall_end_open_incidence,
-                                max_range=p.wall_end_maximum_range)
+                                max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma)
         self._count("wall_ends_detected", len(ends))
         added = 0
         if len(ends):

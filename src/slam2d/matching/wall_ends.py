@@ -67,7 +67,8 @@ class WallEnds:
 
 
 def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.float64], *, jump: float,
-              run: int, continuation: float, max_incidence: float, open_incidence: float, range_max: float):
+              run: int, continuation: float, max_incidence: float, open_incidence: float, range_max: float,
+              bearing_sigma: float):
     """Ends of walls towards increasing index: (beam k, end point, along-wall sigma, across sigma, wall direction)."""
     n = r.shape[0]
     empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)))
@@ -150,18 +151,21 @@ def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.
     with np.errstate(invalid="ignore"):
         good &= ~in_front | gone | (far > t_j + continuation + 0.05 * far)
     # The end lies between beam k and beam j (a lost return between may have been the wall).
-    k, u, t_end, t_mid, ray_end, ray_mid, pk, sig_k = (
-        k[good], u[good], t_j[good], t_mid[good], ray_j[good], ray_mid[good], pk[good], sig[k[good]])
+    k, u, t_end, t_mid, ray_end, ray_mid, pk, sig_k, cos_inc = (
+        k[good], u[good], t_j[good], t_mid[good], ray_j[good], ray_mid[good], pk[good], sig[k[good]], cos_inc[good])
     t_end = np.where(np.isfinite(t_end) & (t_end > 0), t_end, 2.0 * t_mid - np.hypot(pk[:, 0], pk[:, 1]))
     point = t_mid[:, None] * ray_mid
     gap = np.hypot(*(t_end[:, None] * ray_end - pk).T)  # along the wall, between the two rays
-    along = gap / math.sqrt(12.0)
+    # A real beam is not a ray: where it covers the edge only in part it can still return the near
+    # surface, so the end seen from here can be off by a share of its width (bearing_sigma).
+    along = np.sqrt(gap * gap / 12.0 + (np.hypot(pk[:, 0], pk[:, 1]) * bearing_sigma / np.maximum(cos_inc, 1e-3)) ** 2)
     return k, point, along, sig_k, -u
 
 
 def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float = 0.3, run: int = 5,
                      continuation: float = 0.05, max_incidence: float = math.radians(80.0),
-                     open_incidence: float = math.radians(70.0), max_range: float = math.inf) -> WallEnds:
+                     open_incidence: float = math.radians(70.0), max_range: float = math.inf,
+                     bearing_sigma: float = 0.0) -> WallEnds:
     """The wall ends of ``scan`` (a :class:`~slam2d.core.scan.LaserScan`) in the robot frame.
 
     ``sigmas``: per-beam range sigma (m, NaN for no return, e.g. from
@@ -169,7 +173,8 @@ def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float =
     step from the near beam to the next two; ``run`` (beams): length of the near surface
     without a jump; ``continuation`` (m, plus 5 % of the range): a far reading this close to the
     near wall carried on is the same wall; ``max_incidence`` (rad), ``open_incidence`` (rad) where
-    no return follows for three beams; ``max_range`` (m): nearer
+    no return follows for three beams; ``bearing_sigma`` (rad): a bearing error added in quadrature
+    to the beam gap's (a real beam's width); ``max_range`` (m): nearer
     beams beyond it are not used (a far end is located coarsely and is rarely needed).
     """
     r = np.array(scan.ranges, dtype=np.float64)
@@ -179,7 +184,7 @@ def detect_wall_ends(scan, sigmas: NDArray[np.float64] | float, *, jump: float =
     sig = np.broadcast_to(np.asarray(sigmas, dtype=np.float64), r.shape)
     sig = np.where(np.isfinite(sig), sig, 0.0)
     kw = dict(jump=jump, run=max(int(run), 2), continuation=continuation, max_incidence=max_incidence,
-              open_incidence=min(open_incidence, max_incidence),
+              open_incidence=min(open_incidence, max_incidence), bearing_sigma=float(bearing_sigma),
               range_max=float(min(scan.range_max, max_range)))
     k1, p1, a1, s1, u1 = _one_side(r, ang, sig, **kw)
     k2, p2, a2, s2, u2 = _one_side(r[::-1].copy(), ang[::-1].copy(), sig[::-1].copy(), **kw)
