@@ -291,3 +291,26 @@ def test_karto_and_lago_with_wall_end_landmarks_on_a_simulated_office():
     # Deterministic: the same run again gives the same trajectory bit for bit.
     again = cls(cls.Params(wall_end_landmarks=True)).run(sim.frames()).trajectory()[1]
     np.testing.assert_array_equal(again, runs["spa"][0])
+
+
+def test_mixed_return_at_the_edge_and_beam_width():
+    scan = _scan(DOOR, [0.0, 0.0, 0.0])
+    ends = detect_wall_ends(scan, 0.01)
+    k = int(ends.beams[np.argmin(np.hypot(*(ends.points - [1.0, 1.0]).T))])
+    # The end beam returns a mix of the jamb and the room behind it, 0.15 m behind the jamb: that end
+    # is not taken at the wrong range (the other jamb still is).
+    r = scan.ranges.copy()
+    r[k] += 0.15
+    mixed = detect_wall_ends(make_scan(0.0, r, scan.angle_min, scan.angle_increment, 0.02, 5.6), 0.01)
+    d, which = _nearest(mixed.points, [[1.0, 1.0], [2.2, 1.0]])
+    assert which.tolist() == [1] and d[0] < 0.02
+    # A bearing sigma (a real beam's width) widens the covariance along the wall only.
+    wide = detect_wall_ends(scan, 0.01, bearing_sigma=math.radians(0.5))
+    np.testing.assert_allclose(wide.points, ends.points)
+    u = ends.direction
+    along = np.einsum("ki,kij,kj->k", u, ends.covariances, u)
+    along_wide = np.einsum("ki,kij,kj->k", u, wide.covariances, u)
+    n = np.stack([-u[:, 1], u[:, 0]], -1)
+    assert np.all(along_wide > along + (1.0 * math.radians(0.5)) ** 2)
+    np.testing.assert_allclose(np.einsum("ki,kij,kj->k", n, wide.covariances, n),
+                               np.einsum("ki,kij,kj->k", n, ends.covariances, n))
