@@ -158,7 +158,9 @@ def _one_side(r: NDArray[np.float64], ang: NDArray[np.float64], sig: NDArray[np.
     gap = np.hypot(*(t_end[:, None] * ray_end - pk).T)  # along the wall, between the two rays
     # A real beam is not a ray: where it covers the edge only in part it can still return the near
     # surface, so the end seen from here can be off by a share of its width (bearing_sigma).
-    along = np.sqrt(gap * gap / 12.0 + (np.hypot(pk[:, 0], pk[:, 1]) * bearing_sigma / np.maximum(cos_inc, 1e-3)) ** 2)
+    along = gap / math.sqrt(12.0)
+    if bearing_sigma > 0:
+        along = np.hypot(along, np.hypot(pk[:, 0], pk[:, 1]) * bearing_sigma / np.maximum(cos_inc, 1e-3))
     return k, point, along, sig_k, -u
 
 
