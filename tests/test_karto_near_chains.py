@@ -171,3 +171,32 @@ def test_moved_nodes_bounds_every_point_shift():
     assert moved.tolist() == [False, False, False, True, True, False, False]
     fake.params = GraphSlamParams()  # 0: every grid is drawn again
     assert GraphFrontend._moved_nodes(fake, before, after) is None
+
+
+def test_optimize_compares_the_poses_before_the_solve(office_frames):
+    """optimize hands _moved_nodes the poses before the back end moved them, not the graph's live array.
+
+    (``graph.poses`` is a view the setter writes into; kept as is, before and after were the same
+    array and every grid counted as unmoved.)
+    """
+    from slam2d.backends.base import OptimizationResult
+
+    front = GraphFrontend(GraphSlamParams(grid_keep_tolerance=0.005))
+    for frame in office_frames[:60]:
+        front.process(frame)
+    assert front.graph.num_edges > 0
+    shifted = front.graph.poses.copy()
+    shifted[1:, 0] += 0.5  # every node but the first moves 0.5 m
+
+    class Shift:
+        def optimize(self, graph):
+            return OptimizationResult(poses=shifted, cost_before=1.0, cost_after=0.0, iterations=1,
+                                      converged=True, wall_s=0.0)
+
+    seen = {}
+    real = front._moved_nodes
+    front._moved_nodes = lambda before, after: seen.setdefault("moved", real(before, after))
+    front.backend = Shift()
+    front.optimize()
+    assert np.array_equal(front.graph.poses, shifted)
+    assert seen["moved"][1:].all() and not seen["moved"][0]

@@ -1375,7 +1375,7 @@ class GraphFrontend:
             return 0.0, 0.0
         res = (self.backend.optimize(self.graph) if self.wall_ends is None
                else self.wall_ends.optimize(self.backend, self.graph))
-        before = self.graph.poses
+        before = self.graph.poses.copy()  # the setter below writes into the array `poses` returns
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses
         else:
