@@ -373,7 +373,7 @@ _DERIVE_BLOCK = 8
 
 @njit(cache=True)
 def _derive_grid(dst, dox, doy, src, sox, soy, resolution, oc, orow, r0, r1, c0, c1,
-                 wx, wy, wsig, wkept, xx, xy, xsig, lo_x, lo_y, hi_x, hi_y):
+                 wx, wy, wsig, wkept, xx, xy, xsig, lo_x, lo_y, hi_x, hi_y, block=_DERIVE_BLOCK):
     """Start a grid from another one drawn from mostly the same scans; returns (ok, the points still to draw).
 
     ``src`` holds, in its cells [r0, r1] x [c0, c1] (already clipped to ``dst``), the final values of
@@ -388,45 +388,73 @@ def _derive_grid(dst, dox, doy, src, sox, soy, resolution, oc, orow, r0, r1, c0,
     final (max-combining is order-free), as drawing every wanted point inside the box would.
     """
     n = wx.shape[0]
+    # The kept points' cells in dst (checked against src's) and kernel half-widths.
+    cu = np.empty(n, np.int64)
+    cv = np.empty(n, np.int64)
+    hw = np.empty(n, np.int64)
     for k in range(n):
-        if wkept[k]:
-            if (int(math.floor((wx[k] - dox) / resolution)) != int(math.floor((wx[k] - sox) / resolution)) + oc
-                    or int(math.floor((wy[k] - doy) / resolution)) != int(math.floor((wy[k] - soy) / resolution)) + orow):
-                return False, np.zeros(0, np.int64)
-    # The copied cells in dst: rows [R0, R1], cols [C0, C1].
+        cu[k] = int(math.floor((wx[k] - dox) / resolution))
+        cv[k] = int(math.floor((wy[k] - doy) / resolution))
+        hw[k] = int(math.ceil(2.0 * wsig[k] / resolution))
+        if wkept[k] and (cu[k] != int(math.floor((wx[k] - sox) / resolution)) + oc
+                         or cv[k] != int(math.floor((wy[k] - soy) / resolution)) + orow):
+            return False, np.zeros(0, np.int64)
+    # The copied cells in dst: rows [R0, R1], cols [C0, C1], in blocks of B x B.
     R0 = r0 + orow
     R1 = r1 + orow
     C0 = c0 + oc
     C1 = c1 + oc
-    B = _DERIVE_BLOCK
+    B = block
     copy = R0 <= R1 and C0 <= C1
     nbr = (R1 - R0) // B + 1 if copy else 0
     nbc = (C1 - C0) // B + 1 if copy else 0
     mark = np.zeros((nbr + 1, nbc + 1), np.int64)  # prefix sums of the cleared blocks
     if copy:
-        for i in range(R1 - R0 + 1):
-            dst[R0 + i, C0:C1 + 1] = src[r0 + i, c0:c1 + 1]
-        for k in range(xx.shape[0]):
-            half = int(math.ceil(2.0 * xsig[k] / resolution))
-            cu = int(math.floor((xx[k] - sox) / resolution)) + oc
-            cv = int(math.floor((xy[k] - soy) / resolution)) + orow
-            a0 = max(cv - half, R0)
-            a1 = min(cv + half, R1)
-            b0 = max(cu - half, C0)
-            b1 = min(cu + half, C1)
+        # Blocks a dropped point's kernel reaches are cleared; of the others only those a kept
+        # point's kernel reaches hold anything in src, so only those are copied (a grid is mostly
+        # empty: copying it whole would cost about what drawing does).
+        held = np.zeros((nbr, nbc), np.bool_)
+        for k in range(xx.shape[0] + n):
+            if k < xx.shape[0]:
+                half = int(math.ceil(2.0 * xsig[k] / resolution))
+                u = int(math.floor((xx[k] - sox) / resolution)) + oc
+                v = int(math.floor((xy[k] - soy) / resolution)) + orow
+            else:
+                q = k - xx.shape[0]
+                if not wkept[q]:
+                    continue
+                half = hw[q]
+                u = cu[q]
+                v = cv[q]
+            a0 = max(v - half, R0)
+            a1 = min(v + half, R1)
+            b0 = max(u - half, C0)
+            b1 = min(u + half, C1)
             if a0 > a1 or b0 > b1:
                 continue
             for bi in range((a0 - R0) // B, (a1 - R0) // B + 1):
                 for bj in range((b0 - C0) // B, (b1 - C0) // B + 1):
-                    mark[bi + 1, bj + 1] = 1
+                    if k < xx.shape[0]:
+                        mark[bi + 1, bj + 1] = 1
+                    else:
+                        held[bi, bj] = True
         for bi in range(nbr):
-            for bj in range(nbc):
-                if mark[bi + 1, bj + 1]:
-                    dst[R0 + bi * B:min(R0 + (bi + 1) * B, R1 + 1), C0 + bj * B:min(C0 + (bj + 1) * B, C1 + 1)] = 0
-        for bi in range(nbr + 1):
-            for bj in range(nbc + 1):
-                if bi and bj:
-                    mark[bi, bj] += mark[bi - 1, bj] + mark[bi, bj - 1] - mark[bi - 1, bj - 1]
+            bj = 0
+            while bj < nbc:
+                if not held[bi, bj] or mark[bi + 1, bj + 1]:
+                    bj += 1
+                    continue
+                run = bj
+                while run < nbc and held[bi, run] and not mark[bi + 1, run + 1]:
+                    run += 1
+                c_lo = C0 + bj * B
+                c_hi = min(C0 + run * B, C1 + 1)
+                for r in range(R0 + bi * B, min(R0 + (bi + 1) * B, R1 + 1)):
+                    dst[r, c_lo:c_hi] = src[r - orow, c_lo - oc:c_hi - oc]
+                bj = run
+        for bi in range(1, nbr + 1):
+            for bj in range(1, nbc + 1):
+                mark[bi, bj] += mark[bi - 1, bj] + mark[bi, bj - 1] - mark[bi - 1, bj - 1]
     out = np.empty(n, np.int64)
     m = 0
     for k in range(n):
@@ -435,14 +463,12 @@ def _derive_grid(dst, dox, doy, src, sox, soy, resolution, oc, orow, r0, r1, c0,
         if not (x >= lo_x and x <= hi_x and y >= lo_y and y <= hi_y):
             continue
         if wkept[k] and copy:
-            half = int(math.ceil(2.0 * wsig[k] / resolution))
-            cu = int(math.floor((x - dox) / resolution))
-            cv = int(math.floor((y - doy) / resolution))
-            if cv - half >= R0 and cv + half <= R1 and cu - half >= C0 and cu + half <= C1:
-                bi0 = (cv - half - R0) // B
-                bi1 = (cv + half - R0) // B + 1
-                bj0 = (cu - half - C0) // B
-                bj1 = (cu + half - C0) // B + 1
+            half = hw[k]
+            if cv[k] - half >= R0 and cv[k] + half <= R1 and cu[k] - half >= C0 and cu[k] + half <= C1:
+                bi0 = (cv[k] - half - R0) // B
+                bi1 = (cv[k] + half - R0) // B + 1
+                bj0 = (cu[k] - half - C0) // B
+                bj1 = (cu[k] + half - C0) // B + 1
                 if mark[bi1, bj1] - mark[bi0, bj1] - mark[bi1, bj0] + mark[bi0, bj0] == 0:
                     continue  # its whole kernel is in the copy, untouched by a dropped scan
         out[m] = k
