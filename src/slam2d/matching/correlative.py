@@ -2171,6 +2171,7 @@ class GridCache:
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
         wmin, wmax = (min(wanted), max(wanted)) if wanted else (0, -1)
+        lx, ly, hx, hy = float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
         for k, e in enumerate(self._entries):
             if e["span"][1] < wmin or e["span"][0] > wmax:
                 continue  # no node in common (a cheap test first: up to 32 entries per request)
@@ -2186,11 +2187,12 @@ class GridCache:
                 reach = max(reach, e["reach"])
             else:  # what _extent of nothing (inf, -inf, 2 cells) leaves the entry's at
                 xlo, xhi, reach = e["ext_lo"], e["ext_hi"], e["reach"]
-            # The reference points (with their smear) the query can reach must lie in the grid.
-            need_lo = np.maximum(lo, xlo - reach)
-            need_hi = np.minimum(hi, xhi + reach)
-            empty = np.any(need_lo > need_hi)
-            if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
+            # The reference points (with their smear) the query can reach must lie in the grid
+            # (in Python floats: the same comparisons as on the 2-vectors, without numpy's per-call cost).
+            nlx, nly = max(lx, float(xlo[0]) - reach), max(ly, float(xlo[1]) - reach)
+            nhx, nhy = min(hx, float(xhi[0]) + reach), min(hy, float(xhi[1]) + reach)
+            empty = nlx > nhx or nly > nhy
+            if not empty and not (nlx >= e["lo"][0] and nly >= e["lo"][1] and nhx <= e["hi"][0] and nhy <= e["hi"][1]):
                 continue
             if missing:
                 # Repeated cells are skipped only while every point drawn has had one sigma.
