@@ -277,3 +277,43 @@ def test_compiled_pairwise_sum_is_numpys():
         for _ in range(20):
             a = rng.normal(size=n) * 10 ** rng.uniform(-3, 3, n)
             assert 0.0 + _pairwise_sum(a, 0, n) == a.sum()
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_grid_started_from_a_drawn_one_equals_a_fresh_smear(uniform):
+    """A new entry's grid copied from a drawn entry (its dropped scans cleared, the rest drawn) is the
+    grid drawn afresh wherever requests read, through later scans and growing boxes too."""
+    rng = np.random.default_rng(21)
+    parts, sig = [], []
+    for i in range(40):  # a robot walking along x, each scan seeing walls around it
+        p = _walls(rng, n_walls=3, extent=3.0) + [0.25 * i, 0.0]
+        parts.append(p)
+        sig.append(np.full(len(p), 0.03) if uniform else rng.uniform(0.01, 0.08, len(p)))
+    m = CorrelativeMatcher()
+    q = _walls(rng, n_walls=2, extent=1.5)[::4]
+    priors = [np.array([0.25 * i + rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), 0.1]) for i in range(40)]
+    grids = {}
+    for derive in (True, False):
+        cache = GridCache(m, lambda i: (parts[i], sig[i]), max_extra=3, margin=0.5)
+        cache.derive = derive
+        got = []
+        for i in range(8, 40):
+            nodes = list(range(i - 8, i))
+            lo, hi = m.search_box(q, priors[i])
+            e = cache.reserve(nodes, lo, hi)
+            g, ox, oy = cache.materialize(e, lo, hi)
+            rows, cols = g.shape
+            pts = np.vstack([parts[n] for n in sorted(e["nodes"])])
+            whole = np.zeros_like(g)
+            smear_points(whole, ox, oy, m.resolution, pts[:, 0].copy(), pts[:, 1].copy(),
+                         np.concatenate([sig[n] for n in sorted(e["nodes"])]))
+            c0, r0 = np.maximum(np.floor((lo - [ox, oy]) / m.resolution).astype(int), 0)
+            c1, r1 = np.floor((hi - [ox, oy]) / m.resolution).astype(int)
+            c1, r1 = min(c1, cols - 1), min(r1, rows - 1)
+            assert np.array_equal(g[r0 : r1 + 1, c0 : c1 + 1], whole[r0 : r1 + 1, c0 : c1 + 1])
+            got.append((ox, oy, g[r0 : r1 + 1, c0 : c1 + 1].copy()))
+        grids[derive] = got
+        if derive:
+            assert cache.derived > 0
+    for (ax, ay, a), (bx, by, b) in zip(grids[True], grids[False]):
+        assert (ax, ay) == (bx, by) and np.array_equal(a, b)

@@ -367,6 +367,115 @@ def _inside_not(px, py, lo_x, lo_y, hi_x, hi_y, old_lo_x, old_lo_y, old_hi_x, ol
     return out[:m]
 
 
+# A derived grid (see _derive_grid) marks where a dropped scan's kernels reach in blocks of this many cells a side.
+_DERIVE_BLOCK = 8
+
+
+@njit(cache=True)
+def _derive_grid(dst, dox, doy, src, sox, soy, resolution, oc, orow, r0, r1, c0, c1,
+                 wx, wy, wsig, wkept, xx, xy, xsig, lo_x, lo_y, hi_x, hi_y, block=_DERIVE_BLOCK):
+    """Start a grid from another one drawn from mostly the same scans; returns (ok, the points still to draw).
+
+    ``src`` holds, in its cells [r0, r1] x [c0, c1] (already clipped to ``dst``), the final values of
+    a set of scans: the kept ones (``wkept`` per point of the wanted scans wx, wy, wsig) and dropped
+    ones (xx, xy, xsig). A cell of ``dst`` is ``src``'s cell (row + ``orow``, col + ``oc``), which is
+    exact only when every kept point snaps to the same cell in both grids (checked; ``ok`` False
+    when not, and ``dst`` is left untouched). The copy is cleared in every block a dropped point's
+    kernel reaches, so every copied cell is the max over kept points only. The points returned
+    are the wanted ones inside the box (lo, hi) (the caller's box plus its smear reach) that are
+    not kept, or whose kernel reaches a cleared block or leaves the copied cells: drawn, they make
+    every cell whose kernels all come from inside the box final, and every other one at most
+    final (max-combining is order-free), as drawing every wanted point inside the box would.
+    """
+    n = wx.shape[0]
+    # The kept points' cells in dst (checked against src's) and kernel half-widths.
+    cu = np.empty(n, np.int64)
+    cv = np.empty(n, np.int64)
+    hw = np.empty(n, np.int64)
+    for k in range(n):
+        cu[k] = int(math.floor((wx[k] - dox) / resolution))
+        cv[k] = int(math.floor((wy[k] - doy) / resolution))
+        hw[k] = int(math.ceil(2.0 * wsig[k] / resolution))
+        if wkept[k] and (cu[k] != int(math.floor((wx[k] - sox) / resolution)) + oc
+                         or cv[k] != int(math.floor((wy[k] - soy) / resolution)) + orow):
+            return False, np.zeros(0, np.int64)
+    # The copied cells in dst: rows [R0, R1], cols [C0, C1], in blocks of B x B.
+    R0 = r0 + orow
+    R1 = r1 + orow
+    C0 = c0 + oc
+    C1 = c1 + oc
+    B = block
+    copy = R0 <= R1 and C0 <= C1
+    nbr = (R1 - R0) // B + 1 if copy else 0
+    nbc = (C1 - C0) // B + 1 if copy else 0
+    mark = np.zeros((nbr + 1, nbc + 1), np.int64)  # prefix sums of the cleared blocks
+    if copy:
+        # Blocks a dropped point's kernel reaches are cleared; of the others only those a kept
+        # point's kernel reaches hold anything in src, so only those are copied (a grid is mostly
+        # empty: copying it whole would cost about what drawing does).
+        held = np.zeros((nbr, nbc), np.bool_)
+        for k in range(xx.shape[0] + n):
+            if k < xx.shape[0]:
+                half = int(math.ceil(2.0 * xsig[k] / resolution))
+                u = int(math.floor((xx[k] - sox) / resolution)) + oc
+                v = int(math.floor((xy[k] - soy) / resolution)) + orow
+            else:
+                q = k - xx.shape[0]
+                if not wkept[q]:
+                    continue
+                half = hw[q]
+                u = cu[q]
+                v = cv[q]
+            a0 = max(v - half, R0)
+            a1 = min(v + half, R1)
+            b0 = max(u - half, C0)
+            b1 = min(u + half, C1)
+            if a0 > a1 or b0 > b1:
+                continue
+            for bi in range((a0 - R0) // B, (a1 - R0) // B + 1):
+                for bj in range((b0 - C0) // B, (b1 - C0) // B + 1):
+                    if k < xx.shape[0]:
+                        mark[bi + 1, bj + 1] = 1
+                    else:
+                        held[bi, bj] = True
+        for bi in range(nbr):
+            bj = 0
+            while bj < nbc:
+                if not held[bi, bj] or mark[bi + 1, bj + 1]:
+                    bj += 1
+                    continue
+                run = bj
+                while run < nbc and held[bi, run] and not mark[bi + 1, run + 1]:
+                    run += 1
+                c_lo = C0 + bj * B
+                c_hi = min(C0 + run * B, C1 + 1)
+                for r in range(R0 + bi * B, min(R0 + (bi + 1) * B, R1 + 1)):
+                    dst[r, c_lo:c_hi] = src[r - orow, c_lo - oc:c_hi - oc]
+                bj = run
+        for bi in range(1, nbr + 1):
+            for bj in range(1, nbc + 1):
+                mark[bi, bj] += mark[bi - 1, bj] + mark[bi, bj - 1] - mark[bi - 1, bj - 1]
+    out = np.empty(n, np.int64)
+    m = 0
+    for k in range(n):
+        x = wx[k]
+        y = wy[k]
+        if not (x >= lo_x and x <= hi_x and y >= lo_y and y <= hi_y):
+            continue
+        if wkept[k] and copy:
+            half = hw[k]
+            if cv[k] - half >= R0 and cv[k] + half <= R1 and cu[k] - half >= C0 and cu[k] + half <= C1:
+                bi0 = (cv[k] - half - R0) // B
+                bi1 = (cv[k] + half - R0) // B + 1
+                bj0 = (cu[k] - half - C0) // B
+                bj1 = (cu[k] + half - C0) // B + 1
+                if mark[bi1, bj1] - mark[bi0, bj1] - mark[bi1, bj0] + mark[bi0, bj0] == 0:
+                    continue  # its whole kernel is in the copy, untouched by a dropped scan
+        out[m] = k
+        m += 1
+    return True, out[:m]
+
+
 @njit(cache=True)
 def _rotated_extent(c, s, q):
     """Bounding box of the points q rotated by every (cos, sin) pair, and their largest range."""
@@ -1986,6 +2095,11 @@ class GridCache:
         self.draws = 0  # grids actually drawn
         self.smeared = 0  # points smeared into grids (book-keeping)
         self.kept = 0  # entries kept across an optimisation (see invalidate)
+        # A new entry's grid starts as a copy of a drawn entry's holding most of its scans (see
+        # materialize); False draws every new grid afresh (the same grids, tested).
+        self.derive = True
+        self.derived = 0  # new grids started from a drawn one
+        self._epoch = 0  # optimisations seen: a grid drawn before one holds scans at old poses
 
     def invalidate(self, moved=None) -> None:
         """Forget grids drawn at poses that have changed: all of them, or those holding a ``moved`` node.
@@ -1994,6 +2108,7 @@ class GridCache:
         entries whose scans all moved less than it tolerates: their grids and bounds stay as
         drawn, scans added later are drawn at their new poses.
         """
+        self._epoch += 1
         if moved is None:
             self._entries.clear()
             self._known[:] = False
@@ -2056,6 +2171,7 @@ class GridCache:
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
         wmin, wmax = (min(wanted), max(wanted)) if wanted else (0, -1)
+        lx, ly, hx, hy = float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
         for k, e in enumerate(self._entries):
             if e["span"][1] < wmin or e["span"][0] > wmax:
                 continue  # no node in common (a cheap test first: up to 32 entries per request)
@@ -2071,11 +2187,12 @@ class GridCache:
                 reach = max(reach, e["reach"])
             else:  # what _extent of nothing (inf, -inf, 2 cells) leaves the entry's at
                 xlo, xhi, reach = e["ext_lo"], e["ext_hi"], e["reach"]
-            # The reference points (with their smear) the query can reach must lie in the grid.
-            need_lo = np.maximum(lo, xlo - reach)
-            need_hi = np.minimum(hi, xhi + reach)
-            empty = np.any(need_lo > need_hi)
-            if not empty and not (np.all(need_lo >= e["lo"]) and np.all(need_hi <= e["hi"])):
+            # The reference points (with their smear) the query can reach must lie in the grid
+            # (in Python floats: the same comparisons as on the 2-vectors, without numpy's per-call cost).
+            nlx, nly = max(lx, float(xlo[0]) - reach), max(ly, float(xlo[1]) - reach)
+            nhx, nhy = min(hx, float(xhi[0]) + reach), min(hy, float(xhi[1]) + reach)
+            empty = nlx > nhx or nly > nhy
+            if not empty and not (nlx >= e["lo"][0] and nly >= e["lo"][1] and nhx <= e["hi"][0] and nhy <= e["hi"][1]):
                 continue
             if missing:
                 # Repeated cells are skipped only while every point drawn has had one sigma.
@@ -2090,6 +2207,7 @@ class GridCache:
             self._entries.insert(0, self._entries.pop(k))
             return e
         order_nodes = sorted(wanted)
+        donor = self._donor(wanted, wmin, wmax) if self.derive else None
         xlo, xhi, reach = self._extent(order_nodes)
         # Room to grow by ``margin`` around the points (the next scans extend them), but never
         # far beyond the query's reach (a long buffer in open space would make a huge grid).
@@ -2101,11 +2219,73 @@ class GridCache:
              "hi": np.array([ox + (cols - 1) * res, oy + (rows - 1) * res]),
              "ext_lo": xlo, "ext_hi": xhi, "reach": reach, "sigma": self._sigma_of(order_nodes),
              "parts": [], "order": list(order_nodes),
-             "span": (order_nodes[0], order_nodes[-1]) if order_nodes else (0, -1)}  # least and most node
+             "span": (order_nodes[0], order_nodes[-1]) if order_nodes else (0, -1),  # least and most node
+             "epoch": self._epoch, "donor": donor}
         self._entries.insert(0, e)
-        del self._entries[self.max_entries:]
+        if len(self._entries) > self.max_entries:
+            del self._entries[self.max_entries:]
+            # An entry not drawn yet keeps its donor only while the donor is cached (memory).
+            live = {id(x) for x in self._entries}
+            for x in self._entries:
+                if x.get("donor") is not None and id(x["donor"]) not in live:
+                    x["donor"] = None
         self.builds += 1
         return e
+
+    def _donor(self, wanted: set, wmin: int, wmax: int) -> dict | None:
+        """A drawn entry of this epoch whose drawn scans are at least half of ``wanted`` (the most shared), or None."""
+        best, most = None, (len(wanted) + 1) // 2 - 1
+        for e in self._entries:
+            if e["grid"] is None or not e["n_drawn"] or e["epoch"] != self._epoch:
+                continue
+            if e["span"][1] < wmin or e["span"][0] > wmax:
+                continue
+            common = len(wanted.intersection(e["order"][: e["n_drawn"]]))
+            if common > most:
+                best, most = e, common
+        return best
+
+    def _derive(self, e: dict, new) -> bool:
+        """Start the new entry's grid from its donor's (see :func:`_derive_grid`) and draw the rest; False if it cannot."""
+        d = e.pop("donor", None)
+        if d is None or d["epoch"] != self._epoch or d["epoch"] != e["epoch"] or d["grid"] is None:
+            return False
+        res = self.matcher.resolution
+        g, ox, oy = e["grid"]
+        sg, sox, soy = d["grid"]
+        oc = int(round((sox - ox) / res))
+        orow = int(round((soy - oy) / res))
+        m = e["reach"] + 2.0 * res
+        # The donor's exact cells (inside its drawn box), clipped to the new grid and its box plus the reach.
+        dlo, dhi = d["drawn"]
+        c0 = max(int(math.floor((dlo[0] - sox) / res)) + 1, -oc, int(math.floor((new[0][0] - m - sox) / res)))
+        r0 = max(int(math.floor((dlo[1] - soy) / res)) + 1, -orow, int(math.floor((new[0][1] - m - soy) / res)))
+        c1 = min(int(math.floor((dhi[0] - sox) / res)) - 1, g.shape[1] - 1 - oc, sg.shape[1] - 1,
+                 int(math.floor((new[1][0] + m - sox) / res)))
+        r1 = min(int(math.floor((dhi[1] - soy) / res)) - 1, g.shape[0] - 1 - orow, sg.shape[0] - 1,
+                 int(math.floor((new[1][1] + m - soy) / res)))
+        c0, r0 = max(c0, 0), max(r0, 0)
+        drawn = set(d["order"][: d["n_drawn"]])
+        parts = self._parts(e)
+        pts, sig = _concat(parts)
+        kept = np.repeat(np.array([n in drawn for n in e["order"]], dtype=np.bool_),
+                         np.array([p[0].shape[0] for p in parts], dtype=np.int64))
+        gone = [p for n, p in zip(d["order"][: d["n_drawn"]], d["parts"]) if n not in e["nodes"]]
+        xpts, xsig = _concat(gone)
+        px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        ok, todo = _derive_grid(g, ox, oy, sg, sox, soy, res, oc, orow, r0, r1, c0, c1, px, py, sig, kept,
+                                np.ascontiguousarray(xpts[:, 0]), np.ascontiguousarray(xpts[:, 1]), xsig,
+                                new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
+        if not ok:
+            return False
+        if todo.size:
+            _smear(g, ox, oy, res, px[todo], py[todo], np.ascontiguousarray(sig[todo]), False)
+            self.smeared += int(todo.size)
+        # A full cell (a kernel's centre) no longer means its whole kernel is drawn (the clearing may
+        # have cut it), so repeated cells are never skipped in this grid.
+        e["sigma"] = None
+        self.derived += 1
+        return True
 
     def materialize(self, e: dict, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         """The entry's grid, drawn where a query inside (lo, hi) can read it.
@@ -2138,6 +2318,12 @@ class GridCache:
         m = e["reach"] + 2.0 * res
         same = e["sigma"] is not None  # one sigma for every point: repeated cells can be skipped
         g, ox, oy = grid
+        if old is None and e.get("donor") is not None and self._derive(e, new):
+            e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
+            e["n_drawn"] = len(parts)
+            e["drawn_reach"] = m
+            return grid
+        e.pop("donor", None)  # drawn without it: let its grid go
         if old is not None and not inside and e["n_drawn"]:
             pts, sig = _concat(parts[: e["n_drawn"]])
             px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
