@@ -705,7 +705,13 @@ class GraphFrontend:
     def _degenerate(self, cov: NDArray[np.float64], matcher: CorrelativeMatcher | None = None) -> bool:
         """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
         size = (matcher or self.sequential).search_size
-        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * size**2)
+        limit = 0.99 * size**2
+        # The largest eigenvalue lies between the larger diagonal entry and that plus the off-diagonal
+        # one (Gershgorin): only a covariance near the limit needs the eigenvalue (most are far below).
+        a, b, d = float(cov[0, 0]), abs(float(cov[1, 0])), float(cov[1, 1])  # eigvalsh reads the lower triangle
+        if max(a, d) + b < limit * (1.0 - 1e-9):
+            return False
+        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= limit)
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
                              values: dict[str, float] | None = None, last_response: float = math.nan,
@@ -1044,7 +1050,7 @@ class GraphFrontend:
         fail = 0.5 * link
         bound = None
         if not hot:
-            bound = self._seq_cache.bound(entry, points, pose, stop=link)
+            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail)
             if bound < fail:
                 self._count("near_skipped_bound")
                 return "failed"
@@ -1062,7 +1068,7 @@ class GraphFrontend:
         if bound is None:
             # Bound-first would not have matched a chain bounded in [fail, link), nor failed it.
             self._count("near_matched_before_bound")
-            bound = self._seq_cache.bound(entry, points, pose, stop=link)
+            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail)
             if fail <= bound < link:
                 self._count("near_skipped_bound_link")
                 return None

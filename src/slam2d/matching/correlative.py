@@ -80,6 +80,10 @@ _PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
+# Angle offsets that depend only on a matcher's settings, computed once (see _coarse_angles); never written to.
+_ANGLES: dict = {}
+# A match's compiled steps run as one call (_coarse_fine); False runs them one by one (tests compare the two).
+_FUSED = True
 # Response bounds of at least this many points x headings share their headings among threads.
 _PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
@@ -770,11 +774,15 @@ def _range_max(table, r_lo, r_hi, c_lo, c_hi):
 
 
 @njit(cache=True, inline="always")
-def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop):
-    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``."""
+def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop,
+                  give_up=0):
+    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``,
+    and gives up (returning the part summed, below ``give_up``) once a full cell for every point still
+    to come could not lift it to ``give_up``."""
     rows, cols = table.shape[1], table.shape[2]
+    n = qx.shape[0]
     total = 0
-    for k in range(qx.shape[0]):
+    for k in range(n):
         h = half + rng[k] * delta
         c_lo = max(int(math.floor((wx0[k] - h - origin_x) / resolution)) // block, 0)
         c_hi = min(int(math.floor((wx0[k] + h - origin_x) / resolution)) // block, cols - 1)
@@ -782,7 +790,7 @@ def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0
         r_hi = min(int(math.floor((wy0[k] + h - origin_y) / resolution)) // block, rows - 1)
         if c_lo <= c_hi and r_lo <= r_hi:
             total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
-        if total >= stop:
+        if total >= stop or total + 255 * (n - 1 - k) < give_up:
             break
     return total
 
@@ -804,7 +812,7 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     """
     rng, table = _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta)
     return _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, 0,
-                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64))
+                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64), -1, stop)
 
 
 @njit(cache=True)
@@ -843,9 +851,16 @@ def _bound_levels(rng, block, resolution, trans, slack, delta):
 
 @njit(cache=True, nogil=True)
 def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, a0, a1,
-                trans, slack, delta, stop, splits, reached):
+                trans, slack, delta, stop, splits, reached, mark, top):
     """:func:`_pooled_response_bound` over the headings [a0, a1); returns ``stop`` as soon as it is
-    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it."""
+    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it.
+
+    ``mark`` (0 <= mark <= top <= stop; negative: the bound itself) asks only on which side of
+    ``mark`` and of ``top`` the bound lies: a square is summed only until it is known not to lift
+    the best so far to the next of the two it has not reached (``mark`` until the best reaches
+    it, then ``top``); a square that would reach it is summed in full, so the result is below
+    ``mark``, in [mark, top) or at least ``top`` exactly when the bound is.
+    """
     n = qx.shape[0]
     wx0 = np.empty(n)
     wy0 = np.empty(n)
@@ -874,8 +889,9 @@ def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y
             for k in range(n):
                 sx[k] = wx0[k] + dx
                 sy[k] = wy0[k] + dy
+            give_up = 0 if mark < 0 else (mark if best < mark else top)
             total = _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, sx, sy,
-                                  t + slack, delta, stop)
+                                  t + slack, delta, stop, give_up)
             if total < stop:
                 if total > best:
                     best = total
@@ -1339,6 +1355,74 @@ def _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt, angle
     return pose, best, raw, max(var, floor), runs
 
 
+
+@njit(cache=True)
+def _part_edge_in_band(resp, best, a_lo, n_ang, i_lo, j_lo, n_part, n_half, big):
+    """Whether a pose within the covariance band of ``best`` lies on an edge of the part
+    (angles [a_lo, a_lo + n_ang), translations n_part x n_part from (i_lo, j_lo)) that is not an
+    edge of the whole window (angles 0..2 n_half, translations 0..2 big)."""
+    thr = best - _COVARIANCE_BAND
+    a_hi = a_lo + n_ang - 1
+    i_hi = i_lo + n_part - 1
+    j_hi = j_lo + n_part - 1
+    for a in range(a_lo, a_hi + 1):
+        for i in range(i_lo, i_hi + 1):
+            for j in range(j_lo, j_hi + 1):
+                if resp[a, i, j] >= thr and (
+                        (a == a_lo and a_lo > 0) or (a == a_hi and a_hi < 2 * n_half)
+                        or (i == i_lo and i_lo > 0) or (i == i_hi and i_hi < 2 * big)
+                        or (j == j_lo and j_lo > 0) or (j == j_hi and j_hi < 2 * big)):
+                    return True
+    return False
+
+
+@njit(cache=True)
+def _coarse_fine(grid, origin_x, origin_y, resolution, q, px, py, pt, angles, order, big, i_lo, j_lo, n_part,
+                 a_lo, n_ang, check_edges, penalize, dvp, avp, min_dp, min_ap, chunk, heading_floor, refine,
+                 fine_angles, recentre, fine_floor, fine_fallback):
+    """A match's compiled steps in one call: the pruned coarse search of the part (or the whole
+    window) of :meth:`CorrelativeMatcher.match_near` around the prior (:func:`_score_poses_pruned`,
+    :func:`_finish_search`), the part's edge test, the covariance sums (:func:`_spread_sums`), the
+    coarse heading spread and the best response at the prior's heading, then the fine stage
+    (:func:`_fine_stage`); the same kernels on the same arguments as the separate calls, so the
+    same numbers. Returns (status: 0 done, 1 nothing responds, 2 the band reaches the part's
+    edge; coarse pose, best, raw, responses, offsets, covariance sums (norm, xx, yy, xy, edge),
+    heading variance, best at the prior's heading, fine pose, best, raw, theta variance, fine runs,
+    lookups)."""
+    n_steps = 2 * big + 1
+    sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
+    lookups = _score_poses_pruned(grid, origin_x, origin_y, resolution, q, px, py, pt, angles, order, big, 2, i_lo,
+                                  j_lo, n_part, px, py, pt, penalize, dvp, avp, min_dp, min_ap, -1.0, chunk, sums)
+    offs = (np.arange(n_steps) - big) * (2 * resolution)
+    pose, best, raw, resp = _finish_search(sums, q.shape[0], offs, angles, px, py, pt, px, py, pt, penalize, dvp,
+                                           avp, min_dp, min_ap)
+    status = 0
+    if check_edges:
+        if not best > 0.0:
+            status = 1
+        elif _part_edge_in_band(resp, best, a_lo, n_ang, i_lo, j_lo, n_part, (angles.shape[0] - 1) // 2, big):
+            status = 2
+    norm = sxx = syy = sxy = 0.0
+    edge = False
+    heading_var = 0.0
+    n_half = (angles.shape[0] - 1) // 2
+    at_prior = resp[n_half, 0, 0]
+    for i in range(n_steps):
+        for j in range(n_steps):
+            if resp[n_half, i, j] > at_prior:
+                at_prior = resp[n_half, i, j]
+    f_pose = pose.copy()
+    f_best, f_raw, f_var, runs = best, raw, 1.0, 0
+    if status == 0:
+        norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, px, py, pose[0], pose[1], best - _COVARIANCE_BAND)
+        heading_var = _heading_spread(resp, angles, best, heading_floor)
+        if refine and best > 0.0:
+            f_pose, f_best, f_raw, f_var, runs = _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt,
+                                                             fine_angles, penalize, dvp, avp, min_dp, min_ap,
+                                                             recentre, fine_floor, fine_fallback)
+    return (status, pose, best, raw, resp, offs, norm, sxx, syy, sxy, edge, heading_var, at_prior, f_pose, f_best,
+            f_raw, f_var, runs, lookups)
+
 # --------------------------------------------------------------------------- the matcher
 
 
@@ -1420,8 +1504,12 @@ class CorrelativeMatcher:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """World box (lo, hi) every query point can reach in the search window around ``prior``."""
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
-        n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
-        angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        key = ("box", angle_offset)
+        lin = _ANGLES.get(key)
+        if lin is None:
+            n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
+            lin = _ANGLES[key] = np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        angles = prior[2] + lin
         x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), np.ascontiguousarray(q))
         # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
         pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
@@ -1539,11 +1627,15 @@ class CorrelativeMatcher:
         return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
 
     def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0,
-                     tables: dict | None = None) -> float:
+                     tables: dict | None = None, mark: float | None = None) -> float:
         """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's).
 
         ``tables``: where the bound grid's sparse table is kept between calls (the caller empties
         it when the bound grid changes); without it the table is built for this call.
+        ``mark`` (at most ``stop``): the caller only asks whether the bound is below ``mark``, in
+        [mark, stop) or at least ``stop``; the value returned answers that as the bound itself
+        would (compared as ``bound < mark``, ``bound < stop``) but may be lower, which lets most
+        squares of the bound be summed in part.
         """
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
@@ -1551,10 +1643,14 @@ class CorrelativeMatcher:
             return 1.0
         if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
             return 0.0
-        angles, delta = self._bound_angles()
-        # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
-        # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
-        angles = angles[np.argsort(np.abs(angles), kind="stable")]
+        key = ("bound", self.coarse_angle_offset, self.coarse_angle_resolution, self.fine_angle_step)
+        got = _ANGLES.get(key)
+        if got is None:
+            angles, delta = self._bound_angles()
+            # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
+            # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
+            got = _ANGLES[key] = (angles[np.argsort(np.abs(angles), kind="stable")], delta)
+        angles, delta = got
         n = q.shape[0] * _SCALE
         qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
         trans, slack = self._bound_window()
@@ -1569,11 +1665,13 @@ class CorrelativeMatcher:
                 table = tables["table"] = _range_max_levels(pooled, levels)
         reached = np.zeros(1, np.int64)
         parts = {}
+        # The least sums the caller's comparisons (sum / n against mark and stop) put at or above them.
+        low, top = (-1, cut) if mark is None else (_least_total(min(mark, stop), n), _least_total(stop, n))
 
         def over(a0, a1):
             parts[a0] = _bound_over(table, _BOUND_BLOCK, origin_x, origin_y, self.resolution, qx, qy, rng,
                                     float(prior[0]), float(prior[1]), float(prior[2]), angles, a0, a1, trans, slack,
-                                    delta, cut, _BOUND_SPLITS, reached)
+                                    delta, cut, _BOUND_SPLITS, reached, low, top)
 
         # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
         # result (``stop``, or the best over every heading) does not depend on which did.
@@ -1666,27 +1764,31 @@ class CorrelativeMatcher:
         numpy's, bit for bit (:func:`_spread_sums`); the others in numpy below.
         """
         if own == 0.0 and resp.ndim == 3:
-            norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]),
-                                                     float(pose[0]), float(pose[1]), best - _COVARIANCE_BAND)
-            if norm <= 1e-12 or best <= 0:
-                return np.diag([MAX_VARIANCE, MAX_VARIANCE])
-            floor = 0.1 * step_m * step_m
-            cov = np.zeros((2, 2))
-            cov[0, 0] = max(sxx / norm, floor)
-            cov[1, 1] = max(syy / norm, floor)
-            cov[0, 1] = cov[1, 0] = sxy / norm
-            cov /= best
-            if edge:
-                # As in the general case below, with the same sums (the mask's extent along the
-                # main axis compiled too).
-                vals, vecs = np.linalg.eigh(cov)
-                lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
-                                       float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
-                if hi - lo >= 0.5 * self.search_size:
-                    vals[-1] = max(vals[-1], self.search_size**2)
-                    cov = (vecs * vals) @ vecs.T
-            return cov
+            sums = _spread_sums(resp, offs, float(center[0]), float(center[1]), float(pose[0]), float(pose[1]),
+                                best - _COVARIANCE_BAND)
+            return self._covariance_from_sums(*sums, resp, offs, center, pose, best, step_m)
         return self._positional_covariance_general(resp, offs, center, pose, best, step_m, own)
+
+    def _covariance_from_sums(self, norm, sxx, syy, sxy, edge, resp, offs, center, pose, best, step_m):
+        """:meth:`_positional_covariance`'s usual case from the sums of :func:`_spread_sums`."""
+        if norm <= 1e-12 or best <= 0:
+            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+        floor = 0.1 * step_m * step_m
+        cov = np.zeros((2, 2))
+        cov[0, 0] = max(sxx / norm, floor)
+        cov[1, 1] = max(syy / norm, floor)
+        cov[0, 1] = cov[1, 0] = sxy / norm
+        cov /= best
+        if edge:
+            # As in the general case below, with the same sums (the mask's extent along the
+            # main axis compiled too).
+            vals, vecs = np.linalg.eigh(cov)
+            lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                   float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
+            if hi - lo >= 0.5 * self.search_size:
+                vals[-1] = max(vals[-1], self.search_size**2)
+                cov = (vecs * vals) @ vecs.T
+        return cov
 
     def _positional_covariance_general(self, resp, offs, center, pose, best, step_m, own=0.0):
         surface = resp.max(axis=0) if resp.ndim == 3 else resp  # best response over angles, per (y, x)
@@ -1752,6 +1854,14 @@ class CorrelativeMatcher:
         g, ox, oy = grid
         origin = (ox, oy)
         res = self.resolution
+        if _FUSED and not self.response_expansion and (penalize or not (self.branch_and_bound
+                                                             and 2 * self._coarse_half + 1 >= _BNB_MIN_STEPS)):
+            # The usual match (a pruned exhaustive coarse search, see _search) in one compiled call.
+            big = self._coarse_half
+            angles, order = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
+            n_steps = 2 * big + 1
+            return self._fused_match(g, ox, oy, q, prior, angles, order, 0, 0, n_steps, 0, angles.shape[0], False,
+                                     penalize, refine)
         offset = self.coarse_angle_offset
         lookups = 0
         for _ in range(4 if self.response_expansion else 1):
@@ -1772,6 +1882,40 @@ class CorrelativeMatcher:
         prior_drop = float(best - max(resp[n_half].max(), 0.0))
         return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
                                   refine, lookups)
+
+    def _fused_match(self, g, ox, oy, q, prior, angles, order, i_lo, j_lo, n_part, a_lo, n_ang, part, penalize,
+                     refine) -> MatchResult | None:
+        """:meth:`match` (``part`` False: the whole window) or :meth:`match_near`'s search of a part through
+        :func:`_coarse_fine`, the same steps and numbers as their separate calls; None where the part
+        cannot stand for the whole window."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        fine, _ = _fine_angles(self.coarse_angle_resolution, self.fine_angle_step)
+        px, py, pt = float(prior[0]), float(prior[1]), float(prior[2])
+        (status, pose, best, raw, resp, offs, norm, sxx, syy, sxy, edge, heading_var, at_prior, f_pose, f_best, f_raw,
+         f_var, runs, lookups) = _coarse_fine(
+            g, float(ox), float(oy), self.resolution, q, px, py, pt, angles, order, self._coarse_half, i_lo, j_lo,
+            n_part, a_lo, n_ang, part, penalize, self.distance_variance_penalty, self.angle_variance_penalty,
+            self.minimum_distance_penalty, self.minimum_angle_penalty, _PRUNE_CHUNK,
+            self.coarse_angle_resolution**2 / 12.0, refine, fine, int(self.fine_recentre), self.fine_angle_step**2,
+            1000.0 * self.fine_angle_step**2)
+        if status:
+            return None
+        cov = np.zeros((3, 3))
+        cov[:2, :2] = self._covariance_from_sums(norm, sxx, syy, sxy, edge, resp, offs, prior, pose, best,
+                                                 2.0 * self.resolution)
+        if part:
+            # The prior's heading over the whole window is not known: over any drop unless its best is in the band.
+            prior_drop = float(best - at_prior) if at_prior >= best - _COVARIANCE_BAND else math.inf
+        else:
+            prior_drop = float(best - max(at_prior, 0.0))
+        cov[2, 2] = 1.0  # as _finish_match
+        if refine and best > 0.0:
+            pose, best, raw, cov[2, 2] = f_pose, f_best, f_raw, f_var
+            lookups += runs * fine.shape[0] * 9 * q.shape[0]
+        elif best <= 0.0:
+            cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
+        pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
+        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
 
     def _finish_match(self, g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize, refine,
                       lookups) -> MatchResult:
@@ -1837,12 +1981,16 @@ class CorrelativeMatcher:
         d_theta = math.remainder(float(seed[2]) - float(prior[2]), 2.0 * math.pi)
         a_seed = min(max(int(round(d_theta / self.coarse_angle_resolution)), -n_half), n_half) + n_half
         a_lo = min(max(a_seed - n_half, k - n_half), n_half - k) + n_half - k
-        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
-        n_steps = 2 * big + 1
-        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
+        angles, _ = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
         # The part's angles nearest the seed's first: the best found early prunes the others.
         part = np.arange(a_lo, a_lo + 2 * k + 1)
         order = part[np.argsort(np.abs(part - a_seed), kind="stable")]
+        if _FUSED:
+            return self._fused_match(g, ox, oy, q, prior, angles, order, i_lo, j_lo, 2 * h + 1, a_lo, 2 * k + 1, True,
+                                     penalize, True)
+        # The same steps one call at a time (what the fused call is tested against).
+        n_steps = 2 * big + 1
+        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
         lookups = _score_poses_pruned(g, ox, oy, res, q, float(prior[0]), float(prior[1]), float(prior[2]), angles,
                                       order, big, 2, i_lo, j_lo, 2 * h + 1, float(prior[0]), float(prior[1]),
                                       float(prior[2]), penalize, self.distance_variance_penalty,
@@ -1936,6 +2084,33 @@ class CorrelativeMatcher:
             return self._positional_covariance(surface, offs, prior, pose, response, step_m, own=response)
 
         return out, covariance
+
+
+def _coarse_angles(offset: float, step: float):
+    """The coarse search's angle offsets (``np.arange(-n, n + 1) * step``) and the order that scores the
+    prior's heading first and then outwards; kept per (offset, step), never written to."""
+    key = ("coarse", offset, step)
+    got = _ANGLES.get(key)
+    if got is None:
+        n_half = int(round(offset / step))
+        angles = np.arange(-n_half, n_half + 1) * step
+        got = _ANGLES[key] = (angles, np.argsort(np.abs(angles), kind="stable"))
+    return got
+
+
+def _fine_angles(coarse_step: float, fine_step: float):
+    """The fine stage's angle offsets (one coarse step of fine steps), as :func:`_coarse_angles`."""
+    return _coarse_angles(0.5 * coarse_step, fine_step)
+
+
+def _least_total(x: float, n: float) -> int:
+    """The least integer t >= 0 with ``t / n >= x`` in floating point (the division is monotone in t)."""
+    t = max(int(math.ceil(x * n)), 0)
+    while t > 0 and (t - 1) / n >= x:
+        t -= 1
+    while t / n < x:
+        t += 1
+    return t
 
 
 def _uniform(sigmas: NDArray[np.float64]) -> float | None:
@@ -2164,7 +2339,7 @@ class GridCache:
             e["drawn_reach"] = m
         return grid
 
-    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
+    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0, mark: float | None = None) -> float:
         """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
 
         The entry keeps its bound grid and extends it as scans are added, as it does the
@@ -2192,7 +2367,7 @@ class GridCache:
             e["pooled_nodes"] = len(order)
             e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
         return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
-                              tables=e.setdefault("pooled_tables", {}))
+                              tables=e.setdefault("pooled_tables", {}), mark=mark)
 
     def _node_blocks(self, n: int):
         got = self._blocks.get(n)
