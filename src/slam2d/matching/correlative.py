@@ -82,8 +82,6 @@ _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
 # Angle offsets that depend only on a matcher's settings, computed once (see _coarse_angles); never written to.
 _ANGLES: dict = {}
-# A match's compiled steps run as one call (_coarse_fine); False runs them one by one (tests compare the two).
-_FUSED = True
 # Response bounds of at least this many points x headings share their headings among threads.
 _PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
@@ -1355,74 +1353,6 @@ def _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt, angle
     return pose, best, raw, max(var, floor), runs
 
 
-
-@njit(cache=True)
-def _part_edge_in_band(resp, best, a_lo, n_ang, i_lo, j_lo, n_part, n_half, big):
-    """Whether a pose within the covariance band of ``best`` lies on an edge of the part
-    (angles [a_lo, a_lo + n_ang), translations n_part x n_part from (i_lo, j_lo)) that is not an
-    edge of the whole window (angles 0..2 n_half, translations 0..2 big)."""
-    thr = best - _COVARIANCE_BAND
-    a_hi = a_lo + n_ang - 1
-    i_hi = i_lo + n_part - 1
-    j_hi = j_lo + n_part - 1
-    for a in range(a_lo, a_hi + 1):
-        for i in range(i_lo, i_hi + 1):
-            for j in range(j_lo, j_hi + 1):
-                if resp[a, i, j] >= thr and (
-                        (a == a_lo and a_lo > 0) or (a == a_hi and a_hi < 2 * n_half)
-                        or (i == i_lo and i_lo > 0) or (i == i_hi and i_hi < 2 * big)
-                        or (j == j_lo and j_lo > 0) or (j == j_hi and j_hi < 2 * big)):
-                    return True
-    return False
-
-
-@njit(cache=True)
-def _coarse_fine(grid, origin_x, origin_y, resolution, q, px, py, pt, angles, order, big, i_lo, j_lo, n_part,
-                 a_lo, n_ang, check_edges, penalize, dvp, avp, min_dp, min_ap, chunk, heading_floor, refine,
-                 fine_angles, recentre, fine_floor, fine_fallback):
-    """A match's compiled steps in one call: the pruned coarse search of the part (or the whole
-    window) of :meth:`CorrelativeMatcher.match_near` around the prior (:func:`_score_poses_pruned`,
-    :func:`_finish_search`), the part's edge test, the covariance sums (:func:`_spread_sums`), the
-    coarse heading spread and the best response at the prior's heading, then the fine stage
-    (:func:`_fine_stage`); the same kernels on the same arguments as the separate calls, so the
-    same numbers. Returns (status: 0 done, 1 nothing responds, 2 the band reaches the part's
-    edge; coarse pose, best, raw, responses, offsets, covariance sums (norm, xx, yy, xy, edge),
-    heading variance, best at the prior's heading, fine pose, best, raw, theta variance, fine runs,
-    lookups)."""
-    n_steps = 2 * big + 1
-    sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
-    lookups = _score_poses_pruned(grid, origin_x, origin_y, resolution, q, px, py, pt, angles, order, big, 2, i_lo,
-                                  j_lo, n_part, px, py, pt, penalize, dvp, avp, min_dp, min_ap, -1.0, chunk, sums)
-    offs = (np.arange(n_steps) - big) * (2 * resolution)
-    pose, best, raw, resp = _finish_search(sums, q.shape[0], offs, angles, px, py, pt, px, py, pt, penalize, dvp,
-                                           avp, min_dp, min_ap)
-    status = 0
-    if check_edges:
-        if not best > 0.0:
-            status = 1
-        elif _part_edge_in_band(resp, best, a_lo, n_ang, i_lo, j_lo, n_part, (angles.shape[0] - 1) // 2, big):
-            status = 2
-    norm = sxx = syy = sxy = 0.0
-    edge = False
-    heading_var = 0.0
-    n_half = (angles.shape[0] - 1) // 2
-    at_prior = resp[n_half, 0, 0]
-    for i in range(n_steps):
-        for j in range(n_steps):
-            if resp[n_half, i, j] > at_prior:
-                at_prior = resp[n_half, i, j]
-    f_pose = pose.copy()
-    f_best, f_raw, f_var, runs = best, raw, 1.0, 0
-    if status == 0:
-        norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, px, py, pose[0], pose[1], best - _COVARIANCE_BAND)
-        heading_var = _heading_spread(resp, angles, best, heading_floor)
-        if refine and best > 0.0:
-            f_pose, f_best, f_raw, f_var, runs = _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt,
-                                                             fine_angles, penalize, dvp, avp, min_dp, min_ap,
-                                                             recentre, fine_floor, fine_fallback)
-    return (status, pose, best, raw, resp, offs, norm, sxx, syy, sxy, edge, heading_var, at_prior, f_pose, f_best,
-            f_raw, f_var, runs, lookups)
-
 # --------------------------------------------------------------------------- the matcher
 
 
@@ -1764,31 +1694,27 @@ class CorrelativeMatcher:
         numpy's, bit for bit (:func:`_spread_sums`); the others in numpy below.
         """
         if own == 0.0 and resp.ndim == 3:
-            sums = _spread_sums(resp, offs, float(center[0]), float(center[1]), float(pose[0]), float(pose[1]),
-                                best - _COVARIANCE_BAND)
-            return self._covariance_from_sums(*sums, resp, offs, center, pose, best, step_m)
+            norm, sxx, syy, sxy, edge = _spread_sums(resp, offs, float(center[0]), float(center[1]),
+                                                     float(pose[0]), float(pose[1]), best - _COVARIANCE_BAND)
+            if norm <= 1e-12 or best <= 0:
+                return np.diag([MAX_VARIANCE, MAX_VARIANCE])
+            floor = 0.1 * step_m * step_m
+            cov = np.zeros((2, 2))
+            cov[0, 0] = max(sxx / norm, floor)
+            cov[1, 1] = max(syy / norm, floor)
+            cov[0, 1] = cov[1, 0] = sxy / norm
+            cov /= best
+            if edge:
+                # As in the general case below, with the same sums (the mask's extent along the
+                # main axis compiled too).
+                vals, vecs = np.linalg.eigh(cov)
+                lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
+                                       float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
+                if hi - lo >= 0.5 * self.search_size:
+                    vals[-1] = max(vals[-1], self.search_size**2)
+                    cov = (vecs * vals) @ vecs.T
+            return cov
         return self._positional_covariance_general(resp, offs, center, pose, best, step_m, own)
-
-    def _covariance_from_sums(self, norm, sxx, syy, sxy, edge, resp, offs, center, pose, best, step_m):
-        """:meth:`_positional_covariance`'s usual case from the sums of :func:`_spread_sums`."""
-        if norm <= 1e-12 or best <= 0:
-            return np.diag([MAX_VARIANCE, MAX_VARIANCE])
-        floor = 0.1 * step_m * step_m
-        cov = np.zeros((2, 2))
-        cov[0, 0] = max(sxx / norm, floor)
-        cov[1, 1] = max(syy / norm, floor)
-        cov[0, 1] = cov[1, 0] = sxy / norm
-        cov /= best
-        if edge:
-            # As in the general case below, with the same sums (the mask's extent along the
-            # main axis compiled too).
-            vals, vecs = np.linalg.eigh(cov)
-            lo, hi = _along_extent(resp, offs, float(center[0]), float(center[1]), float(pose[0]),
-                                   float(pose[1]), best - _COVARIANCE_BAND, float(vecs[0, -1]), float(vecs[1, -1]))
-            if hi - lo >= 0.5 * self.search_size:
-                vals[-1] = max(vals[-1], self.search_size**2)
-                cov = (vecs * vals) @ vecs.T
-        return cov
 
     def _positional_covariance_general(self, resp, offs, center, pose, best, step_m, own=0.0):
         surface = resp.max(axis=0) if resp.ndim == 3 else resp  # best response over angles, per (y, x)
@@ -1854,19 +1780,11 @@ class CorrelativeMatcher:
         g, ox, oy = grid
         origin = (ox, oy)
         res = self.resolution
-        if _FUSED and not self.response_expansion and (penalize or not (self.branch_and_bound
-                                                             and 2 * self._coarse_half + 1 >= _BNB_MIN_STEPS)):
-            # The usual match (a pruned exhaustive coarse search, see _search) in one compiled call.
-            big = self._coarse_half
-            angles, order = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
-            n_steps = 2 * big + 1
-            return self._fused_match(g, ox, oy, q, prior, angles, order, 0, 0, n_steps, 0, angles.shape[0], False,
-                                     penalize, refine)
         offset = self.coarse_angle_offset
         lookups = 0
         for _ in range(4 if self.response_expansion else 1):
             n_half = int(round(offset / self.coarse_angle_resolution))
-            angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+            angles, _ = _coarse_angles(offset, self.coarse_angle_resolution)
             pose, best, raw, resp, offs, n = self._search(
                 g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
             )
@@ -1883,47 +1801,12 @@ class CorrelativeMatcher:
         return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
                                   refine, lookups)
 
-    def _fused_match(self, g, ox, oy, q, prior, angles, order, i_lo, j_lo, n_part, a_lo, n_ang, part, penalize,
-                     refine) -> MatchResult | None:
-        """:meth:`match` (``part`` False: the whole window) or :meth:`match_near`'s search of a part through
-        :func:`_coarse_fine`, the same steps and numbers as their separate calls; None where the part
-        cannot stand for the whole window."""
-        q = np.ascontiguousarray(q, dtype=np.float64)
-        fine, _ = _fine_angles(self.coarse_angle_resolution, self.fine_angle_step)
-        px, py, pt = float(prior[0]), float(prior[1]), float(prior[2])
-        (status, pose, best, raw, resp, offs, norm, sxx, syy, sxy, edge, heading_var, at_prior, f_pose, f_best, f_raw,
-         f_var, runs, lookups) = _coarse_fine(
-            g, float(ox), float(oy), self.resolution, q, px, py, pt, angles, order, self._coarse_half, i_lo, j_lo,
-            n_part, a_lo, n_ang, part, penalize, self.distance_variance_penalty, self.angle_variance_penalty,
-            self.minimum_distance_penalty, self.minimum_angle_penalty, _PRUNE_CHUNK,
-            self.coarse_angle_resolution**2 / 12.0, refine, fine, int(self.fine_recentre), self.fine_angle_step**2,
-            1000.0 * self.fine_angle_step**2)
-        if status:
-            return None
-        cov = np.zeros((3, 3))
-        cov[:2, :2] = self._covariance_from_sums(norm, sxx, syy, sxy, edge, resp, offs, prior, pose, best,
-                                                 2.0 * self.resolution)
-        if part:
-            # The prior's heading over the whole window is not known: over any drop unless its best is in the band.
-            prior_drop = float(best - at_prior) if at_prior >= best - _COVARIANCE_BAND else math.inf
-        else:
-            prior_drop = float(best - max(at_prior, 0.0))
-        cov[2, 2] = 1.0  # as _finish_match
-        if refine and best > 0.0:
-            pose, best, raw, cov[2, 2] = f_pose, f_best, f_raw, f_var
-            lookups += runs * fine.shape[0] * 9 * q.shape[0]
-        elif best <= 0.0:
-            cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
-        pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
-        return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
-
     def _finish_match(self, g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize, refine,
                       lookups) -> MatchResult:
         """The fine stage after a coarse search (``cov`` holds its x, y covariance) and the result."""
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
-            n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
-            angles = np.arange(-n_half, n_half + 1) * self.fine_angle_step
+            angles, _ = _fine_angles(self.coarse_angle_resolution, self.fine_angle_step)
             # One coarse step of the fine search around the coarse best, in one compiled call: while
             # its best lies on its window's edge and responds better it is re-centred there (up to
             # fine_recentre times): the coarse pose is 1-2 cells and up to half a coarse angle step
@@ -1982,15 +1865,11 @@ class CorrelativeMatcher:
         a_seed = min(max(int(round(d_theta / self.coarse_angle_resolution)), -n_half), n_half) + n_half
         a_lo = min(max(a_seed - n_half, k - n_half), n_half - k) + n_half - k
         angles, _ = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
+        n_steps = 2 * big + 1
+        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
         # The part's angles nearest the seed's first: the best found early prunes the others.
         part = np.arange(a_lo, a_lo + 2 * k + 1)
         order = part[np.argsort(np.abs(part - a_seed), kind="stable")]
-        if _FUSED:
-            return self._fused_match(g, ox, oy, q, prior, angles, order, i_lo, j_lo, 2 * h + 1, a_lo, 2 * k + 1, True,
-                                     penalize, True)
-        # The same steps one call at a time (what the fused call is tested against).
-        n_steps = 2 * big + 1
-        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
         lookups = _score_poses_pruned(g, ox, oy, res, q, float(prior[0]), float(prior[1]), float(prior[2]), angles,
                                       order, big, 2, i_lo, j_lo, 2 * h + 1, float(prior[0]), float(prior[1]),
                                       float(prior[2]), penalize, self.distance_variance_penalty,
