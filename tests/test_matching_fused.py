@@ -192,4 +192,3 @@ def test_one_call_search_is_cells_scores_and_responses(seed):
         assert raw == w_raw[a0, y0, x0]
         if ties == 1:
             assert np.array_equal(pose, center + np.array([want_offs[x0], want_offs[y0], angles[a0]]))
-
