@@ -496,3 +496,29 @@ def test_spa_reuses_a_solver_handed_over_and_gets_the_same_result():
     a = SpaBackend().optimize(g)
     b = SpaBackend().optimize(g, solver=solver)
     np.testing.assert_array_equal(a.poses, b.poses)
+
+
+def test_edges_added_one_at_a_time_equal_the_bulk_ones():
+    """add_edge's checks on Python floats keep exactly what add_edges keeps (and refuse what it refuses)."""
+    rng = np.random.default_rng(5)
+    n, k = 30, 200
+    i = rng.integers(0, n, k)
+    j = (i + rng.integers(1, n, k)) % n
+    z = rng.normal(0.0, 3.0, (k, 3)) * [1.0, 1.0, 4.0]  # headings outside [-pi, pi) get wrapped
+    a = rng.normal(0.0, 1.0, (k, 3, 3))
+    info = a @ np.swapaxes(a, 1, 2) * rng.uniform(0.01, 1e4, (k, 1, 1))
+    info[::7, 2, :] = 0.0  # singular (semi-definite) ones take add_edges' own path
+    info[::7, :, 2] = 0.0
+    one, bulk = PoseGraph(), PoseGraph()
+    one.add_nodes(np.zeros((n, 3)))
+    bulk.add_nodes(np.zeros((n, 3)))
+    for e in range(k):
+        assert one.add_edge(int(i[e]), int(j[e]), z[e], info[e]) == e
+    bulk.add_edges(i, j, z, info)
+    for name in ("edge_i", "edge_j", "measurements", "information"):
+        assert np.array_equal(getattr(one, name), getattr(bulk, name)), name
+    for bad in (lambda g: g.add_edge(0, 1, [0, 0, 0], np.diag([1.0, -1e-3, 1.0])),
+                lambda g: g.add_edge(0, n, [0, 0, 0], np.eye(3)),
+                lambda g: g.add_edge(0, 1, [0, 0, 0], np.array([[1.0, 0.1, 0], [0.2, 1, 0], [0, 0, 1]]))):
+        with pytest.raises(InputError):
+            bad(one)

@@ -196,12 +196,12 @@ def test_karto_skips_only_near_chains_that_cannot_link(monkeypatch):
     original = GridCache.bound
     skipped = []
 
-    def checked(self, e, q, prior, stop=2.0):
-        b = original(self, e, q, prior, stop=stop)
+    def checked(self, e, q, prior, stop=2.0, mark=None):
+        b = original(self, e, q, prior, stop=stop, mark=mark)
         if b < stop:
             lo, hi = self.matcher.search_box(q, prior)
             r = self.matcher.match(None, None, q, prior, penalize=False, refine=True, grid=self.materialize(e, lo, hi))
-            skipped.append((b, r.response))
+            skipped.append((b, r.response, mark))
         return b
 
     monkeypatch.setattr(GridCache, "bound", checked)
@@ -210,7 +210,9 @@ def test_karto_skips_only_near_chains_that_cannot_link(monkeypatch):
     counters = slam.diagnostics.counters
     assert counters.get("near_skipped_bound", 0) > 0 and counters.get("near_skipped_bound_link", 0) > 0
     assert len(skipped) == counters["near_skipped_bound"] + counters["near_skipped_bound_link"]
-    assert all(r <= b + 1e-9 and r < link for b, r in skipped)
+    # With a mark the bound is only as high as its two answers need: below the mark means the response is.
+    assert all(r < link and (r <= b + 1e-9 if mark is None else (b >= mark or r < mark)) for b, r, mark in skipped)
+    assert any(mark is not None for _, _, mark in skipped)
 
 
 def test_bound_of_nothing_is_zero():
@@ -317,3 +319,34 @@ def test_grid_started_from_a_drawn_one_equals_a_fresh_smear(uniform):
             assert cache.derived > 0
     for (ax, ay, a), (bx, by, b) in zip(grids[True], grids[False]):
         assert (ax, ay) == (bx, by) and np.array_equal(a, b)
+
+
+def test_bound_with_a_mark_answers_as_the_bound_does():
+    """With ``mark`` the bound's squares are summed only as far as the caller's two comparisons need:
+    below the mark, between it and ``stop``, or at ``stop``, always the same answer as the bound's."""
+    from slam2d.matching.correlative import _least_total
+
+    for x, n in ((0.4, 255.0 * 350), (0.8, 255.0 * 350), (0.8, 255.0 * 7), (0.0, 255.0), (1.3, 510.0)):
+        t = _least_total(x, n)
+        assert t / n >= x and (t == 0 or (t - 1) / n < x)
+    rng = np.random.default_rng(11)
+    m = CorrelativeMatcher()
+    kinds = set()
+    for seed in range(24):
+        world, q, prior = _scene(seed)
+        sig = np.full(world.shape[0], 0.03)
+        cache = GridCache(m, lambda i, w=world, s=sig: (w, s))
+        e = cache.reserve([0], *m.search_box(q, prior))
+        for _ in range(3):
+            # Marks around the bound itself, so that every side of them is met.
+            exact = cache.bound(e, q, prior)
+            for mark, stop in ((0.4, 0.8), (exact, exact + 0.05), (exact - 0.02, exact + 0.01), (exact - 0.1, exact),
+                               (0.5 * exact, exact - 0.01)):
+                mark = max(mark, 0.0)
+                full = cache.bound(e, q, prior, stop=stop)
+                got = cache.bound(e, q, prior, stop=stop, mark=mark)
+                assert got <= full + 1e-15
+                assert (got < mark) == (full < mark) and (got < stop) == (full < stop), (seed, mark, stop, got, full)
+                kinds.add((full < mark, full < stop))
+            q = q[rng.random(q.shape[0]) < 0.8]
+    assert kinds >= {(True, True), (False, True), (False, False)}

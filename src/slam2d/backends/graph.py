@@ -18,6 +18,8 @@ Conventions (every back end follows them):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -34,6 +36,30 @@ def _grow(arr: NDArray, needed: int) -> NDArray:
     out = np.zeros((cap,) + arr.shape[1:], dtype=arr.dtype)
     out[: arr.shape[0]] = arr
     return out
+
+
+def _plainly_valid(i, j, n: int, z: NDArray[np.float64], info: NDArray[np.float64]) -> bool:
+    """Whether one edge passes every check of :meth:`PoseGraph.add_edges` by a margin (False: let it decide).
+
+    Integer node indices in range and distinct, finite values, a symmetric information matrix
+    and a positive definite one (leading minors well above rounding: then its eigenvalues are
+    too, and the semi-definite test passes).
+    """
+    if not (isinstance(i, (int, np.integer)) and isinstance(j, (int, np.integer))) or isinstance(i, bool) or isinstance(j, bool):
+        return False
+    if not (0 <= i < n and 0 <= j < n and i != j):
+        return False
+    (a, b, c), (b2, d, e), (c2, e2, f) = info.tolist()
+    vals = z.tolist() + [a, b, c, b2, d, e, c2, e2, f]
+    if not all(math.isfinite(v) for v in vals):
+        return False
+    for u, v in ((b, b2), (c, c2), (e, e2)):
+        if abs(u - v) > 1e-9 * (1.0 + abs(u)) or abs(v - u) > 1e-9 * (1.0 + abs(v)):
+            return False
+    top = max(abs(v) for v in vals[3:])
+    minor2 = a * d - b * b
+    det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c)
+    return a > 1e-12 * top and minor2 > 1e-12 * top * top and det > 1e-12 * top * top * top
 
 
 class PoseGraph:
@@ -125,6 +151,20 @@ class PoseGraph:
         z = np.asarray(measurement, dtype=np.float64)
         if z.shape != (3,):
             raise InputError(f"measurement has 3 components (x, y, theta); got shape {z.shape}", field="measurement")
+        if _plainly_valid(i, j, self._n, z, info):
+            # A front end adds its edges one at a time: the checks add_edges makes, on Python floats.
+            m = self._m
+            self._ei = _grow(self._ei, m + 1)
+            self._ej = _grow(self._ej, m + 1)
+            self._z = _grow(self._z, m + 1)
+            self._info = _grow(self._info, m + 1)
+            self._ei[m] = i
+            self._ej[m] = j
+            self._z[m] = z
+            self._z[m, 2:3] = se2.wrap_angle(z[2:3])
+            self._info[m] = info
+            self._m += 1
+            return m
         return int(self.add_edges([i], [j], z[None], info[None])[0])
 
     def add_edges(

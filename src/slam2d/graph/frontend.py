@@ -348,6 +348,12 @@ class GraphSlamParams(GridParams, WallEndParams):
         "once the robot is this far from where it was tried or the graph was optimised since (not in Karto, "
         "which retries at every kept scan; 0 retries always)",
     )
+    near_bound_retry_distance: float = param(
+        0.0, unit="m", low=0.0,
+        help="a near chain whose response bound lies between the failure mark and the link threshold (it cannot "
+        "link from there) is bounded again only once the robot is this far from where it was bounded or the "
+        "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/karto.md)",
+    )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
     )
@@ -513,6 +519,7 @@ class GraphFrontend:
         self._hypotheses: list[_Hypothesis] = []
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
+        self._near_between: list[tuple[int, int, float, float]] = []
         # Near chains (start, end) that responded at least _NEAR_HOT of the link threshold from the last node.
         self._near_hot: list[tuple[int, int]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -707,7 +714,13 @@ class GraphFrontend:
     def _degenerate(self, cov: NDArray[np.float64], matcher: CorrelativeMatcher | None = None) -> bool:
         """Whether a sequential match's x, y covariance was widened to the window (flat along a corridor)."""
         size = (matcher or self.sequential).search_size
-        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= 0.99 * size**2)
+        limit = 0.99 * size**2
+        # The largest eigenvalue lies between the larger diagonal entry and that plus the off-diagonal
+        # one (Gershgorin): only a covariance near the limit needs the eigenvalue (most are far below).
+        a, b, d = float(cov[0, 0]), abs(float(cov[1, 0])), float(cov[1, 1])  # eigvalsh reads the lower triangle
+        if max(a, d) + b < limit * (1.0 - 1e-9):
+            return False
+        return bool(np.linalg.eigvalsh(cov[:2, :2])[-1] >= limit)
 
     def _sequential_estimate(self, points: NDArray[np.float64], predicted: NDArray[np.float64],
                              values: dict[str, float] | None = None, last_response: float = math.nan,
@@ -1008,8 +1021,14 @@ class GraphFrontend:
             # Hot: like a chain that responded well from the last node, its grid already drawn (a first
             # draw costs more than the bound it would spare).
             warm = entry["grid"] is not None and any(ha < b and a < hb for ha, hb in hot)
+            if not warm and self._tried_nearby(a, b, pose, p.near_bound_retry_distance, self._near_between):
+                self._count("near_skipped_between_retry")
+                continue
             outcome = self._near_outcome(entry, points, pose, lo, hi, warm)
             if outcome is None:
+                if p.near_bound_retry_distance > 0:
+                    self._near_between.append((a, b, float(pose[0]), float(pose[1])))
+                    del self._near_between[:-100]
                 continue
             if outcome == "failed":
                 # Only a chain far from linking (out of view, behind a wall) is skipped next
@@ -1048,7 +1067,7 @@ class GraphFrontend:
         fail = 0.5 * link
         bound = None
         if not hot:
-            bound = self._seq_cache.bound(entry, points, pose, stop=link)
+            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail)
             if bound < fail:
                 self._count("near_skipped_bound")
                 return "failed"
@@ -1066,7 +1085,7 @@ class GraphFrontend:
         if bound is None:
             # Bound-first would not have matched a chain bounded in [fail, link), nor failed it.
             self._count("near_matched_before_bound")
-            bound = self._seq_cache.bound(entry, points, pose, stop=link)
+            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail)
             if fail <= bound < link:
                 self._count("near_skipped_bound_link")
                 return None
@@ -1385,6 +1404,7 @@ class GraphFrontend:
         self._loop_cache.invalidate()
         self._tried.clear()
         self._near_failed.clear()
+        self._near_between.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}

@@ -80,6 +80,8 @@ _PARALLEL_POINTS = 4000
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
+# Angle offsets that depend only on a matcher's settings, computed once (see _coarse_angles); never written to.
+_ANGLES: dict = {}
 # Response bounds of at least this many points x headings share their headings among threads.
 _PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
@@ -879,11 +881,15 @@ def _range_max(table, r_lo, r_hi, c_lo, c_hi):
 
 
 @njit(cache=True, inline="always")
-def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop):
-    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``."""
+def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0, wy0, half, delta, stop,
+                  give_up=0):
+    """Bound (sum) of the points at (wx0, wy0) each moved anywhere within ``half`` + r delta; stops at ``stop``,
+    and gives up (returning the part summed, below ``give_up``) once a full cell for every point still
+    to come could not lift it to ``give_up``."""
     rows, cols = table.shape[1], table.shape[2]
+    n = qx.shape[0]
     total = 0
-    for k in range(qx.shape[0]):
+    for k in range(n):
         h = half + rng[k] * delta
         c_lo = max(int(math.floor((wx0[k] - h - origin_x) / resolution)) // block, 0)
         c_hi = min(int(math.floor((wx0[k] + h - origin_x) / resolution)) // block, cols - 1)
@@ -891,7 +897,7 @@ def _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, wx0
         r_hi = min(int(math.floor((wy0[k] + h - origin_y) / resolution)) // block, rows - 1)
         if c_lo <= c_hi and r_lo <= r_hi:
             total += _range_max(table, r_lo, r_hi, c_lo, c_hi)
-        if total >= stop:
+        if total >= stop or total + 255 * (n - 1 - k) < give_up:
             break
     return total
 
@@ -913,7 +919,7 @@ def _pooled_response_bound(pooled, block, origin_x, origin_y, resolution, qx, qy
     """
     rng, table = _bound_table(pooled, block, resolution, qx, qy, trans, slack, delta)
     return _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, 0,
-                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64))
+                       angles.shape[0], trans, slack, delta, stop, splits, np.zeros(1, np.int64), -1, stop)
 
 
 @njit(cache=True)
@@ -952,9 +958,16 @@ def _bound_levels(rng, block, resolution, trans, slack, delta):
 
 @njit(cache=True, nogil=True)
 def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y0, theta0, angles, a0, a1,
-                trans, slack, delta, stop, splits, reached):
+                trans, slack, delta, stop, splits, reached, mark, top):
     """:func:`_pooled_response_bound` over the headings [a0, a1); returns ``stop`` as soon as it is
-    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it."""
+    reached (and sets ``reached[0]``), or stops, returning its best so far, once another thread set it.
+
+    ``mark`` (0 <= mark <= top <= stop; negative: the bound itself) asks only on which side of
+    ``mark`` and of ``top`` the bound lies: a square is summed only until it is known not to lift
+    the best so far to the next of the two it has not reached (``mark`` until the best reaches
+    it, then ``top``); a square that would reach it is summed in full, so the result is below
+    ``mark``, in [mark, top) or at least ``top`` exactly when the bound is.
+    """
     n = qx.shape[0]
     wx0 = np.empty(n)
     wy0 = np.empty(n)
@@ -983,8 +996,9 @@ def _bound_over(table, block, origin_x, origin_y, resolution, qx, qy, rng, x0, y
             for k in range(n):
                 sx[k] = wx0[k] + dx
                 sy[k] = wy0[k] + dy
+            give_up = 0 if mark < 0 else (mark if best < mark else top)
             total = _square_total(table, block, origin_x, origin_y, resolution, qx, qy, rng, sx, sy,
-                                  t + slack, delta, stop)
+                                  t + slack, delta, stop, give_up)
             if total < stop:
                 if total > best:
                     best = total
@@ -1529,8 +1543,12 @@ class CorrelativeMatcher:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """World box (lo, hi) every query point can reach in the search window around ``prior``."""
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
-        n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
-        angles = prior[2] + np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        key = ("box", angle_offset)
+        lin = _ANGLES.get(key)
+        if lin is None:
+            n = max(2, int(math.ceil(angle_offset / math.radians(10.0))))
+            lin = _ANGLES[key] = np.linspace(-angle_offset, angle_offset, 2 * n + 1)
+        angles = prior[2] + lin
         x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), np.ascontiguousarray(q))
         # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
         pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
@@ -1648,11 +1666,15 @@ class CorrelativeMatcher:
         return (2 * self._coarse_half + 1) * self.resolution, 4 * self.resolution
 
     def pooled_bound(self, pooled, origin_x, origin_y, query_points, prior, *, stop: float = 2.0,
-                     tables: dict | None = None) -> float:
+                     tables: dict | None = None, mark: float | None = None) -> float:
         """:meth:`response_bound` on a bound grid from :meth:`pooled_grid` (origin: its correlation grid's).
 
         ``tables``: where the bound grid's sparse table is kept between calls (the caller empties
         it when the bound grid changes); without it the table is built for this call.
+        ``mark`` (at most ``stop``): the caller only asks whether the bound is below ``mark``, in
+        [mark, stop) or at least ``stop``; the value returned answers that as the bound itself
+        would (compared as ``bound < mark``, ``bound < stop``) but may be lower, which lets most
+        squares of the bound be summed in part.
         """
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
@@ -1660,10 +1682,14 @@ class CorrelativeMatcher:
             return 1.0
         if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
             return 0.0
-        angles, delta = self._bound_angles()
-        # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
-        # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
-        angles = angles[np.argsort(np.abs(angles), kind="stable")]
+        key = ("bound", self.coarse_angle_offset, self.coarse_angle_resolution, self.fine_angle_step)
+        got = _ANGLES.get(key)
+        if got is None:
+            angles, delta = self._bound_angles()
+            # The prior's heading first, then outwards: a bound that reaches ``stop`` mostly reaches it
+            # near there, and returns at once (below ``stop`` every heading is bounded, in any order).
+            got = _ANGLES[key] = (angles[np.argsort(np.abs(angles), kind="stable")], delta)
+        angles, delta = got
         n = q.shape[0] * _SCALE
         qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
         trans, slack = self._bound_window()
@@ -1678,11 +1704,13 @@ class CorrelativeMatcher:
                 table = tables["table"] = _range_max_levels(pooled, levels)
         reached = np.zeros(1, np.int64)
         parts = {}
+        # The least sums the caller's comparisons (sum / n against mark and stop) put at or above them.
+        low, top = (-1, cut) if mark is None else (_least_total(min(mark, stop), n), _least_total(stop, n))
 
         def over(a0, a1):
             parts[a0] = _bound_over(table, _BOUND_BLOCK, origin_x, origin_y, self.resolution, qx, qy, rng,
                                     float(prior[0]), float(prior[1]), float(prior[2]), angles, a0, a1, trans, slack,
-                                    delta, cut, _BOUND_SPLITS, reached)
+                                    delta, cut, _BOUND_SPLITS, reached, low, top)
 
         # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
         # result (``stop``, or the best over every heading) does not depend on which did.
@@ -1865,7 +1893,7 @@ class CorrelativeMatcher:
         lookups = 0
         for _ in range(4 if self.response_expansion else 1):
             n_half = int(round(offset / self.coarse_angle_resolution))
-            angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+            angles, _ = _coarse_angles(offset, self.coarse_angle_resolution)
             pose, best, raw, resp, offs, n = self._search(
                 g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
             )
@@ -1887,8 +1915,7 @@ class CorrelativeMatcher:
         """The fine stage after a coarse search (``cov`` holds its x, y covariance) and the result."""
         cov[2, 2] = 1.0  # Karto's placeholder when there is no fine angular search
         if refine and best > 0.0:
-            n_half = int(round(0.5 * self.coarse_angle_resolution / self.fine_angle_step))
-            angles = np.arange(-n_half, n_half + 1) * self.fine_angle_step
+            angles, _ = _fine_angles(self.coarse_angle_resolution, self.fine_angle_step)
             # One coarse step of the fine search around the coarse best, in one compiled call: while
             # its best lies on its window's edge and responds better it is re-centred there (up to
             # fine_recentre times): the coarse pose is 1-2 cells and up to half a coarse angle step
@@ -1946,7 +1973,7 @@ class CorrelativeMatcher:
         d_theta = math.remainder(float(seed[2]) - float(prior[2]), 2.0 * math.pi)
         a_seed = min(max(int(round(d_theta / self.coarse_angle_resolution)), -n_half), n_half) + n_half
         a_lo = min(max(a_seed - n_half, k - n_half), n_half - k) + n_half - k
-        angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
+        angles, _ = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
         n_steps = 2 * big + 1
         sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
         # The part's angles nearest the seed's first: the best found early prunes the others.
@@ -2045,6 +2072,33 @@ class CorrelativeMatcher:
             return self._positional_covariance(surface, offs, prior, pose, response, step_m, own=response)
 
         return out, covariance
+
+
+def _coarse_angles(offset: float, step: float):
+    """The coarse search's angle offsets (``np.arange(-n, n + 1) * step``) and the order that scores the
+    prior's heading first and then outwards; kept per (offset, step), never written to."""
+    key = ("coarse", offset, step)
+    got = _ANGLES.get(key)
+    if got is None:
+        n_half = int(round(offset / step))
+        angles = np.arange(-n_half, n_half + 1) * step
+        got = _ANGLES[key] = (angles, np.argsort(np.abs(angles), kind="stable"))
+    return got
+
+
+def _fine_angles(coarse_step: float, fine_step: float):
+    """The fine stage's angle offsets (one coarse step of fine steps), as :func:`_coarse_angles`."""
+    return _coarse_angles(0.5 * coarse_step, fine_step)
+
+
+def _least_total(x: float, n: float) -> int:
+    """The least integer t >= 0 with ``t / n >= x`` in floating point (the division is monotone in t)."""
+    t = max(int(math.ceil(x * n)), 0)
+    while t > 0 and (t - 1) / n >= x:
+        t -= 1
+    while t / n < x:
+        t += 1
+    return t
 
 
 def _uniform(sigmas: NDArray[np.float64]) -> float | None:
@@ -2350,7 +2404,7 @@ class GridCache:
             e["drawn_reach"] = m
         return grid
 
-    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0) -> float:
+    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0, mark: float | None = None) -> float:
         """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
 
         The entry keeps its bound grid and extends it as scans are added, as it does the
@@ -2378,7 +2432,7 @@ class GridCache:
             e["pooled_nodes"] = len(order)
             e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
         return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
-                              tables=e.setdefault("pooled_tables", {}))
+                              tables=e.setdefault("pooled_tables", {}), mark=mark)
 
     def _node_blocks(self, n: int):
         got = self._blocks.get(n)
