@@ -43,7 +43,9 @@ def _climb_and_hold(maps, beams, start, ratio):
     climbed = out.copy()
     flat = np.zeros(n, dtype=np.int64)
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
-                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, like, flat)
+                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, np.zeros(0), np.zeros((n, 3)),
+                        np.zeros((n, 3)), like,
+                        flat)
     return climbed, out, like, flat, ok
 
 

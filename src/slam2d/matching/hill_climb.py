@@ -53,7 +53,8 @@ from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 
-__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction"]
+__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction",
+           "along_terms"]
 
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
@@ -67,19 +68,22 @@ class BeamSet:
 
     ``ex, ey``: end points (m); ``ux, uy``: unit directions; ``div_score`` and
     ``div_like``: per-beam ``sigma`` and ``lsigma`` (m^2) of the score and the
-    log-likelihood. ``use`` selects the beams; every other argument has one
+    log-likelihood; ``var``: the sensor model's range variance per beam (m^2; zeros
+    without a model). ``use`` selects the beams; every other argument has one
     entry per beam of the scan.
     """
 
-    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like")
+    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like", "var")
 
-    def __init__(self, ranges, angles, use, div_score, div_like) -> None:
+    def __init__(self, ranges, angles, use, div_score, div_like, var=None) -> None:
         r = np.asarray(ranges, dtype=np.float64)[use]
         a = np.asarray(angles, dtype=np.float64)[use]
         self.ux, self.uy = np.cos(a), np.sin(a)
         self.ex, self.ey = r * self.ux, r * self.uy
         self.div_score = np.ascontiguousarray(np.asarray(div_score, dtype=np.float64)[use])
         self.div_like = np.ascontiguousarray(np.asarray(div_like, dtype=np.float64)[use])
+        self.var = np.zeros(self.ex.shape[0]) if var is None else np.ascontiguousarray(
+            np.asarray(var, dtype=np.float64)[use])
 
     def __len__(self) -> int:
         return int(self.ex.shape[0])
@@ -475,9 +479,90 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
         out_logeta[p] = top + math.log(eta)
 
 
+@njit(cache=True)
+def along_terms(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step, mount, ex, ey, end_w, reach):
+    """The beams' point-distance term along ``(vx, vy)``, smoothed over one cell: ``(gradient, curvature, beams)``.
+
+    For each beam the squared distance ``d2`` from its end point to the nearest map point in its
+    window (as the score finds it) is taken at the pose moved by ``-step``, 0 and ``+step`` along
+    the unit vector ``(vx, vy)``; a beam counts only when it has a map point at all three (a beam
+    that finds one only when the pose moves back into the mapped area is no evidence). With
+    ``step`` one cell, a beam along a wall parallel to the direction sees the same lattice of
+    cells' mean hit points one period on, so its ripple cancels in both central differences
+    and what remains is the pull of the beams on surfaces across the direction: the door jambs
+    and box corners at a corridor's wall ends. ``end_w[j]`` weighs beam j's ``d2`` (``1 / (2 s^2)``
+    for an end-point standard deviation ``s``), so the sums are the gradient and curvature of
+    ``sum d2 / (2 s^2)``, a negative log-likelihood.
+
+    ``reach`` ``(x, y, r)``: only beams ending within ``r`` of ``(x, y)`` count (r <= 0: all). The
+    map ends where the last update's scan reached, and a wall cut off there looks like a wall
+    end to a beam near the cut (moving the pose back gains it map points); with the last
+    update's laser position and its usable range less a window, those beams are left out.
+    """
+    c, s = math.cos(th), math.sin(th)
+    lx = x + c * mount[0] - s * mount[1]
+    ly = y + s * mount[0] + c * mount[1]
+    lth = th + mount[2]
+    lc, ls = math.cos(lth), math.sin(lth)
+    inv = 1.0 / res
+    pts = np.empty((1, (2 * kernel + 1) * (2 * kernel + 1), 2))
+    grad = 0.0
+    curv = 0.0
+    used = 0
+    d2 = np.empty(3)
+    for j in range(ex.shape[0]):
+        wx0 = lx + lc * ex[j] - ls * ey[j]
+        wy0 = ly + ls * ex[j] + lc * ey[j]
+        if reach[2] > 0.0 and (wx0 - reach[0]) ** 2 + (wy0 - reach[1]) ** 2 > reach[2] * reach[2]:
+            continue
+        for k in range(3):
+            wx = wx0 + (k - 1) * step * vx
+            wy = wy0 + (k - 1) * step * vy
+            col = int(math.floor((wx - ox) * inv))
+            row = int(math.floor((wy - oy) * inv))
+            n = _window_points(pool, occ, table, p, -1, row, col, 0, 0, kernel, False, ox, oy, res, pts, 0)
+            d2[k] = _nearest(pts, 0, n, wx, wy)
+            if d2[k] < 0.0:
+                break
+        if d2[0] < 0.0 or d2[1] < 0.0 or d2[2] < 0.0:
+            continue
+        grad += end_w[j] * (d2[2] - d2[0]) / (2.0 * step)
+        curv += end_w[j] * (d2[2] + d2[0] - 2.0 * d2[1]) / (step * step)
+        used += 1
+    return grad, curv, used
+
+
+@njit(cache=True, inline="always")
+def _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step, mount, ex, ey, end_w, reach,
+                   prior, iterations):
+    """From a held pose, how far along ``(vx, vy)`` the beams' smoothed distance term and the prior put it.
+
+    Newton steps (at most one cell each) on ``sum d2 / (2 s^2) + prior s^2 / 2``, ``s`` the offset
+    from the held pose (which is the odometry's along the direction, so the prior is centred
+    there); stops when the curvature is not positive.
+    """
+    off = 0.0
+    for _ in range(iterations):
+        g, h, used = along_terms(pool, occ, table, p, ox, oy, res, kernel, x + off * vx, y + off * vy, th, vx, vy,
+                                 step, mount, ex, ey, end_w, reach)
+        g += prior * off
+        h += prior
+        if used == 0 or h <= 0.0:
+            break
+        move = -g / h
+        if move > step:
+            move = step
+        elif move < -step:
+            move = -step
+        off += move
+        if abs(move) < 1e-4:
+            break
+    return off
+
+
 @njit(cache=True, inline="always")
 def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y, th, mount, ex, ey, ux, uy, div_s,
-              div_l, step, ratio):
+              div_l, step, ratio, end_w, reach, prior_info):
     """:func:`hold_flat_direction` for one pose: ``(x, y, flat)``, ``flat`` 0 (kept), 1 (one axis held) or 2 (both)."""
     s0 = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                    False)[0]
@@ -519,12 +604,22 @@ def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y,
     n = math.hypot(vx, vy)
     vx, vy = vx / n, vy / n
     along = (x - start[0]) * vx + (y - start[1]) * vy  # how far the climb moved along it: undone
-    return x - along * vx, y - along * vy, 1
+    hx, hy = x - along * vx, y - along * vy
+    if end_w.shape[0] > 0:  # flat_sigma: the wall ends' pull along it, against the odometry prior
+        c0, s0 = math.cos(start[2]), math.sin(start[2])
+        vf = c0 * vx + s0 * vy  # the direction in the start's frame (the prior is forward / left)
+        vl = -s0 * vx + c0 * vy
+        prior = prior_info[0] * vf * vf + prior_info[1] * vl * vl
+        off = _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, hx, hy, th, vx, vy, step, mount, ex, ey,
+                             end_w, reach, prior, 4)
+        hx += off * vx
+        hy += off * vy
+    return hx, hy, 1
 
 
 @njit(cache=True, parallel=True)
 def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which, starts, poses, ok, mount, ex, ey,
-                        ux, uy, div_s, div_l, step, ratio, out_like, out_flat):
+                        ux, uy, div_s, div_l, step, ratio, end_w, reach, prior_info, out_like, out_flat):
     """Undo a climb's move along the direction its score does not constrain (not in GMapping).
 
     For each pose ``poses[i]`` matched on map ``which[i]`` from ``starts[i]``
@@ -539,6 +634,14 @@ def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which
     is kept. The heading stays the climb's. ``poses`` is changed in place,
     ``out_like[i]`` is the log-likelihood at the pose kept (as ``match_particles``
     computes it) and ``out_flat[i]`` 0 (unchanged), 1 (one direction held) or 2 (both).
+
+    ``end_w`` (per beam, empty: off; gmapping ``flat_sigma``): a held pose is then not left at
+    the start's along the flat direction but moved to the minimum of the beams' one-cell-smoothed
+    distance term (:func:`along_terms`, weights ``end_w``) plus the odometry prior, whose
+    information ``prior_info[i]`` (forward, left, heading in the start's frame; 1/m^2) is the
+    motion model's: the few beams on wall ends, whose pull the whole score's curvature ratio
+    cannot tell from the ripple, place the pose along the corridor as far as they say.
+    ``reach[i]``: see :func:`along_terms`.
     """
     for i in prange(poses.shape[0]):
         out_flat[i] = 0
@@ -546,7 +649,8 @@ def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which
             continue
         p = which[i]
         x, y, flat = _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, starts[i], poses[i, 0],
-                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio)
+                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio, end_w,
+                               reach[i], prior_info[i])
         out_flat[i] = flat
         if flat:
             poses[i, 0], poses[i, 1] = x, y
