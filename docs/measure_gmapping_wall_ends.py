@@ -15,7 +15,8 @@ robot's true heading:
 * ``score``: gmapping's score curvature by central differences of one cell (what ``flat_ratio``
   judges), its smaller / larger eigenvalue, and whether ``flat_ratio=0.1`` holds the climb there;
 * ``ends``: the curvature of the beams' one-cell-smoothed point distances
-  (:func:`slam2d.matching.hill_climb.along_terms`, end-point sigma ``--sigma``): the information the
+  (:func:`slam2d.matching.hill_climb.along_terms`, end-point sigma ``--sigma``, window ``--kernel``
+  cells, beams within the last update's reach less 3 cells): the information the
   particle's map gives along the heading once the walls' cell ripple has cancelled;
 * ``recovered``: from the true pose moved -10, -5, +5, +10 cm along the heading, where the wall-end
   step (:func:`_wall_end_step`, odometry prior of 0.1 m, a metre at ``srr=0.1``) puts it: the rms
@@ -42,7 +43,6 @@ sys.path.insert(0, str(Path(__file__).parent))
 from measure_gmapping import normal_ratio  # noqa: E402
 
 RES = 0.05
-REACH = True
 OFFSETS = np.array([-0.10, -0.05, 0.0, 0.05, 0.10])
 
 
@@ -62,7 +62,7 @@ def _score_curvature(maps, s, beams, pose):
     return np.array([[a, b], [b, c]])
 
 
-def measure(world: str, laser: str, seed: int, sigma: float) -> dict[str, np.ndarray]:
+def measure(world: str, laser: str, seed: int, sigma: float, kernel: int) -> dict[str, np.ndarray]:
     sim = simulate(world, SimulationParams(duration=None if world == "corridor-loop" else 120.0, seed=seed,
                                            laser=laser))
     setup = setup_from_simulation(sim)
@@ -96,9 +96,9 @@ def measure(world: str, laser: str, seed: int, sigma: float) -> dict[str, np.nda
         ev = np.linalg.eigvalsh(curv)
         mount = np.asarray(s.mount, dtype=np.float64)
         end_w = np.full(len(beams), 0.5 / sigma**2)
-        args = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], RES, 1)
+        args = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], RES, kernel)
         lp = se2.compose(truth[last], mount)
-        reach = np.array([lp[0], lp[1], max_range - (2 * 1 + 1) * RES]) if REACH else np.zeros(3)
+        reach = np.array([lp[0], lp[1], max_range - (2 * 1 + 1) * RES])  # as gmapping's flat_sigma (kernelSize 1)
         _, ends, used = along_terms(*args, truth[i, 0], truth[i, 1], th, f[0], f[1], RES, mount, beams.ex, beams.ey,
                                     end_w, reach)
         left = []
@@ -123,13 +123,14 @@ def main() -> None:
     ap.add_argument("--laser", default="urg-04lx")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--sigma", type=float, default=0.03, help="end-point standard deviation of the wall-end term, m")
+    ap.add_argument("--kernel", type=int, default=3, help="the wall-end term's window (cells; gmapping: kernelSize + 2)")
     a = ap.parse_args()
     print("| seed | scans | corridor-like | Fisher along (1/m^2), median: with wall ends / without | 1/sqrt | "
           "score curvature along, median | held by flat_ratio=0.1 | wall-end term along (1/m^2), median | "
           "error left from +-5, +-10 cm (rms, m) |")
     print("|---|---|---|---|---|---|---|---|---|")
     for seed in (int(s) for s in a.seeds.split(",")):
-        m = measure(a.world, a.laser, seed, a.sigma)
+        m = measure(a.world, a.laser, seed, a.sigma, a.kernel)
         c = m["ratio"] < 0.10
         med = lambda v: float(np.median(v[c]))  # noqa: E731
         print(f"| {seed} | {c.size} | {c.sum()} | {med(m['fisher']):.0f} / {med(m['fisher_no_ends']):.0f} | "

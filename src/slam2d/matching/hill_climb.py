@@ -610,7 +610,9 @@ def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y,
         vf = c0 * vx + s0 * vy  # the direction in the start's frame (the prior is forward / left)
         vl = -s0 * vx + c0 * vy
         prior = prior_info[0] * vf * vf + prior_info[1] * vl * vl
-        off = _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, hx, hy, th, vx, vy, step, mount, ex, ey,
+        # a window two cells wider than the score's: the wall end's beams stay matched one cell either side of a
+        # pose a few centimetres off (the walls' ripple cancels in any window: their lattice is the same one cell on)
+        off = _wall_end_step(pool, occ, table, p, ox, oy, res, kernel + 2, hx, hy, th, vx, vy, step, mount, ex, ey,
                              end_w, reach, prior, 4)
         hx += off * vx
         hy += off * vy
