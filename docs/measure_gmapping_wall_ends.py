@@ -36,7 +36,7 @@ import numpy as np
 from slam2d.core import se2
 from slam2d.eval.accuracy_bound import laser_information, setup_from_simulation
 from slam2d.grids.tiled import TiledMaps
-from slam2d.matching.hill_climb import BeamSet, _wall_end_step, along_terms, score_particles
+from slam2d.matching.hill_climb import BeamSet, _wall_end_step, along_terms, score_particles, wall_ends
 from slam2d.sim.simulate import SimulationParams, simulate
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -101,20 +101,28 @@ def measure(world: str, laser: str, seed: int, sigma: float, kernel: int) -> dic
         reach = np.array([lp[0], lp[1], max_range - (2 * 1 + 1) * RES])  # as gmapping's flat_sigma (kernelSize 1)
         _, ends, used = along_terms(*args, truth[i, 0], truth[i, 1], th, f[0], f[1], RES, mount, beams.ex, beams.ey,
                                     end_w, reach)
+        features = wall_ends(s.ranges, s.angles, use, max_range)
+        left_ends = []
+        for e in OFFSETS:
+            x, y = truth[i, 0] + e * f[0], truth[i, 1] + e * f[1]
+            off = _wall_end_step(*args, x, y, th, f[0], f[1], RES, mount, beams.ex, beams.ey, end_w, reach, 100.0,
+                                 4, features, 1.0 / sigma**2)
+            left_ends.append(e + off)
         left = []
         for e in OFFSETS:
             x, y = truth[i, 0] + e * f[0], truth[i, 1] + e * f[1]
             off = _wall_end_step(*args, x, y, th, f[0], f[1], RES, mount, beams.ex, beams.ey, end_w, reach, 100.0,
-                                 4)
+                                 4, np.zeros((0, 5)), 0.0)
             left.append(e + off)
         rows.append((normal_ratio(np.nan_to_num(s.ranges), s.angles, valid), f @ with_ends[i, :2, :2] @ f,
                      f @ without[i, :2, :2] @ f, f @ curv @ f, ev[0] / ev[1] if ev[1] > 0 else 0.0, ends, used,
-                     *left))
+                     len(features), *left, *left_ends))
         register(i)
         last = i
     r = np.array(rows)
     return {"ratio": np.nan_to_num(r[:, 0]), "fisher": r[:, 1], "fisher_no_ends": r[:, 2], "score": r[:, 3],
-            "eig_ratio": r[:, 4], "ends": r[:, 5], "used": r[:, 6], "left": r[:, 7:]}
+            "eig_ratio": r[:, 4], "ends": r[:, 5], "used": r[:, 6], "n_ends": r[:, 7],
+            "left": r[:, 8:8 + OFFSETS.size], "left_ends": r[:, 8 + OFFSETS.size:]}
 
 
 def main() -> None:
@@ -138,7 +146,13 @@ def main() -> None:
               f"{(m['eig_ratio'][c] < 0.1).mean():.0%} | {med(m['ends']):.0f} (beams {med(m['used']):.0f}) | "
               f"{np.sqrt(np.mean(m['left'][c] ** 2)):.3f} (starts {np.sqrt(np.mean(OFFSETS ** 2)):.3f}); "
               f"not corridor-like {np.sqrt(np.mean(m['left'][~c] ** 2)):.3f} |", flush=True)
-        print("signed mean left per start offset (corridor-like):", np.round(m["left"][c].mean(axis=0), 3))
+        print("  end points' distances: signed mean left per start offset (corridor-like):",
+              np.round(m["left"][c].mean(axis=0), 3))
+        print(f"  explicit wall ends ({med(m['n_ends']):.0f} per scan, median): rms left "
+              f"{np.sqrt(np.mean(m['left_ends'][c] ** 2)):.3f}, not corridor-like "
+              f"{np.sqrt(np.mean(m['left_ends'][~c] ** 2)):.3f}; signed mean per start offset",
+              np.round(m["left_ends"][c].mean(axis=0), 3), "rms", np.round(np.sqrt((m["left_ends"][c] ** 2).mean(axis=0)), 3),
+              "; scans with a wall end used:", f"{(m['n_ends'][c] > 0).mean():.0%}", flush=True)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import numpy as np
 
 from slam2d.cli import main
 from slam2d.grids.tiled import TiledMaps
-from slam2d.matching.hill_climb import BeamSet, along_terms, hold_flat_direction, match_particles
+from slam2d.matching.hill_climb import BeamSet, _wall_end_step, along_terms, hold_flat_direction, match_particles, wall_ends
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from tests._room import box_ranges
 from tests.conftest import recording_frames
@@ -43,8 +43,8 @@ def _climb_and_hold(maps, beams, start, ratio):
     climbed = out.copy()
     flat = np.zeros(n, dtype=np.int64)
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
-                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, np.zeros(0), np.zeros((n, 3)),
-                        np.zeros((n, 3)), like,
+                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, np.zeros(0), np.zeros((0, 5)),
+                        0.0, np.zeros((n, 3)), np.zeros((n, 3)), like,
                         flat)
     return climbed, out, like, flat, ok
 
@@ -167,9 +167,39 @@ def test_flat_sigma_moves_a_held_pose_to_the_end_walls_position():
     w = np.full(beams.ex.size, 0.5 / 0.03**2)
     prior = np.tile([100.0, 100.0, 100.0], (n, 1))  # a 0.1 m odometry prior: far weaker than the end wall
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
-                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, 0.5, w, np.zeros((n, 3)), prior,
-                        like, flat)
+                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, 0.5, w, np.zeros((0, 5)), 0.0,
+                        np.zeros((n, 3)), prior, like, flat)
     assert (flat == 1).sum() >= 2  # the end wall's ~110 beams against ~570 on the side walls: flat by the ratio
     held = flat == 1
     assert np.all(np.abs(out[held, 0]) < 0.01)  # yet the wall-end term puts it back where the map says
     assert np.all(np.abs(start[held, 0]) > 0.015)
+
+
+def _corridor_with_door(angles, end=2.0):
+    """The endless corridor, but its left wall (y = 1) ends at x = ``end``: beyond it the beams return nothing."""
+    r = _corridor(angles, reach=np.inf)
+    s, c = np.sin(angles), np.cos(angles)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        past = (s > 0) & (c / np.where(s > 0, s, 1.0) > end)
+    r = np.where(past, np.nan, r)
+    return np.where(r < 4.0, r, np.nan)
+
+
+def test_wall_ends_finds_the_end_and_pulls_from_both_sides():
+    """A wall end seen as a depth jump: found in the scan (not the walls cut by the range limit), matched to the map's.
+
+    From a pose 6 cm ahead or behind along the corridor the explicit wall-end step comes back to within 1.5 cm.
+    """
+    angles = np.linspace(-2.0, 2.0, 682)
+    ranges = _corridor_with_door(angles)
+    maps, beams = _mapped(ranges, angles, 1, (0.0,))
+    ends = wall_ends(ranges, angles, np.isfinite(ranges), 4.0)
+    assert ends.shape[0] == 1
+    ax, ay, wx, wy, half = ends[0]
+    assert abs(ay - 1.0) < 1e-6 and 1.95 < ax <= 2.0 and wx > 0.999 and 0 < half < 0.02
+    w = np.full(beams.ex.size, 0.5 / 0.03**2)
+    common = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], 0.05, 3)
+    for s0 in (-0.06, 0.06):
+        off = _wall_end_step(*common, s0, 0.0, 0.0, 1.0, 0.0, 0.05, np.zeros(3), beams.ex, beams.ey, w, np.zeros(3),
+                             1.0, 4, ends, 1.0 / 0.03**2)
+        assert abs(s0 + off) < 0.015

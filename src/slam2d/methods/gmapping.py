@@ -34,7 +34,14 @@ from slam2d.filters import (
 )
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
-from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, hold_flat_direction, match_one, match_particles
+from slam2d.matching.hill_climb import (
+    BeamSet,
+    gaussian_proposal,
+    hold_flat_direction,
+    match_one,
+    match_particles,
+    wall_ends,
+)
 from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -312,7 +319,11 @@ class GMapping(SlamMethod):
             return None
         s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
         s2 = np.nan_to_num(2.0 * s * s)
-        return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2, np.nan_to_num(s * s))
+        ends = None
+        if p.flat_sigma > 0.0 and p.flat_ratio > 0.0:
+            limit = min(self._max_range, self._usable, math.inf if p.match_range is None else p.match_range)
+            ends = wall_ends(r, scan.angles, use, limit)
+        return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2, np.nan_to_num(s * s), ends)
 
     def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The last tracked pose of the best particle and the odometry there (its node after an update)."""
@@ -365,8 +376,10 @@ class GMapping(SlamMethod):
         maps = self._maps
         flat = np.zeros(poses.shape[0], dtype=np.int64)
         reach = np.zeros((poses.shape[0], 3))
+        end_info = 0.0
         if p.flat_sigma > 0.0:
-            end_w = 0.5 / (p.flat_sigma ** 2 + beams.var)
+            end_w = np.zeros(0)  # the wall ends' explicit term (two-sided), not the end points' distances
+            end_info = 1.0 / p.flat_sigma ** 2
             prior = self._prior_info(1.0, since)[: poses.shape[0]]
             # where the map ends: the reach of the last update's scan from the laser of each map's pose there
             at_update = self._update_poses[which] if since is None else self._node_poses[self._nodes - 1, which]
@@ -377,7 +390,7 @@ class GMapping(SlamMethod):
         hold_flat_direction(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
                             p.kernelSize, p.free_cell_check, which, starts, poses, ok, mount, beams.ex, beams.ey,
                             beams.ux, beams.uy, beams.div_score, beams.div_like, maps.resolution, p.flat_ratio,
-                            end_w, reach, prior, like, flat)
+                            end_w, beams.ends, end_info, reach, prior, like, flat)
         held = int((flat > 0).sum())
         if held:
             self.diagnostics.count(count, held)
