@@ -191,15 +191,25 @@ def test_wall_ends_finds_the_end_and_pulls_from_both_sides():
     From a pose 6 cm ahead or behind along the corridor the explicit wall-end step comes back to within 1.5 cm.
     """
     angles = np.linspace(-2.0, 2.0, 682)
-    ranges = _corridor_with_door(angles)
+    ranges = _corridor_with_door(angles, end=1.0)  # seen at 45 deg incidence (grazing ones are not kept)
     maps, beams = _mapped(ranges, angles, 1, (0.0,))
     ends = wall_ends(ranges, angles, np.isfinite(ranges), 4.0)
     assert ends.shape[0] == 1
     ax, ay, wx, wy, half = ends[0]
-    assert abs(ay - 1.0) < 1e-6 and 1.95 < ax <= 2.0 and wx > 0.999 and 0 < half < 0.02
+    assert abs(ay - 1.0) < 1e-6 and 0.95 < ax <= 1.0 and wx > 0.999 and 0 < half < 0.02
     w = np.full(beams.ex.size, 0.5 / 0.03**2)
     common = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], 0.05, 3)
     for s0 in (-0.06, 0.06):
         off = _wall_end_step(*common, s0, 0.0, 0.0, 1.0, 0.0, 0.05, np.zeros(3), beams.ex, beams.ey, w, np.zeros(3),
                              1.0, 4, ends, 1.0 / 0.03**2)
         assert abs(s0 + off) < 0.015
+
+
+def test_wall_ends_skips_walls_running_out_of_range_and_grazing_ones():
+    """The range limit cutting a wall, and a wall end seen at grazing incidence, are not wall ends."""
+    angles = np.linspace(-2.0, 2.0, 682)
+    short = _corridor(angles, reach=1.3)  # a 1.3 m laser: the walls leave its reach at 40 deg incidence
+    assert wall_ends(short, angles, np.isfinite(short), 1.3).shape[0] == 0
+    assert wall_ends(short, angles, np.isfinite(short), 10.0).shape[0] >= 2  # had the laser reached on: ends
+    grazing = _corridor_with_door(angles, end=2.5)  # 68 deg incidence at the end
+    assert wall_ends(grazing, angles, np.isfinite(grazing), 4.0).shape[0] == 0

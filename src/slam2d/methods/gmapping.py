@@ -105,11 +105,11 @@ class GMappingParams:
         "move along that direction is undone, the odometry's kept (counted as degenerate_matches); 0: off")
     flat_sigma: float = param(
         0.0, unit="m", low=0.0, help="not in GMapping: with flat_ratio, a held climb is not left at the odometry's "
-        "position along its flat direction but moved to where the beams' distances to their map points, smoothed "
-        "over one cell (so the walls' cell ripple cancels and only beams on surfaces across the direction pull: "
-        "door jambs, box corners), and the motion model's prior put it; each beam's end point weighs as a Gaussian "
-        "of this standard deviation (plus the sensor model's range noise); measured worse than flat_ratio alone on "
-        "the URG office (docs: 'Wall ends and flat_sigma'); 0: off, held at the odometry's")
+        "position along its flat direction but moved to where the scan's wall ends (a straight wall's last hit "
+        "next to a beam that passes it) meet the same walls' ends in the particle's map, each a Gaussian of this "
+        "standard deviation, against the motion model's prior: the few beams that say where along a corridor the "
+        "robot is, which the whole score's curvature cannot tell from the walls' ripple; 0: off, held at the "
+        "odometry's")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
