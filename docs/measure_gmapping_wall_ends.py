@@ -18,9 +18,12 @@ robot's true heading:
   (:func:`slam2d.matching.hill_climb.along_terms`, end-point sigma ``--sigma``, window ``--kernel``
   cells, beams within the last update's reach less 3 cells): the information the
   particle's map gives along the heading once the walls' cell ripple has cancelled;
-* ``recovered``: from the true pose moved -10, -5, +5, +10 cm along the heading, where the wall-end
+* ``recovered``: from the true pose moved -10, -5, 0, +5, +10 cm along the heading, where the Newton
   step (:func:`_wall_end_step`, odometry prior of 0.1 m, a metre at ``srr=0.1``) puts it: the rms
-  error left, against the 7.9 cm rms of the starts.
+  error left (against the starts' rms) and the signed mean per start, once with the end points'
+  distances above, once with the scan's explicit wall ends matched to the map's
+  (:func:`~slam2d.matching.hill_climb.wall_ends`, :func:`~slam2d.matching.hill_climb.wall_end_terms`,
+  gmapping's ``flat_sigma``), with their count per scan and the share of scans that have one.
 
 Corridor-like scans are those whose endpoint normals' ratio (docs/measure_gmapping.py) is under 0.10.
 """
@@ -151,7 +154,8 @@ def main() -> None:
         print(f"  explicit wall ends ({med(m['n_ends']):.0f} per scan, median): rms left "
               f"{np.sqrt(np.mean(m['left_ends'][c] ** 2)):.3f}, not corridor-like "
               f"{np.sqrt(np.mean(m['left_ends'][~c] ** 2)):.3f}; signed mean per start offset",
-              np.round(m["left_ends"][c].mean(axis=0), 3), "rms", np.round(np.sqrt((m["left_ends"][c] ** 2).mean(axis=0)), 3),
+              np.round(m["left_ends"][c].mean(axis=0), 3), "rms",
+              np.round(np.sqrt((m["left_ends"][c] ** 2).mean(axis=0)), 3),
               "; scans with a wall end used:", f"{(m['n_ends'][c] > 0).mean():.0%}", flush=True)
 
 

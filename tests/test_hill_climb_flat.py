@@ -6,7 +6,14 @@ import numpy as np
 
 from slam2d.cli import main
 from slam2d.grids.tiled import TiledMaps
-from slam2d.matching.hill_climb import BeamSet, _wall_end_step, along_terms, hold_flat_direction, match_particles, wall_ends
+from slam2d.matching.hill_climb import (
+    BeamSet,
+    _wall_end_step,
+    along_terms,
+    hold_flat_direction,
+    match_particles,
+    wall_ends,
+)
 from slam2d.methods.gmapping import GMapping, GMappingParams
 from tests._room import box_ranges
 from tests.conftest import recording_frames

@@ -693,9 +693,12 @@ def _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, s
                    prior, iterations, ends, end_info):
     """From a held pose, how far along ``(vx, vy)`` the beams' smoothed distance term and the prior put it.
 
-    Newton steps (at most one cell each) on ``sum d2 / (2 s^2) + prior s^2 / 2``, ``s`` the offset
+    Newton steps (at most one cell each) on the data term plus ``prior s^2 / 2``, ``s`` the offset
     from the held pose (which is the odometry's along the direction, so the prior is centred
-    there); stops when the curvature is not positive.
+    there); stops when the curvature is not positive. The data term: with ``end_info`` > 0 the
+    wall ends ``ends`` (:func:`wall_end_terms`, each residual squared times ``end_info / 2``),
+    else the end points' distances (:func:`along_terms`, weights ``end_w``: one-sided at a wall
+    end, kept for measuring, docs/measure_gmapping_wall_ends.py).
     """
     off = 0.0
     for _ in range(iterations):
