@@ -53,7 +53,8 @@ from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
 
-__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction"]
+__all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction",
+           "along_terms", "wall_ends", "wall_end_terms"]
 
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
@@ -67,22 +68,79 @@ class BeamSet:
 
     ``ex, ey``: end points (m); ``ux, uy``: unit directions; ``div_score`` and
     ``div_like``: per-beam ``sigma`` and ``lsigma`` (m^2) of the score and the
-    log-likelihood. ``use`` selects the beams; every other argument has one
+    log-likelihood; ``var``: the sensor model's range variance per beam (m^2; zeros
+    without a model). ``use`` selects the beams; every other argument has one
     entry per beam of the scan.
     """
 
-    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like")
+    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like", "var", "ends")
 
-    def __init__(self, ranges, angles, use, div_score, div_like) -> None:
+    def __init__(self, ranges, angles, use, div_score, div_like, var=None, ends=None) -> None:
         r = np.asarray(ranges, dtype=np.float64)[use]
         a = np.asarray(angles, dtype=np.float64)[use]
         self.ux, self.uy = np.cos(a), np.sin(a)
         self.ex, self.ey = r * self.ux, r * self.uy
         self.div_score = np.ascontiguousarray(np.asarray(div_score, dtype=np.float64)[use])
         self.div_like = np.ascontiguousarray(np.asarray(div_like, dtype=np.float64)[use])
+        self.var = np.zeros(self.ex.shape[0]) if var is None else np.ascontiguousarray(
+            np.asarray(var, dtype=np.float64)[use])
+        self.ends = np.zeros((0, 5)) if ends is None else ends  # see wall_ends()
 
     def __len__(self) -> int:
         return int(self.ex.shape[0])
+
+
+def wall_ends(ranges, angles, use, limit, jump=0.5, back=4, max_gap=0.15):
+    """The scan's wall ends: where a beam still hits a straight wall and its neighbour passes the wall's end.
+
+    A beam ``n`` (in ``use``) whose neighbour ``f`` and the next one beyond are invalid or more than
+    ``jump`` m farther, while beams ``n-1 .. n-back`` on the other side lie on a line with it (the wall),
+    marks a wall end: it lies on that wall line between ``n``'s end point ``a`` and where the line
+    crosses ray ``f``. Returned ``(K, 5)``, laser frame: ``a`` (x, y), the wall's unit direction
+    toward the end (x, y) and half the distance from ``a`` to ray ``f`` along it (m), for walls that
+    cross ``f`` within ``max_gap`` (not those nearly along the beams) and nearer than ``limit`` (m, the
+    farthest range used) less 5 cm: a wall that runs on out of the laser's reach is not a wall end.
+    Whole-array numpy.
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    n = r.shape[0]
+    ok = np.asarray(use, dtype=bool) & np.isfinite(r)
+    rr = np.where(ok, r, np.inf)
+    out = []
+    idx = np.arange(n)
+    for d in (1, -1):  # the end's side: beams beyond it have higher (1) or lower (-1) indices
+        near = idx[(idx + 2 * d >= 0) & (idx + 2 * d < n) & (idx - back * d >= 0) & (idx - back * d < n)]
+        if near.size == 0:
+            continue
+        f1, f2, b = near + d, near + 2 * d, near - back * d
+        cand = ok[near] & ok[b] & (rr[f1] > r[near] + jump) & (rr[f2] > r[near] + jump)
+        for k in range(1, back + 1):  # the wall behind: every beam valid
+            cand &= ok[near - k * d]
+        near, f1, b = near[cand], f1[cand], b[cand]
+        if near.size == 0:
+            continue
+        ax, ay = r[near] * np.cos(a[near]), r[near] * np.sin(a[near])
+        bx, by = r[b] * np.cos(a[b]), r[b] * np.sin(a[b])
+        wx, wy = ax - bx, ay - by
+        length = np.hypot(wx, wy)
+        wx, wy = wx / np.maximum(length, 1e-9), wy / np.maximum(length, 1e-9)
+        mid = near - (back // 2) * d  # straight: the middle beam within 2 cm of the line
+        mx, my = r[mid] * np.cos(a[mid]) - bx, r[mid] * np.sin(a[mid]) - by
+        straight = np.abs(mx * wy - my * wx) < 0.02
+        # where the wall line a + lam w crosses ray f: cross(a + lam w, u_f) = 0
+        ufx, ufy = np.cos(a[f1]), np.sin(a[f1])
+        den = wx * ufy - wy * ufx
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = -(ax * ufy - ay * ufx) / den
+        reach = np.hypot(ax + lam * wx, ay + lam * wy)  # where ray f would have met the wall had it gone on
+        # not at grazing incidence (over 60 deg): there returns drop out in mid-wall and look like ends
+        facing = np.abs(np.cos(a[near]) * wy - np.sin(a[near]) * wx) > 0.5
+        good = (straight & facing & (length > 0.02) & np.isfinite(lam) & (lam > 0.0) & (lam < max_gap)
+                & (reach < limit - 0.05))
+        out.append(np.stack([ax, ay, wx, wy, 0.5 * lam], axis=1)[good])
+    return np.ascontiguousarray(np.concatenate(out)) if out else np.zeros((0, 5))
+
 
 
 @njit(cache=True, inline="always")
@@ -475,9 +533,201 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
         out_logeta[p] = top + math.log(eta)
 
 
+@njit(cache=True)
+def along_terms(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step, mount, ex, ey, end_w, reach):
+    """The beams' point-distance term along ``(vx, vy)``, smoothed over one cell: ``(gradient, curvature, beams)``.
+
+    For each beam the squared distance ``d2`` from its end point to the nearest map point in its
+    window (as the score finds it) is taken at the pose moved by ``-step``, 0 and ``+step`` along
+    the unit vector ``(vx, vy)``; a beam counts only when it has a map point at all three (a beam
+    that finds one only when the pose moves back into the mapped area is no evidence). With
+    ``step`` one cell, a beam along a wall parallel to the direction sees the same lattice of
+    cells' mean hit points one period on, so its ripple cancels in both central differences
+    and what remains is the pull of the beams on surfaces across the direction: the door jambs
+    and box corners at a corridor's wall ends. ``end_w[j]`` weighs beam j's ``d2`` (``1 / (2 s^2)``
+    for an end-point standard deviation ``s``), so the sums are the gradient and curvature of
+    ``sum d2 / (2 s^2)``, a negative log-likelihood.
+
+    ``reach`` ``(x, y, r)``: only beams ending within ``r`` of ``(x, y)`` count (r <= 0: all). The
+    map ends where the last update's scan reached, and a wall cut off there looks like a wall
+    end to a beam near the cut (moving the pose back gains it map points); with the last
+    update's laser position and its usable range less a window, those beams are left out.
+    """
+    c, s = math.cos(th), math.sin(th)
+    lx = x + c * mount[0] - s * mount[1]
+    ly = y + s * mount[0] + c * mount[1]
+    lth = th + mount[2]
+    lc, ls = math.cos(lth), math.sin(lth)
+    inv = 1.0 / res
+    pts = np.empty((1, (2 * kernel + 1) * (2 * kernel + 1), 2))
+    grad = 0.0
+    curv = 0.0
+    used = 0
+    d2 = np.empty(3)
+    for j in range(ex.shape[0]):
+        wx0 = lx + lc * ex[j] - ls * ey[j]
+        wy0 = ly + ls * ex[j] + lc * ey[j]
+        if reach[2] > 0.0 and (wx0 - reach[0]) ** 2 + (wy0 - reach[1]) ** 2 > reach[2] * reach[2]:
+            continue
+        for k in range(3):
+            wx = wx0 + (k - 1) * step * vx
+            wy = wy0 + (k - 1) * step * vy
+            col = int(math.floor((wx - ox) * inv))
+            row = int(math.floor((wy - oy) * inv))
+            n = _window_points(pool, occ, table, p, -1, row, col, 0, 0, kernel, False, ox, oy, res, pts, 0)
+            d2[k] = _nearest(pts, 0, n, wx, wy)
+            if d2[k] < 0.0:
+                break
+        if d2[0] < 0.0 or d2[1] < 0.0 or d2[2] < 0.0:
+            continue
+        grad += end_w[j] * (d2[2] - d2[0]) / (2.0 * step)
+        curv += end_w[j] * (d2[2] + d2[0] - 2.0 * d2[1]) / (step * step)
+        used += 1
+    return grad, curv, used
+
+
+_END_SAMPLES = 6  # half-cell samples either side of a wall end's last hit: the search reaches 15 cm at 5 cm cells
+
+
+@njit(cache=True)
+def wall_end_terms(pool, occ, table, p, ox, oy, res, x, y, th, vx, vy, mount, ends, reach):
+    """The scan's wall ends against the map's, along ``(vx, vy)``: ``(r J sum, J^2 sum, used)``.
+
+    For each wall end of :func:`wall_ends` (laser frame) at robot pose ``(x, y, th)``: the map's
+    wall is followed from the last hit ``a`` along the wall's direction ``w`` in half-cell steps,
+    and its end estimated from the last occupied cell on it: the wall's hits fill that cell from
+    where the line enters it to the end, so the end is twice their mean (along ``w``) less the
+    entry, kept within the cell. The residual is that end's distance from ``a`` along ``w`` less
+    the scan's (half the way to the beam that passed it): two-sided, unlike the end points'
+    distances, where a pose behind the truth puts the wall end's beams on the mapped wall and
+    costs nothing. Moving the pose by ``s`` along ``v`` moves ``a``, so ``J = -(v . w)``. A wall
+    end whose mapped wall is not found near ``a``, or runs on to the search's end (a lost return
+    in mid-wall, or a pose farther off than the search), is left out, as are those beyond
+    ``reach`` (see :func:`along_terms`).
+    """
+    c, s = math.cos(th), math.sin(th)
+    lx = x + c * mount[0] - s * mount[1]
+    ly = y + s * mount[0] + c * mount[1]
+    lth = th + mount[2]
+    lc, ls = math.cos(lth), math.sin(lth)
+    inv = 1.0 / res
+    half_step = 0.5 * res
+    grad = 0.0
+    curv = 0.0
+    used = 0
+    for e in range(ends.shape[0]):
+        axw = lx + lc * ends[e, 0] - ls * ends[e, 1]
+        ayw = ly + ls * ends[e, 0] + lc * ends[e, 1]
+        if reach[2] > 0.0 and (axw - reach[0]) ** 2 + (ayw - reach[1]) ** 2 > reach[2] * reach[2]:
+            continue
+        wxw = lc * ends[e, 2] - ls * ends[e, 3]
+        wyw = ls * ends[e, 2] + lc * ends[e, 3]
+        # the occupied sample nearest a (behind first), then the run on from it along w
+        start = -_END_SAMPLES - 1
+        for k in range(_END_SAMPLES + 1):
+            for kk in (-k, k):
+                px = axw + kk * half_step * wxw
+                py = ayw + kk * half_step * wyw
+                col = int(math.floor((px - ox) * inv))
+                row = int(math.floor((py - oy) * inv))
+                if _occupied(occ, cell_tile(table, p, row, col), row, col):
+                    start = kk
+                    break
+            if start >= -_END_SAMPLES:
+                break
+        if start < -_END_SAMPLES:
+            continue
+        last = start
+        while last < _END_SAMPLES:
+            px = axw + (last + 1) * half_step * wxw
+            py = ayw + (last + 1) * half_step * wyw
+            col = int(math.floor((px - ox) * inv))
+            row = int(math.floor((py - oy) * inv))
+            if not _occupied(occ, cell_tile(table, p, row, col), row, col):
+                break
+            last += 1
+        if last >= _END_SAMPLES:
+            continue  # the mapped wall runs on past the search
+        px = axw + last * half_step * wxw
+        py = ayw + last * half_step * wyw
+        col = int(math.floor((px - ox) * inv))
+        row = int(math.floor((py - oy) * inv))
+        t = cell_tile(table, p, row, col)
+        a_ = row & _MASK
+        b_ = col & _MASK
+        hits = pool[t, a_, b_, HITS]
+        if hits <= 0.0:
+            continue
+        cx = ox + (col + 0.5) * res
+        cy = oy + (row + 0.5) * res
+        mean = (cx + pool[t, a_, b_, SUM_X] / hits - axw) * wxw + (cy + pool[t, a_, b_, SUM_Y] / hits - ayw) * wyw
+        # where the line a + l w enters and leaves the cell (slab intersection), in l
+        l_in = -1e9
+        l_out = 1e9
+        for dim in range(2):
+            o = (axw - (cx - 0.5 * res)) if dim == 0 else (ayw - (cy - 0.5 * res))
+            dv = wxw if dim == 0 else wyw
+            if abs(dv) < 1e-12:
+                continue
+            t1 = -o / dv
+            t2 = (res - o) / dv
+            lo = min(t1, t2)
+            hi = max(t1, t2)
+            l_in = max(l_in, lo)
+            l_out = min(l_out, hi)
+        end = 2.0 * mean - l_in
+        if end < mean:
+            end = mean
+        elif end > l_out:
+            end = l_out
+        resid = end - ends[e, 4]
+        jac = -(vx * wxw + vy * wyw)
+        grad += resid * jac
+        curv += jac * jac
+        used += 1
+    return grad, curv, used
+
+
+@njit(cache=True, inline="always")
+def _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step, mount, ex, ey, end_w, reach,
+                   prior, iterations, ends, end_info):
+    """From a held pose, how far along ``(vx, vy)`` the beams' smoothed distance term and the prior put it.
+
+    Newton steps (at most one cell each) on the data term plus ``prior s^2 / 2``, ``s`` the offset
+    from the held pose (which is the odometry's along the direction, so the prior is centred
+    there); stops when the curvature is not positive. The data term: with ``end_info`` > 0 the
+    wall ends ``ends`` (:func:`wall_end_terms`, each residual squared times ``end_info / 2``),
+    else the end points' distances (:func:`along_terms`, weights ``end_w``: one-sided at a wall
+    end, kept for measuring, docs/measure_gmapping_wall_ends.py).
+    """
+    off = 0.0
+    for _ in range(iterations):
+        if end_info > 0.0:  # the wall ends, two-sided
+            g, h, used = wall_end_terms(pool, occ, table, p, ox, oy, res, x + off * vx, y + off * vy, th, vx, vy,
+                                        mount, ends, reach)
+            g *= end_info
+            h *= end_info
+        else:  # the end points' distances
+            g, h, used = along_terms(pool, occ, table, p, ox, oy, res, kernel, x + off * vx, y + off * vy, th, vx,
+                                     vy, step, mount, ex, ey, end_w, reach)
+        g += prior * off
+        h += prior
+        if used == 0 or h <= 0.0:
+            break
+        move = -g / h
+        if move > step:
+            move = step
+        elif move < -step:
+            move = -step
+        off += move
+        if abs(move) < 1e-4:
+            break
+    return off
+
+
 @njit(cache=True, inline="always")
 def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y, th, mount, ex, ey, ux, uy, div_s,
-              div_l, step, ratio):
+              div_l, step, ratio, end_w, ends, end_info, reach, prior_info):
     """:func:`hold_flat_direction` for one pose: ``(x, y, flat)``, ``flat`` 0 (kept), 1 (one axis held) or 2 (both)."""
     s0 = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
                    False)[0]
@@ -519,12 +769,25 @@ def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y,
     n = math.hypot(vx, vy)
     vx, vy = vx / n, vy / n
     along = (x - start[0]) * vx + (y - start[1]) * vy  # how far the climb moved along it: undone
-    return x - along * vx, y - along * vy, 1
+    hx, hy = x - along * vx, y - along * vy
+    if end_w.shape[0] > 0 or end_info > 0.0:  # flat_sigma: the wall ends' pull along it, against the prior
+        c0, s0 = math.cos(start[2]), math.sin(start[2])
+        vf = c0 * vx + s0 * vy  # the direction in the start's frame (the prior is forward / left)
+        vl = -s0 * vx + c0 * vy
+        prior = prior_info[0] * vf * vf + prior_info[1] * vl * vl
+        # a window two cells wider than the score's: the wall end's beams stay matched one cell either side of a
+        # pose a few centimetres off (the walls' ripple cancels in any window: their lattice is the same one cell on)
+        off = _wall_end_step(pool, occ, table, p, ox, oy, res, kernel + 2, hx, hy, th, vx, vy, step, mount, ex, ey,
+                             end_w, reach, prior, 4, ends, end_info)
+        hx += off * vx
+        hy += off * vy
+    return hx, hy, 1
 
 
 @njit(cache=True, parallel=True)
 def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which, starts, poses, ok, mount, ex, ey,
-                        ux, uy, div_s, div_l, step, ratio, out_like, out_flat):
+                        ux, uy, div_s, div_l, step, ratio, end_w, ends, end_info, reach, prior_info, out_like,
+                        out_flat):
     """Undo a climb's move along the direction its score does not constrain (not in GMapping).
 
     For each pose ``poses[i]`` matched on map ``which[i]`` from ``starts[i]``
@@ -539,6 +802,16 @@ def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which
     is kept. The heading stays the climb's. ``poses`` is changed in place,
     ``out_like[i]`` is the log-likelihood at the pose kept (as ``match_particles``
     computes it) and ``out_flat[i]`` 0 (unchanged), 1 (one direction held) or 2 (both).
+
+    ``end_w`` (per beam, empty: off; gmapping ``flat_sigma``): a held pose is then not left at
+    the start's along the flat direction but moved to the minimum of the beams' one-cell-smoothed
+    distance term (:func:`along_terms`, weights ``end_w``) plus the odometry prior, whose
+    information ``prior_info[i]`` (forward, left, heading in the start's frame; 1/m^2) is the
+    motion model's: the few beams on wall ends, whose pull the whole score's curvature ratio
+    cannot tell from the ripple, place the pose along the corridor as far as they say.
+    ``end_info`` > 0 (1/m^2): the scan's wall ends ``ends`` (:func:`wall_ends`) matched to the
+    map's (:func:`wall_end_terms`), each with this information, instead of the end points'
+    distances. ``reach[i]``: see :func:`along_terms`.
     """
     for i in prange(poses.shape[0]):
         out_flat[i] = 0
@@ -546,7 +819,8 @@ def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which
             continue
         p = which[i]
         x, y, flat = _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, starts[i], poses[i, 0],
-                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio)
+                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio, end_w,
+                               ends, end_info, reach[i], prior_info[i])
         out_flat[i] = flat
         if flat:
             poses[i, 0], poses[i, 1] = x, y

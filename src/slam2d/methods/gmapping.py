@@ -34,7 +34,14 @@ from slam2d.filters import (
 )
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
-from slam2d.matching.hill_climb import BeamSet, gaussian_proposal, hold_flat_direction, match_one, match_particles
+from slam2d.matching.hill_climb import (
+    BeamSet,
+    gaussian_proposal,
+    hold_flat_direction,
+    match_one,
+    match_particles,
+    wall_ends,
+)
 from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -96,6 +103,13 @@ class GMappingParams:
         "the score's translation curvature at the optimum is taken by central differences of one cell; when its "
         "smaller eigenvalue is below this times the larger (a corridor longer than the laser's reach) the climb's "
         "move along that direction is undone, the odometry's kept (counted as degenerate_matches); 0: off")
+    flat_sigma: float = param(
+        0.0, unit="m", low=0.0, help="not in GMapping: with flat_ratio, a held climb is not left at the odometry's "
+        "position along its flat direction but moved to where the scan's wall ends (a straight wall's last hit "
+        "next to a beam that passes it) meet the same walls' ends in the particle's map, each a Gaussian of this "
+        "standard deviation, against the motion model's prior: the few beams that say where along a corridor the "
+        "robot is, which the whole score's curvature cannot tell from the walls' ripple; 0: off, held at the "
+        "odometry's")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -305,7 +319,11 @@ class GMapping(SlamMethod):
             return None
         s = beam_sigmas(scan, self.sensor_model, 0.0)  # extra per-beam range noise, m (0 without a model)
         s2 = np.nan_to_num(2.0 * s * s)
-        return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2)
+        ends = None
+        if p.flat_sigma > 0.0 and p.flat_ratio > 0.0:
+            limit = min(self._max_range, self._usable, math.inf if p.match_range is None else p.match_range)
+            ends = wall_ends(r, scan.angles, use, limit)
+        return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2, np.nan_to_num(s * s), ends)
 
     def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The last tracked pose of the best particle and the odometry there (its node after an update)."""
@@ -340,22 +358,39 @@ class GMapping(SlamMethod):
         pose = np.array([[x, y, th]])
         if self.params.flat_ratio > 0.0:  # skip building the arguments when it is off (every tracked scan)
             self._hold_flat(np.asarray(frame.scan.mount, dtype=np.float64), beams, np.array([best], dtype=np.int64),
-                            start[None], pose, np.ones(1, dtype=np.bool_), np.zeros(1), count="degenerate_tracking")
+                            start[None], pose, np.ones(1, dtype=np.bool_), np.zeros(1), count="degenerate_tracking",
+                            since=last_odom)
         self._track_pose, self._track_odom = pose[0], self._odom
         return self._track_pose
 
     def _hold_flat(self, mount, beams: BeamSet, which, starts, poses, ok, like,
-                   count: str = "degenerate_matches") -> int:
-        """``flat_ratio``: undo the climbs' moves along directions their score does not constrain; count them."""
+                   count: str = "degenerate_matches", since: NDArray[np.float64] | None = None) -> int:
+        """``flat_ratio``: undo the climbs' moves along directions their score does not constrain; count them.
+
+        ``flat_sigma``: the wall ends' pull along those directions, against the motion model's prior
+        for the odometry increment since the last update (``since``: since the last tracked scan).
+        """
         p = self.params
         if p.flat_ratio <= 0.0:
             return 0
         maps = self._maps
         flat = np.zeros(poses.shape[0], dtype=np.int64)
+        reach = np.zeros((poses.shape[0], 3))
+        end_info = 0.0
+        if p.flat_sigma > 0.0:
+            end_w = np.zeros(0)  # the wall ends' explicit term (two-sided), not the end points' distances
+            end_info = 1.0 / p.flat_sigma ** 2
+            prior = self._prior_info(1.0, since)[: poses.shape[0]]
+            # where the map ends: the reach of the last update's scan from the laser of each map's pose there
+            at_update = self._update_poses[which] if since is None else self._node_poses[self._nodes - 1, which]
+            reach[:, :2] = se2.compose(at_update, mount)[:, :2]
+            reach[:, 2] = self._usable - (2 * p.kernelSize + 1) * maps.resolution
+        else:
+            end_w, prior = np.zeros(0), np.zeros((poses.shape[0], 3))
         hold_flat_direction(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
                             p.kernelSize, p.free_cell_check, which, starts, poses, ok, mount, beams.ex, beams.ey,
                             beams.ux, beams.uy, beams.div_score, beams.div_like, maps.resolution, p.flat_ratio,
-                            like, flat)
+                            end_w, beams.ends, end_info, reach, prior, like, flat)
         held = int((flat > 0).sum())
         if held:
             self.diagnostics.count(count, held)
