@@ -193,14 +193,18 @@ def _nearest(pts, j, k, wx, wy):
     return best
 
 
+@njit(cache=True, inline="always")
+def _laser_in_world(x, y, th, mount):
+    """The laser's position and heading (cos, sin) in the world for robot pose ``(x, y, th)``."""
+    c, s = math.cos(th), math.sin(th)
+    lth = th + mount[2]
+    return x + c * mount[0] - s * mount[1], y + s * mount[0] + c * mount[1], math.cos(lth), math.sin(lth)
+
+
 @njit(cache=True, fastmath=True)
 def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l, want_like):
     """``(score, log-likelihood, matched beams)`` of robot pose ``(x, y, th)`` on map ``p``."""
-    c, s = math.cos(th), math.sin(th)
-    lx = x + c * mount[0] - s * mount[1]
-    ly = y + s * mount[0] + c * mount[1]
-    lth = th + mount[2]
-    lc, ls = math.cos(lth), math.sin(lth)
+    lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
     free_step = FREE_CELL_RATIO * res
     inv = 1.0 / res
     # the window, plus the free neighbour when it is tested (sqrt(2) cells back: at most 2 cells further)
@@ -251,11 +255,7 @@ def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex,
     the beam changes cell. Same arithmetic, same order: the same score, bit
     for bit.
     """
-    c, s = math.cos(th), math.sin(th)
-    lx = x + c * mount[0] - s * mount[1]
-    ly = y + s * mount[0] + c * mount[1]
-    lth = th + mount[2]
-    lc, ls = math.cos(lth), math.sin(lth)
+    lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
     inv = 1.0 / res
     score = 0.0
     for j in range(ex.shape[0]):
@@ -553,11 +553,7 @@ def along_terms(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step
     end to a beam near the cut (moving the pose back gains it map points); with the last
     update's laser position and its usable range less a window, those beams are left out.
     """
-    c, s = math.cos(th), math.sin(th)
-    lx = x + c * mount[0] - s * mount[1]
-    ly = y + s * mount[0] + c * mount[1]
-    lth = th + mount[2]
-    lc, ls = math.cos(lth), math.sin(lth)
+    lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
     inv = 1.0 / res
     pts = np.empty((1, (2 * kernel + 1) * (2 * kernel + 1), 2))
     grad = 0.0
@@ -605,11 +601,7 @@ def wall_end_terms(pool, occ, table, p, ox, oy, res, x, y, th, vx, vy, mount, en
     in mid-wall, or a pose farther off than the search), is left out, as are those beyond
     ``reach`` (see :func:`along_terms`).
     """
-    c, s = math.cos(th), math.sin(th)
-    lx = x + c * mount[0] - s * mount[1]
-    ly = y + s * mount[0] + c * mount[1]
-    lth = th + mount[2]
-    lc, ls = math.cos(lth), math.sin(lth)
+    lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
     inv = 1.0 / res
     half_step = 0.5 * res
     grad = 0.0
