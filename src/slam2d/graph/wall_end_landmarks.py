@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.backends.landmarks import PointObservations, landmark_positions, optimize_with_landmarks, point_errors
+from slam2d.backends.landmarks import (PointObservations, landmark_covariance, landmark_positions,
+                                      optimize_with_landmarks, point_errors)
 from slam2d.core import se2
 from slam2d.matching.wall_ends import detect_wall_ends
 from slam2d.params import param
@@ -105,6 +106,26 @@ class WallEndParams:
         help="after an optimisation a landmark sighting whose chi-square (2 DOF) exceeds this is dropped "
         "(wall_end_landmarks)",
     )
+    wall_end_revisits: bool = param(
+        False,
+        help="after each optimisation, merge a landmark being tracked into an older one it matches (a return "
+        "to a place: the old jamb seen again on a later pass) (wall_end_landmarks): within wall_end_gate "
+        "sigmas of the difference's marginal covariance in the pose graph, with the walls pointing the same "
+        "way, never seen from one node, and no rival within wall_end_revisit_rival sigmas",
+    )
+    wall_end_revisit_radius: float = param(
+        0.5, unit="m", low=0.0, help="older landmarks farther than this are not candidates (wall_end_revisits)"
+    )
+    wall_end_revisit_rival: float = param(
+        6.0, unit="sigma", low=0.0,
+        help="a merge needs every other candidate (either side's) farther than this Mahalanobis distance "
+        "(wall_end_revisits)",
+    )
+    wall_end_revisit_direction: float = param(
+        30.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
+        help="largest angle between the two landmarks' wall directions (from the end into the wall) "
+        "(wall_end_revisits): the two jambs of a door point opposite ways",
+    )
 
 
 def _grow(arr: NDArray, needed: int) -> NDArray:
@@ -123,6 +144,7 @@ class WallEndLandmarks:
         self.diagnostics = diagnostics
         self._node = np.zeros(0, np.int64)  # per sighting
         self._lm = np.zeros(0, np.int64)
+        self._origin = np.zeros(0, np.int64)  # the landmark a sighting was first given (merges keep it)
         self._z = np.zeros((0, 2))
         self._info = np.zeros((0, 2, 2))
         self._alive = np.zeros(0, bool)  # False once rejected
@@ -131,10 +153,12 @@ class WallEndLandmarks:
         self._cov = np.zeros((0, 2, 2))
         self._last = np.zeros(0, np.int64)  # node that saw it last
         self._seen = np.zeros(0, np.int64)  # nodes that saw it
+        self._dir = np.zeros((0, 2))  # wall direction (world, from the end into the wall) at its first sighting
         self._nl = 0
         self._pending = 0  # observations in the graph not optimised yet
         self._last_optimized_node = 0
         self.rejected = 0
+        self.merged = 0
 
     def _count(self, name: str, n: int = 1) -> None:
         if self.diagnostics is not None and n:
@@ -149,6 +173,11 @@ class WallEndLandmarks:
         k = self._k
         ok = self._alive[:k] & (self._seen[self._lm[:k]] >= self.params.wall_end_minimum_sightings)
         return PointObservations(self._node[:k][ok], self._lm[:k][ok], self._z[:k][ok], self._info[:k][ok])
+
+    def sightings(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Every sighting: (node, landmark, landmark first given, point in the robot frame, alive); for checks."""
+        k = self._k
+        return self._node[:k].copy(), self._lm[:k].copy(), self._origin[:k].copy(), self._z[:k].copy(), self._alive[:k].copy()
 
     def positions(self) -> NDArray[np.float64]:
         return self._pos[: self._nl].copy()
@@ -221,6 +250,7 @@ class WallEndLandmarks:
             self._pos[ids] = world[new]
             self._cov[ids] = wcov[new] - (p.wall_end_pose_sigma**2) * np.eye(2)
             self._seen[ids] = 0
+            self._dir[ids] = ends.direction[new] @ rot.T
             self._nl += k_new
             best[new] = ids
             self._count("wall_end_landmarks", k_new)
@@ -230,11 +260,13 @@ class WallEndLandmarks:
         k0, k = self._k, int(use.sum())
         self._node = _grow(self._node, k0 + k)
         self._lm = _grow(self._lm, k0 + k)
+        self._origin = _grow(self._origin, k0 + k)
         self._z = _grow(self._z, k0 + k)
         self._info = _grow(self._info, k0 + k)
         self._alive = _grow(self._alive, k0 + k)
         self._node[k0 : k0 + k] = node
         self._lm[k0 : k0 + k] = lm
+        self._origin[k0 : k0 + k] = lm
         self._z[k0 : k0 + k] = ends.points[use]
         self._info[k0 : k0 + k] = info
         self._alive[k0 : k0 + k] = True
@@ -255,6 +287,7 @@ class WallEndLandmarks:
         self._cov = _grow(self._cov, needed)
         self._last = _grow(self._last, needed)
         self._seen = _grow(self._seen, needed)
+        self._dir = _grow(self._dir, needed)
 
     def _refresh(self, lm: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
         """Place landmarks ``lm`` from their alive sightings at ``poses``."""
@@ -270,12 +303,27 @@ class WallEndLandmarks:
 
     def optimize(self, backend: Any, graph: Any):
         """The front end's optimisation with the landmark edges; returns the back end's result (pose nodes)."""
+        res, pos = self._solve(backend, graph)
+        if (self.params.wall_end_revisits and "landmarks" in res.extra
+                and self._merge_revisits(graph, res.poses, pos)):
+            # The merged sightings tie two passes: solve again with them.
+            res2, _ = self._solve(backend, graph)
+            res2.cost_before = res.cost_before
+            res = res2
+        self._pending = 0
+        self._last_optimized_node = graph.num_nodes - 1
+        all_lm = np.arange(self._nl)
+        self._refresh(all_lm, res.poses)
+        return res
+
+    def _solve(self, backend: Any, graph: Any):
+        """Optimise, drop the sightings over ``wall_end_reject_chi2`` and optimise again: (result, landmarks)."""
         p = self.params
         obs = self.observations()
-        res, _ = optimize_with_landmarks(backend, graph, obs, self._nl)
+        res, pos = optimize_with_landmarks(backend, graph, obs, self._nl)
         if len(obs) and p.wall_end_reject_chi2 > 0 and not res.extra.get("landmarks_skipped", False):
-            pos, _ = landmark_positions(res.poses, obs, self._nl)
-            e = point_errors(res.poses, pos, obs)
+            pos2, _ = landmark_positions(res.poses, obs, self._nl)
+            e = point_errors(res.poses, pos2, obs)
             chi2 = np.einsum("ki,kij,kj->k", e, obs.information, e)
             bad = chi2 > p.wall_end_reject_chi2
             if bad.any():
@@ -287,11 +335,83 @@ class WallEndLandmarks:
                 self.rejected += n_bad
                 self._count("wall_end_sightings_rejected", n_bad)
                 obs = self.observations()
-                res2, _ = optimize_with_landmarks(backend, graph, obs, self._nl)
+                res2, pos = optimize_with_landmarks(backend, graph, obs, self._nl)
                 res2.cost_before = res.cost_before
                 res = res2
-        self._pending = 0
-        self._last_optimized_node = graph.num_nodes - 1
-        all_lm = np.arange(self._nl)
-        self._refresh(all_lm, res.poses)
-        return res
+        return res, pos
+
+    def _merge_revisits(self, graph: Any, poses: NDArray[np.float64], pos: NDArray[np.float64]) -> int:
+        """Merge each landmark being tracked into an older one it unambiguously matches; returns the merges.
+
+        A landmark that tracking lost (a return to a place on a later pass, or an end missed for
+        longer than ``wall_end_track_nodes``) starts a new one when seen again; tying the two is
+        place recognition, so it is held to more than the tracking gate: the difference of the two
+        positions within ``wall_end_gate`` sigmas of its marginal covariance in the optimised graph
+        (which is wide until the loop closer has tied the passes), less than
+        ``wall_end_revisit_radius`` apart, the walls pointing the same way, never seen from one
+        node (two ends in one scan are two ends), and no other pair with either of them within
+        ``wall_end_revisit_rival`` sigmas.
+        """
+        p = self.params
+        nl, k = self._nl, self._k
+        obs = self.observations()
+        if len(obs) == 0:
+            return 0
+        node = graph.num_nodes - 1
+        inside = np.zeros(nl, bool)
+        inside[obs.landmark] = True
+        inside &= np.isfinite(pos[:nl, 0])
+        active = np.flatnonzero(inside & (self._last[:nl] >= node - p.wall_end_track_nodes))
+        if active.size == 0:
+            return 0
+        # Candidate pairs (active a, any other b in the graph) within twice the radius: rivals too.
+        d = pos[active][:, None, :] - pos[:nl][None, :, :]
+        dist = np.hypot(d[..., 0], d[..., 1])
+        near = (dist < 2.0 * p.wall_end_revisit_radius) & inside[None, :]
+        near[np.arange(active.size), active] = False
+        ia, ib = np.nonzero(near)
+        if ia.size == 0:
+            return 0
+        a, b = active[ia], ib
+        # Each unordered pair once (both active: keep a > b).
+        keep = ~(np.isin(b, active) & (b > a))
+        a, b, ia = a[keep], b[keep], ia[keep]
+        # Never seen from one node (alive or not).
+        lm_all, node_all = self._lm[:k], self._node[:k]
+        disjoint = np.array([np.intersect1d(node_all[lm_all == x], node_all[lm_all == y]).size == 0
+                             for x, y in zip(a, b)], bool)  # a few pairs per optimisation
+        same_way = (self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)
+        a, b = a[disjoint], b[disjoint]
+        same_way = same_way[disjoint]
+        if a.size == 0:
+            return 0
+        which = np.unique(np.concatenate([a, b]))
+        cov = landmark_covariance(graph, poses, pos[:nl], obs, which)
+        ja, jb = np.searchsorted(which, a), np.searchsorted(which, b)
+        blk = cov.reshape(which.size, 2, which.size, 2).transpose(0, 2, 1, 3)
+        S = blk[ja, ja] + blk[jb, jb] - blk[ja, jb] - blk[jb, ja]
+        dd = pos[a] - pos[b]
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            m2 = (S[:, 1, 1] * dd[:, 0] ** 2 - 2 * S[:, 0, 1] * dd[:, 0] * dd[:, 1] + S[:, 0, 0] * dd[:, 1] ** 2) / det
+        m2 = np.where(det > 0, m2, np.inf)
+        # Rivals: the pairs of different directions count too (a mistaken direction is no proof).
+        close = m2 < p.wall_end_revisit_rival**2
+        count = np.bincount(a[close], minlength=nl) + np.bincount(b[close], minlength=nl)
+        ok = ((m2 < p.wall_end_gate**2) & same_way & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
+              & (count[a] == 1) & (count[b] == 1))
+        self._count("wall_end_revisit_candidates", int(((m2 < p.wall_end_gate**2) & same_way).sum()))
+        merged = 0
+        for x, y in zip(a[ok], b[ok]):  # each landmark in at most one such pair (count == 1)
+            keep_id, drop = min(x, y), max(x, y)
+            self._lm[:k][lm_all == drop] = keep_id
+            self._seen[keep_id] += self._seen[drop]
+            self._seen[drop] = 0
+            self._last[keep_id] = max(self._last[keep_id], self._last[drop])
+            self._last[drop] = -(1 << 40)  # never tracked again
+            merged += 1
+        if merged:
+            self.merged += merged
+            self._count("wall_end_landmarks_merged", merged)
+            self._refresh(np.unique(np.minimum(a[ok], b[ok])), poses)
+        return merged

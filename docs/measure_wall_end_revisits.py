@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""karto with wall-end landmarks on the simulated URG-04LX recordings: ATE, map error and the merges' truth.
+
+    .venv/bin/python docs/measure_wall_end_revisits.py [--world office] [--laser urg-04lx] \
+        [--seeds 0,1,2,3,4,5] [key=value ...]
+
+The recordings of `karto-sim-lasers` (office 120 s, corridor-loop one pass; written once under
+--cache, as docs/measure_gmapping_proposal.py writes them), run in-process with the settings
+given and judged as `slam2d evaluate --truth`. Per seed: ATE (m), map error (mean truth-to-map,
+m), landmarks, merges of a tracked landmark into an older one (`wall_end_revisits`) and how many
+of those were wrong: the sightings of the two merged parts, placed at the *true* poses of their
+nodes, more than 0.15 m apart (their means). Also the CPU seconds of the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from slam2d.core import se2
+from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+from slam2d.methods.runner import build_method, run_method
+from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+
+def merge_truth(wall_ends, node_times, truth) -> tuple[int, int]:
+    """(merges, wrong merges) of the tracker, judged at the true poses of the nodes."""
+    node, lm, origin, z, _ = wall_ends.sightings()
+    idx = np.searchsorted(truth.times, np.asarray(node_times)[node])
+    idx = np.clip(idx, 0, len(truth.times) - 1)
+    world = se2.transform_points(truth.poses[idx], z[:, None, :])[:, 0, :]
+    merges = wrong = 0
+    for target in np.unique(lm[origin != lm]):  # landmarks that absorbed others (a few per run)
+        sel = lm == target
+        parts = np.unique(origin[sel])
+        means = np.array([world[sel & (origin == o)].mean(axis=0) for o in parts])
+        merges += parts.size - 1
+        wrong += int((np.hypot(*(means[1:] - means[0]).T) > 0.15).sum())
+    return merges, wrong
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--laser", default="urg-04lx")
+    ap.add_argument("--world", default="office")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--cache", default="/tmp/slam2d-proposal")
+    ap.add_argument("settings", nargs="*")
+    a = ap.parse_args()
+    settings = dict(s.split("=", 1) for s in a.settings)
+    settings.setdefault("wall_end_landmarks", "true")
+    duration = 120.0 if a.world == "office" else None  # as karto-sim-lasers
+    ates, maps = [], []
+    for seed in (int(s) for s in a.seeds.split(",")):
+        sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
+        if not (sim_dir / "recording.log.gz").exists():
+            write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
+        run_dir = Path(a.cache) / f"run-revisits-{a.world}-{a.laser}-{seed}"
+        slam = build_method("karto", settings=settings)
+        cpu = time.process_time()
+        run_method(slam, sim_dir / "recording.log.gz", run_dir)
+        cpu = time.process_time() - cpu
+        truth = load_truth(sim_dir)
+        e = evaluate_run(load_run(run_dir), truth)
+        ate = e["trajectory"]["ate"]["translation_m"]["rmse"]
+        err = e["map_truth"]["truth_to_map_m"]["mean"]
+        fe = slam.frontend
+        counts = json.loads((run_dir / "diagnostics.json").read_text())["counters"]
+        merges, wrong = merge_truth(fe.wall_ends, fe.node_times(), truth) if fe.wall_ends is not None else (0, 0)
+        ates.append(ate)
+        maps.append(err)
+        print(f"{a.world} {a.laser} seed {seed}: ATE {ate:.3f} m, map {err:.3f} m, "
+              f"{counts.get('wall_end_landmarks', 0)} landmarks, {merges} merges ({wrong} wrong), "
+              f"{counts.get('loop_closures', 0)} loop closures, cpu {cpu:.0f} s", flush=True)
+    print(f"mean ATE {sum(ates) / len(ates):.3f} m, max {max(ates):.3f}; mean map {sum(maps) / len(maps):.3f} m; "
+          f"settings {' '.join(a.settings) or '(wall_end_landmarks=true)'}")
+
+
+if __name__ == "__main__":
+    main()
