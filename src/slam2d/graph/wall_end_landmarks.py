@@ -46,6 +46,12 @@ class WallEndParams:
         "with point edges (spa; lago ignores them) (not in Karto): they pin the position along corridors "
         "longer than the laser's reach, where the correlative match follows the odometry",
     )
+    wall_end_auto_range: float = param(
+        0.0, unit="m", low=0.0,
+        help="with wall_end_landmarks false, turn them on for a laser whose maximum range (the first scan's "
+        "range_max) is under this; 0 = never (not in Karto). 8 m takes the URG-04LX (5.6 m), where they help in "
+        "the simulated office, and leaves the RPLidar A1 (12 m) and the SICK logs (50-81.8 m) exactly as they are",
+    )
     wall_end_jump: float = param(
         0.3, unit="m", low=0.0, help="least range step from a wall end's beam to the next two beams (wall_end_landmarks)"
     )
@@ -108,23 +114,27 @@ class WallEndParams:
     )
     wall_end_revisits: bool = param(
         False,
-        help="after each optimisation, merge a landmark being tracked into an older one it matches (a return "
-        "to a place: the old jamb seen again on a later pass) (wall_end_landmarks): within wall_end_gate "
-        "sigmas of the difference's marginal covariance in the pose graph, with the walls pointing the same "
-        "way, never seen from one node, and no rival within wall_end_revisit_rival sigmas",
+        help="after each optimisation, merge landmarks that are one wall end seen again (a return to a place, "
+        "or a track lost for a while) (wall_end_landmarks): within wall_end_gate sigmas of their difference's "
+        "marginal covariance in the pose graph, never seen from one node, walls within "
+        "wall_end_revisit_direction, and no rival within wall_end_revisit_rival sigmas",
     )
     wall_end_revisit_radius: float = param(
-        0.5, unit="m", low=0.0, help="older landmarks farther than this are not candidates (wall_end_revisits)"
+        0.15, unit="m", low=0.0,
+        help="landmarks farther apart than this are not merged (wall_end_revisits): along a corridor the "
+        "marginal covariance is wide (its largest sigma 0.4-0.7 m in the simulated corridor loop) and the "
+        "gate alone let two box corners 0.1 m apart merge from 0.34 m",
     )
     wall_end_revisit_rival: float = param(
         6.0, unit="sigma", low=0.0,
-        help="a merge needs every other candidate (either side's) farther than this Mahalanobis distance "
-        "(wall_end_revisits)",
+        help="landmarks this close (Mahalanobis distance of their difference) form a group, merged only when "
+        "every pair in it passes the merge tests (wall_end_revisits)",
     )
     wall_end_revisit_direction: float = param(
-        30.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
+        120.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
         help="largest angle between the two landmarks' wall directions (from the end into the wall) "
-        "(wall_end_revisits): the two jambs of a door point opposite ways",
+        "(wall_end_revisits): a box corner is the end of either face (90 deg), the two jambs of a door "
+        "point opposite ways (180 deg)",
     )
 
 
@@ -341,48 +351,40 @@ class WallEndLandmarks:
         return res, pos
 
     def _merge_revisits(self, graph: Any, poses: NDArray[np.float64], pos: NDArray[np.float64]) -> int:
-        """Merge each landmark being tracked into an older one it unambiguously matches; returns the merges.
+        """Merge the landmarks in the graph that are one wall end seen on different passes; returns the merges.
 
         A landmark that tracking lost (a return to a place on a later pass, or an end missed for
         longer than ``wall_end_track_nodes``) starts a new one when seen again; tying the two is
-        place recognition, so it is held to more than the tracking gate: the difference of the two
-        positions within ``wall_end_gate`` sigmas of its marginal covariance in the optimised graph
-        (which is wide until the loop closer has tied the passes), less than
-        ``wall_end_revisit_radius`` apart, the walls pointing the same way, never seen from one
-        node (two ends in one scan are two ends), and no other pair with either of them within
-        ``wall_end_revisit_rival`` sigmas.
+        place recognition, so it is held to more than the tracking gate. Pairs are linked when
+        their difference is within ``wall_end_revisit_rival`` sigmas of its marginal covariance in
+        the optimised graph (wide until the loop closer has tied the passes); each group so linked
+        is merged into its oldest landmark only when *every* pair in it is never seen from one node
+        (two ends in one scan are two ends), within ``wall_end_gate`` sigmas and
+        ``wall_end_revisit_radius``, and its walls within ``wall_end_revisit_direction`` (a box
+        corner is the end of either face, at 90 deg; the two jambs of a door point opposite ways).
         """
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
         p = self.params
         nl, k = self._nl, self._k
         obs = self.observations()
-        if len(obs) == 0:
+        if len(obs) == 0 or nl < 2:
             return 0
-        node = graph.num_nodes - 1
         inside = np.zeros(nl, bool)
         inside[obs.landmark] = True
         inside &= np.isfinite(pos[:nl, 0])
-        active = np.flatnonzero(inside & (self._last[:nl] >= node - p.wall_end_track_nodes))
-        if active.size == 0:
-            return 0
-        # Candidate pairs (active a, any other b in the graph) within twice the radius: rivals too.
-        d = pos[active][:, None, :] - pos[:nl][None, :, :]
-        dist = np.hypot(d[..., 0], d[..., 1])
-        near = (dist < 2.0 * p.wall_end_revisit_radius) & inside[None, :]
-        near[np.arange(active.size), active] = False
-        ia, ib = np.nonzero(near)
+        ids = np.flatnonzero(inside)
+        # Pairs (a > b) within twice the radius: candidates and rivals.
+        d = pos[ids][:, None, :] - pos[ids][None, :, :]
+        ia, ib = np.nonzero(np.tril(np.hypot(d[..., 0], d[..., 1]) < 2.0 * p.wall_end_revisit_radius, -1))
         if ia.size == 0:
             return 0
-        a, b = active[ia], ib
-        # Each unordered pair once (both active: keep a > b).
-        keep = ~(np.isin(b, active) & (b > a))
-        a, b, ia = a[keep], b[keep], ia[keep]
-        # Never seen from one node (alive or not).
+        a, b = ids[ia], ids[ib]
         lm_all, node_all = self._lm[:k], self._node[:k]
         disjoint = np.array([np.intersect1d(node_all[lm_all == x], node_all[lm_all == y]).size == 0
-                             for x, y in zip(a, b)], bool)  # a few pairs per optimisation
-        same_way = (self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)
+                             for x, y in zip(a, b)], bool)  # a few dozen pairs per optimisation
         a, b = a[disjoint], b[disjoint]
-        same_way = same_way[disjoint]
         if a.size == 0:
             return 0
         which = np.unique(np.concatenate([a, b]))
@@ -395,23 +397,33 @@ class WallEndLandmarks:
         with np.errstate(divide="ignore", invalid="ignore"):
             m2 = (S[:, 1, 1] * dd[:, 0] ** 2 - 2 * S[:, 0, 1] * dd[:, 0] * dd[:, 1] + S[:, 0, 0] * dd[:, 1] ** 2) / det
         m2 = np.where(det > 0, m2, np.inf)
-        # Rivals: the pairs of different directions count too (a mistaken direction is no proof).
-        close = m2 < p.wall_end_revisit_rival**2
-        count = np.bincount(a[close], minlength=nl) + np.bincount(b[close], minlength=nl)
-        ok = ((m2 < p.wall_end_gate**2) & same_way & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
-              & (count[a] == 1) & (count[b] == 1))
-        self._count("wall_end_revisit_candidates", int(((m2 < p.wall_end_gate**2) & same_way).sum()))
+        linked = m2 < p.wall_end_revisit_rival**2
+        ok = ((m2 < p.wall_end_gate**2) & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
+              & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
+        self._count("wall_end_revisit_candidates", int(ok.sum()))
+        if not linked.any():
+            return 0
+        adj = coo_matrix((np.ones(int(linked.sum())), (ja[linked], jb[linked])), shape=(which.size, which.size))
+        ncomp, comp = connected_components(adj, directed=False)
+        size = np.bincount(comp, minlength=ncomp)
+        # A group merges only when all its pairs are good ones (a clique of ok pairs).
+        good_pairs = np.bincount(comp[ja[ok & linked]], minlength=ncomp)
+        mergeable = (size >= 2) & (good_pairs == size * (size - 1) // 2)
         merged = 0
-        for x, y in zip(a[ok], b[ok]):  # each landmark in at most one such pair (count == 1)
-            keep_id, drop = min(x, y), max(x, y)
-            self._lm[:k][lm_all == drop] = keep_id
-            self._seen[keep_id] += self._seen[drop]
-            self._seen[drop] = 0
-            self._last[keep_id] = max(self._last[keep_id], self._last[drop])
-            self._last[drop] = -(1 << 40)  # never tracked again
-            merged += 1
+        targets = []
+        for c in np.flatnonzero(mergeable):  # a few groups per optimisation
+            members = which[comp == c]
+            keep_id = int(members.min())
+            for drop in members[members != keep_id]:
+                self._lm[:k][lm_all == drop] = keep_id
+                self._seen[keep_id] += self._seen[drop]
+                self._seen[drop] = 0
+                self._last[keep_id] = max(self._last[keep_id], self._last[drop])
+                self._last[drop] = -(1 << 40)  # never tracked again
+                merged += 1
+            targets.append(keep_id)
         if merged:
             self.merged += merged
             self._count("wall_end_landmarks_merged", merged)
-            self._refresh(np.unique(np.minimum(a[ok], b[ok])), poses)
+            self._refresh(np.asarray(targets, np.int64), poses)
         return merged
