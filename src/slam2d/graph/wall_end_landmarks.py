@@ -125,6 +125,11 @@ class WallEndParams:
         "marginal covariance is wide (its largest sigma 0.4-0.7 m in the simulated corridor loop) and the "
         "gate alone let two box corners 0.1 m apart merge from 0.34 m",
     )
+    wall_end_revisit_maximum_sigma: float = param(
+        math.inf, unit="m", low=0.0,
+        help="merge only where the largest sigma of the two landmarks' difference (marginal covariance) is "
+        "under this (wall_end_revisits): once the passes are tied by the loop closer; inf = any",
+    )
     wall_end_revisit_rival: float = param(
         6.0, unit="sigma", low=0.0,
         help="landmarks this close (Mahalanobis distance of their difference) form a group, merged only when "
@@ -398,7 +403,10 @@ class WallEndLandmarks:
             m2 = (S[:, 1, 1] * dd[:, 0] ** 2 - 2 * S[:, 0, 1] * dd[:, 0] * dd[:, 1] + S[:, 0, 0] * dd[:, 1] ** 2) / det
         m2 = np.where(det > 0, m2, np.inf)
         linked = m2 < p.wall_end_revisit_rival**2
-        ok = ((m2 < p.wall_end_gate**2) & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
+        # Largest eigenvalue of each 2x2 S.
+        half_tr = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
+        big = half_tr + np.sqrt(np.maximum(half_tr**2 - det, 0.0))
+        ok = ((m2 < p.wall_end_gate**2) & (big < p.wall_end_revisit_maximum_sigma**2) & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
               & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
         self._count("wall_end_revisit_candidates", int(ok.sum()))
         if not linked.any():
