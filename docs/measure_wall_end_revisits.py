@@ -10,7 +10,10 @@ given and judged as `slam2d evaluate --truth`. Per seed: ATE (m), map error (mea
 m), landmarks, merges of a tracked landmark into an older one (`wall_end_revisits`) and how many
 of those were wrong: the sightings of the two merged parts, placed at the *true* poses of their
 nodes, more than 0.05 m apart (their means; the largest such gap is printed too); missed: pairs of
-landmarks left in the graph whose true means are within 0.1 m and never seen from one node. Also the CPU seconds of the run.
+landmarks left in the graph whose true means are within 0.1 m and never seen from one node.
+With ``--diagnose``, also: the mean chi-square at the *true* node poses of the landmark sightings
+(2 expected for a right covariance) and of the pose-graph edges (3 expected), and the mean
+position error (after the evaluation's alignment) in each twelfth of the trajectory. Also the CPU seconds of the run.
 """
 
 from __future__ import annotations
@@ -58,12 +61,40 @@ def merge_truth(wall_ends, node_times, truth, minimum_sightings: int = 3) -> tup
     return merges, wrong, missed, worst
 
 
+def diagnose(fe, truth, run_dir: Path) -> str:
+    """Chi-squares at the true node poses (landmark sightings, pose edges) and the error per twelfth."""
+    from slam2d.backends.graph import edge_errors
+    from slam2d.backends.landmarks import landmark_positions, point_errors
+    from slam2d.io.tum import read_tum
+
+    idx = np.clip(np.searchsorted(truth.times, fe.node_times()), 0, len(truth.times) - 1)
+    tp = truth.poses[idx]
+    g = fe.graph
+    e = edge_errors(tp, g.edge_i, g.edge_j, g.measurements)
+    edges = float(np.einsum("ki,kij,kj->k", e, g.information, e).mean())
+    out = f"pose edges at the truth: mean chi2 {edges:.2f}"
+    if fe.wall_ends is not None and len(fe.wall_ends.observations()):
+        obs = fe.wall_ends.observations()
+        pos, _ = landmark_positions(tp, obs, fe.wall_ends.num_landmarks)
+        el = point_errors(tp, pos, obs)
+        out += f", landmark sightings {float(np.einsum('ki,kij,kj->k', el, obs.information, el).mean()):.2f}"
+    # Per twelfth: the run's trajectory against the truth at its times, after a least-squares fit.
+    rt, rp = read_tum(run_dir / "trajectory.tum")
+    b = truth.poses[np.clip(np.searchsorted(truth.times, rt), 0, len(truth.times) - 1), :2]
+    a = rp[:, :2]
+    u, _, vt = np.linalg.svd((a - a.mean(0)).T @ (b - b.mean(0)))
+    rot = vt.T @ np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
+    err = np.hypot(*((a - a.mean(0)) @ rot.T + b.mean(0) - b).T)
+    return out + "; error per twelfth (m): " + " ".join(f"{err[k].mean():.2f}" for k in np.array_split(np.arange(err.size), 12))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--laser", default="urg-04lx")
     ap.add_argument("--world", default="office")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--cache", default="/tmp/slam2d-proposal")
+    ap.add_argument("--diagnose", action="store_true", help="chi-squares at the truth and the error per twelfth")
     ap.add_argument("settings", nargs="*")
     a = ap.parse_args()
     settings = dict(s.split("=", 1) for s in a.settings)
@@ -93,6 +124,8 @@ def main() -> None:
               f"{counts.get('wall_end_landmarks', 0)} landmarks, {merges} merges ({wrong} wrong, {missed} missed, "
               f"largest true gap {worst:.3f} m), "
               f"{counts.get('loop_closures', 0)} loop closures, cpu {cpu:.0f} s", flush=True)
+        if a.diagnose:
+            print("  " + diagnose(fe, truth, run_dir), flush=True)
     print(f"mean ATE {sum(ates) / len(ates):.3f} m, max {max(ates):.3f}; mean map {sum(maps) / len(maps):.3f} m; "
           f"settings {' '.join(a.settings) or '(wall_end_landmarks=true)'}")
 

@@ -12,7 +12,9 @@ nodes enters the optimisation as a 2-DOF node with one point edge per sighting
 (:mod:`slam2d.backends.landmarks`); every ``wall_end_optimize_interval`` nodes with new such
 edges the graph is optimised, so the correction reaches the next predictions. Association is
 tracking, not place recognition: a landmark not seen for a while is not looked for again (a
-return is the loop closer's job), which keeps a wrong association from tying two passes.
+return is the loop closer's job), which keeps a wrong association from tying two passes. With
+``wall_end_revisits`` (off) landmarks in the graph that are one end seen again are merged after
+each optimisation, under a stricter test (:meth:`WallEndLandmarks._merge_revisits`).
 After each optimisation a sighting whose error exceeds ``wall_end_reject_chi2`` is dropped
 (clutter, a person, a wrong association) and the graph optimised again without it.
 """
@@ -117,7 +119,8 @@ class WallEndParams:
         help="after each optimisation, merge landmarks that are one wall end seen again (a return to a place, "
         "or a track lost for a while) (wall_end_landmarks): within wall_end_gate sigmas of their difference's "
         "marginal covariance in the pose graph, never seen from one node, walls within "
-        "wall_end_revisit_direction, and no rival within wall_end_revisit_rival sigmas",
+        "wall_end_revisit_direction and wall_end_revisit_radius, and so every pair of its group (those within "
+        "wall_end_revisit_rival sigmas)",
     )
     wall_end_revisit_radius: float = param(
         0.15, unit="m", low=0.0,
