@@ -13,7 +13,8 @@ nodes, more than 0.05 m apart (their means; the largest such gap is printed too)
 landmarks left in the graph whose true means are within 0.1 m and never seen from one node.
 With ``--diagnose``, also: the mean chi-square at the *true* node poses of the landmark sightings
 (2 expected for a right covariance) and of the pose-graph edges (3 expected), and the mean
-position error (after the evaluation's alignment) in each twelfth of the trajectory. Also the CPU seconds of the run.
+position error (after the evaluation's alignment) in each twelfth of the trajectory, and per merged
+pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run.
 """
 
 from __future__ import annotations
@@ -126,6 +127,9 @@ def main() -> None:
               f"{counts.get('loop_closures', 0)} loop closures, cpu {cpu:.0f} s", flush=True)
         if a.diagnose:
             print("  " + diagnose(fe, truth, run_dir), flush=True)
+            for node, x, y, dist, maha, sigma in (fe.wall_ends.merge_log if fe.wall_ends is not None else []):
+                print(f"  merge at node {node}: landmarks {x} and {y} {dist:.3f} m apart, {maha:.2f} sigma, "
+                      f"largest sigma {sigma:.3f} m", flush=True)
     print(f"mean ATE {sum(ates) / len(ates):.3f} m, max {max(ates):.3f}; mean map {sum(maps) / len(maps):.3f} m; "
           f"settings {' '.join(a.settings) or '(wall_end_landmarks=true)'}")
 

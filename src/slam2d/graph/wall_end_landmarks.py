@@ -184,6 +184,8 @@ class WallEndLandmarks:
         self._last_optimized_node = 0
         self.rejected = 0
         self.merged = 0
+        # per merged pair: (node, landmark, landmark, distance m, Mahalanobis distance, largest sigma m)
+        self.merge_log: list[tuple[int, int, int, float, float, float]] = []
 
     def _count(self, name: str, n: int = 1) -> None:
         if self.diagnostics is not None and n:
@@ -442,6 +444,9 @@ class WallEndLandmarks:
         for c in np.flatnonzero(mergeable):  # a few groups per optimisation
             members = which[comp == c]
             keep_id = int(members.min())
+            inside_group = np.flatnonzero(np.isin(a, members) & np.isin(b, members))
+            self.merge_log.extend((graph.num_nodes - 1, int(a[q]), int(b[q]), float(np.hypot(*dd[q])),
+                                   float(np.sqrt(m2[q])), float(np.sqrt(big[q]))) for q in inside_group)
             for drop in members[members != keep_id]:
                 self._lm[:k][lm_all == drop] = keep_id
                 self._seen[keep_id] += self._seen[drop]
