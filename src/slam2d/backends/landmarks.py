@@ -149,3 +149,47 @@ def optimize_with_landmarks(backend: Backend, graph: PoseGraph, obs: PointObserv
     res.extra["landmarks"] = int(used.size)
     res.extra["landmark_observations"] = len(obs)
     return res, pos
+
+
+def landmark_covariance(graph: PoseGraph, poses: NDArray, landmarks: NDArray, obs: PointObservations,
+                        which: NDArray) -> NDArray[np.float64]:
+    """The joint marginal covariance of the positions of landmarks ``which`` (J,), (2J, 2J).
+
+    The inverse of the Gauss-Newton information ``J^T Omega J`` of the pose graph with the
+    observations (as :func:`optimize_with_landmarks` hands it to SPA), linearised at ``poses`` and
+    ``landmarks`` (count, 2) and restricted to the x, y of those landmarks: what the graph knows
+    about where each is relative to the gauge node, and so about their differences. Every landmark
+    in ``which`` must be observed. The landmark headings, untouched by anything, get a unit
+    diagonal; a sparse LU solve with 2J right-hand sides.
+    """
+    import scipy.sparse.linalg as spla
+
+    from slam2d.backends.linear import BlockPattern, assemble_normal_equations
+
+    which = np.asarray(which, dtype=np.int64)
+    used = np.unique(obs.landmark)
+    index = np.full(landmarks.shape[0], -1, np.int64)
+    index[used] = np.arange(used.size)
+    if np.any(index[which] < 0):
+        raise ValueError("every landmark asked for must be observed")
+    local = PointObservations(obs.pose, index[obs.landmark], obs.z, obs.information)
+    g = augmented_graph(graph, landmarks[used], local)
+    g.fixed = graph.fixed
+    n = graph.num_nodes
+    x = np.vstack([np.asarray(poses, dtype=np.float64), np.column_stack([landmarks[used], np.zeros(used.size)])])
+    pattern = BlockPattern(g.edge_i, g.edge_j, g.num_nodes, int(g.fixed))
+    data = np.zeros(pattern.nnz)
+    grad = np.zeros(pattern.size)
+    assemble_normal_equations(x, np.asarray(g.edge_i, np.int64), np.asarray(g.edge_j, np.int64),
+                              np.ascontiguousarray(g.measurements), np.ascontiguousarray(g.information),
+                              pattern.slots, pattern.gslots, 0, 1.0, data, grad)
+    diag = np.zeros(pattern.size)
+    diag[pattern.base[n + np.arange(used.size)] + 2] = 1.0  # landmark headings
+    values = data.copy()
+    values[pattern.diag_slot] += diag
+    lu = spla.splu(pattern._csc(values), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    cols = (pattern.base[n + index[which]][:, None] + np.arange(2)[None, :]).ravel()
+    rhs = np.zeros((pattern.size, cols.size))
+    rhs[cols, np.arange(cols.size)] = 1.0
+    sol = lu.solve(rhs)
+    return sol[cols]

@@ -907,6 +907,10 @@ class GraphFrontend:
                 self._steps.append(se2.relative(self._odom[last], odom))
         self._running.append(node)
         self._trim_running()
+        if self.wall_ends is None and node == 0 and 0.0 < scan.range_max < p.wall_end_auto_range:
+            # A short-range laser (wall_end_auto_range): the wall ends go on from the first scan.
+            self.wall_ends = WallEndLandmarks(p, self.diagnostics)
+            self._count("wall_end_landmarks_auto")
         if self.wall_ends is not None:
             self.wall_ends.observe(self, node, scan, sig)
         closed = 0

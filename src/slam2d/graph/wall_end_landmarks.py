@@ -12,7 +12,9 @@ nodes enters the optimisation as a 2-DOF node with one point edge per sighting
 (:mod:`slam2d.backends.landmarks`); every ``wall_end_optimize_interval`` nodes with new such
 edges the graph is optimised, so the correction reaches the next predictions. Association is
 tracking, not place recognition: a landmark not seen for a while is not looked for again (a
-return is the loop closer's job), which keeps a wrong association from tying two passes.
+return is the loop closer's job), which keeps a wrong association from tying two passes. With
+``wall_end_revisits`` (off) landmarks in the graph that are one end seen again are merged after
+each optimisation, under a stricter test (:meth:`WallEndLandmarks._merge_revisits`).
 After each optimisation a sighting whose error exceeds ``wall_end_reject_chi2`` is dropped
 (clutter, a person, a wrong association) and the graph optimised again without it.
 """
@@ -26,7 +28,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.backends.landmarks import PointObservations, landmark_positions, optimize_with_landmarks, point_errors
+from slam2d.backends.landmarks import (PointObservations, landmark_covariance, landmark_positions,
+                                      optimize_with_landmarks, point_errors)
 from slam2d.core import se2
 from slam2d.matching.wall_ends import detect_wall_ends
 from slam2d.params import param
@@ -44,6 +47,12 @@ class WallEndParams:
         "track them as landmarks over the nodes that see them and add them to the pose graph as 2-DOF nodes "
         "with point edges (spa; lago ignores them) (not in Karto): they pin the position along corridors "
         "longer than the laser's reach, where the correlative match follows the odometry",
+    )
+    wall_end_auto_range: float = param(
+        0.0, unit="m", low=0.0,
+        help="with wall_end_landmarks false, turn them on for a laser whose maximum range (the first scan's "
+        "range_max) is under this; 0 = never (not in Karto). 8 m takes the URG-04LX (5.6 m), where they help in "
+        "the simulated office, and leaves the RPLidar A1 (12 m) and the SICK logs (50-81.8 m) exactly as they are",
     )
     wall_end_jump: float = param(
         0.3, unit="m", low=0.0, help="least range step from a wall end's beam to the next two beams (wall_end_landmarks)"
@@ -105,6 +114,43 @@ class WallEndParams:
         help="after an optimisation a landmark sighting whose chi-square (2 DOF) exceeds this is dropped "
         "(wall_end_landmarks)",
     )
+    wall_end_information_scale: float = param(
+        1.0, low=0.0,
+        help="a landmark sighting's information (the inverse of the end's covariance) is multiplied by this in "
+        "the pose graph (wall_end_landmarks): the scan matches' covariances are too wide for their errors "
+        "(mean chi-square at the truth 0.19 of 3 in the simulated office), so the landmarks weigh more than "
+        "the matches than they should (0.3, 0.1, 0.03 measured: no gain, docs/methods/karto.md)",
+    )
+    wall_end_revisits: bool = param(
+        False,
+        help="after each optimisation, merge landmarks that are one wall end seen again (a return to a place, "
+        "or a track lost for a while) (wall_end_landmarks): within wall_end_gate sigmas of their difference's "
+        "marginal covariance in the pose graph, never seen from one node, walls within "
+        "wall_end_revisit_direction and wall_end_revisit_radius, and so every pair of its group (those within "
+        "wall_end_revisit_rival sigmas)",
+    )
+    wall_end_revisit_radius: float = param(
+        0.15, unit="m", low=0.0,
+        help="landmarks farther apart than this are not merged (wall_end_revisits): along a corridor the "
+        "marginal covariance is wide (its largest sigma 0.4-0.7 m in the simulated corridor loop) and the "
+        "gate alone let two box corners 0.1 m apart merge from 0.34 m",
+    )
+    wall_end_revisit_maximum_sigma: float = param(
+        math.inf, unit="m", low=0.0,
+        help="merge only where the largest sigma of the two landmarks' difference (marginal covariance) is "
+        "under this (wall_end_revisits): once the passes are tied by the loop closer; inf = any",
+    )
+    wall_end_revisit_rival: float = param(
+        6.0, unit="sigma", low=0.0,
+        help="landmarks this close (Mahalanobis distance of their difference) form a group, merged only when "
+        "every pair in it passes the merge tests (wall_end_revisits)",
+    )
+    wall_end_revisit_direction: float = param(
+        120.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
+        help="largest angle between the two landmarks' wall directions (from the end into the wall) "
+        "(wall_end_revisits): a box corner is the end of either face (90 deg), the two jambs of a door "
+        "point opposite ways (180 deg)",
+    )
 
 
 def _grow(arr: NDArray, needed: int) -> NDArray:
@@ -123,6 +169,7 @@ class WallEndLandmarks:
         self.diagnostics = diagnostics
         self._node = np.zeros(0, np.int64)  # per sighting
         self._lm = np.zeros(0, np.int64)
+        self._origin = np.zeros(0, np.int64)  # the landmark a sighting was first given (merges keep it)
         self._z = np.zeros((0, 2))
         self._info = np.zeros((0, 2, 2))
         self._alive = np.zeros(0, bool)  # False once rejected
@@ -131,10 +178,14 @@ class WallEndLandmarks:
         self._cov = np.zeros((0, 2, 2))
         self._last = np.zeros(0, np.int64)  # node that saw it last
         self._seen = np.zeros(0, np.int64)  # nodes that saw it
+        self._dir = np.zeros((0, 2))  # wall direction (world, from the end into the wall) at its first sighting
         self._nl = 0
         self._pending = 0  # observations in the graph not optimised yet
         self._last_optimized_node = 0
         self.rejected = 0
+        self.merged = 0
+        # per merged pair: (node, landmark, landmark, distance m, Mahalanobis distance, largest sigma m)
+        self.merge_log: list[tuple[int, int, int, float, float, float]] = []
 
     def _count(self, name: str, n: int = 1) -> None:
         if self.diagnostics is not None and n:
@@ -149,6 +200,11 @@ class WallEndLandmarks:
         k = self._k
         ok = self._alive[:k] & (self._seen[self._lm[:k]] >= self.params.wall_end_minimum_sightings)
         return PointObservations(self._node[:k][ok], self._lm[:k][ok], self._z[:k][ok], self._info[:k][ok])
+
+    def sightings(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Every sighting: (node, landmark, landmark first given, point in the robot frame, alive); for checks."""
+        k = self._k
+        return self._node[:k].copy(), self._lm[:k].copy(), self._origin[:k].copy(), self._z[:k].copy(), self._alive[:k].copy()
 
     def positions(self) -> NDArray[np.float64]:
         return self._pos[: self._nl].copy()
@@ -221,20 +277,23 @@ class WallEndLandmarks:
             self._pos[ids] = world[new]
             self._cov[ids] = wcov[new] - (p.wall_end_pose_sigma**2) * np.eye(2)
             self._seen[ids] = 0
+            self._dir[ids] = ends.direction[new] @ rot.T
             self._nl += k_new
             best[new] = ids
             self._count("wall_end_landmarks", k_new)
         use = best >= 0
         lm = best[use]
-        info = np.linalg.inv(ends.covariances[use])
+        info = np.linalg.inv(ends.covariances[use]) * p.wall_end_information_scale
         k0, k = self._k, int(use.sum())
         self._node = _grow(self._node, k0 + k)
         self._lm = _grow(self._lm, k0 + k)
+        self._origin = _grow(self._origin, k0 + k)
         self._z = _grow(self._z, k0 + k)
         self._info = _grow(self._info, k0 + k)
         self._alive = _grow(self._alive, k0 + k)
         self._node[k0 : k0 + k] = node
         self._lm[k0 : k0 + k] = lm
+        self._origin[k0 : k0 + k] = lm
         self._z[k0 : k0 + k] = ends.points[use]
         self._info[k0 : k0 + k] = info
         self._alive[k0 : k0 + k] = True
@@ -255,6 +314,7 @@ class WallEndLandmarks:
         self._cov = _grow(self._cov, needed)
         self._last = _grow(self._last, needed)
         self._seen = _grow(self._seen, needed)
+        self._dir = _grow(self._dir, needed)
 
     def _refresh(self, lm: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
         """Place landmarks ``lm`` from their alive sightings at ``poses``."""
@@ -270,12 +330,27 @@ class WallEndLandmarks:
 
     def optimize(self, backend: Any, graph: Any):
         """The front end's optimisation with the landmark edges; returns the back end's result (pose nodes)."""
+        res, pos = self._solve(backend, graph)
+        if (self.params.wall_end_revisits and "landmarks" in res.extra
+                and self._merge_revisits(graph, res.poses, pos)):
+            # The merged sightings tie two passes: solve again with them.
+            res2, _ = self._solve(backend, graph)
+            res2.cost_before = res.cost_before
+            res = res2
+        self._pending = 0
+        self._last_optimized_node = graph.num_nodes - 1
+        all_lm = np.arange(self._nl)
+        self._refresh(all_lm, res.poses)
+        return res
+
+    def _solve(self, backend: Any, graph: Any):
+        """Optimise, drop the sightings over ``wall_end_reject_chi2`` and optimise again: (result, landmarks)."""
         p = self.params
         obs = self.observations()
-        res, _ = optimize_with_landmarks(backend, graph, obs, self._nl)
+        res, pos = optimize_with_landmarks(backend, graph, obs, self._nl)
         if len(obs) and p.wall_end_reject_chi2 > 0 and not res.extra.get("landmarks_skipped", False):
-            pos, _ = landmark_positions(res.poses, obs, self._nl)
-            e = point_errors(res.poses, pos, obs)
+            pos2, _ = landmark_positions(res.poses, obs, self._nl)
+            e = point_errors(res.poses, pos2, obs)
             chi2 = np.einsum("ki,kij,kj->k", e, obs.information, e)
             bad = chi2 > p.wall_end_reject_chi2
             if bad.any():
@@ -287,11 +362,101 @@ class WallEndLandmarks:
                 self.rejected += n_bad
                 self._count("wall_end_sightings_rejected", n_bad)
                 obs = self.observations()
-                res2, _ = optimize_with_landmarks(backend, graph, obs, self._nl)
+                res2, pos = optimize_with_landmarks(backend, graph, obs, self._nl)
                 res2.cost_before = res.cost_before
                 res = res2
-        self._pending = 0
-        self._last_optimized_node = graph.num_nodes - 1
-        all_lm = np.arange(self._nl)
-        self._refresh(all_lm, res.poses)
-        return res
+        return res, pos
+
+    def _merge_revisits(self, graph: Any, poses: NDArray[np.float64], pos: NDArray[np.float64]) -> int:
+        """Merge the landmarks in the graph that are one wall end seen on different passes; returns the merges.
+
+        A landmark that tracking lost (a return to a place on a later pass, or an end missed for
+        longer than ``wall_end_track_nodes``) starts a new one when seen again; tying the two is
+        place recognition, so it is held to more than the tracking gate. Pairs are linked when
+        their difference is within ``wall_end_revisit_rival`` sigmas of its marginal covariance in
+        the optimised graph (wide until the loop closer has tied the passes); each group so linked
+        is merged into its oldest landmark only when *every* pair in it is never seen from one node
+        (two ends in one scan are two ends), within ``wall_end_gate`` sigmas and
+        ``wall_end_revisit_radius``, and its walls within ``wall_end_revisit_direction`` (a box
+        corner is the end of either face, at 90 deg; the two jambs of a door point opposite ways).
+        """
+        from scipy.sparse import coo_matrix, csr_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        p = self.params
+        nl, k = self._nl, self._k
+        obs = self.observations()
+        if len(obs) == 0 or nl < 2:
+            return 0
+        inside = np.zeros(nl, bool)
+        inside[obs.landmark] = True
+        inside &= np.isfinite(pos[:nl, 0])
+        ids = np.flatnonzero(inside)
+        # Pairs (a > b) within twice the radius: candidates and rivals.
+        d = pos[ids][:, None, :] - pos[ids][None, :, :]
+        ia, ib = np.nonzero(np.tril(np.hypot(d[..., 0], d[..., 1]) < 2.0 * p.wall_end_revisit_radius, -1))
+        if ia.size == 0:
+            return 0
+        a, b = ids[ia], ids[ib]
+        lm_all, node_all = self._lm[:k], self._node[:k]
+        # Seen from one node: the product of the two landmarks' rows of the landmark x node incidence.
+        seen_by = csr_matrix((np.ones(k), (lm_all, node_all)), shape=(nl, int(node_all.max()) + 1))
+        disjoint = np.asarray(seen_by[a].multiply(seen_by[b]).sum(axis=1)).ravel() == 0
+        a, b = a[disjoint], b[disjoint]
+        # Only groups (by distance) holding a pair that could merge need the covariance (the solve is
+        # the cost: on intel hundreds of landmarks): no pair links two such groups, so the result is
+        # the same.
+        dd = pos[a] - pos[b]
+        could = ((np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
+                 & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
+        if not could.any():
+            return 0
+        _, group = connected_components(coo_matrix((np.ones(a.size), (a, b)), shape=(nl, nl)), directed=False)
+        keep = np.isin(group[a], group[a[could]])
+        a, b = a[keep], b[keep]
+        which = np.unique(np.concatenate([a, b]))
+        cov = landmark_covariance(graph, poses, pos[:nl], obs, which)
+        ja, jb = np.searchsorted(which, a), np.searchsorted(which, b)
+        blk = cov.reshape(which.size, 2, which.size, 2).transpose(0, 2, 1, 3)
+        S = blk[ja, ja] + blk[jb, jb] - blk[ja, jb] - blk[jb, ja]
+        dd = pos[a] - pos[b]
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            m2 = (S[:, 1, 1] * dd[:, 0] ** 2 - 2 * S[:, 0, 1] * dd[:, 0] * dd[:, 1] + S[:, 0, 0] * dd[:, 1] ** 2) / det
+        m2 = np.where(det > 0, m2, np.inf)
+        linked = m2 < p.wall_end_revisit_rival**2
+        # Largest eigenvalue of each 2x2 S.
+        half_tr = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
+        big = half_tr + np.sqrt(np.maximum(half_tr**2 - det, 0.0))
+        ok = ((m2 < p.wall_end_gate**2) & (big < p.wall_end_revisit_maximum_sigma**2) & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
+              & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
+        self._count("wall_end_revisit_candidates", int(ok.sum()))
+        if not linked.any():
+            return 0
+        adj = coo_matrix((np.ones(int(linked.sum())), (ja[linked], jb[linked])), shape=(which.size, which.size))
+        ncomp, comp = connected_components(adj, directed=False)
+        size = np.bincount(comp, minlength=ncomp)
+        # A group merges only when all its pairs are good ones (a clique of ok pairs).
+        good_pairs = np.bincount(comp[ja[ok & linked]], minlength=ncomp)
+        mergeable = (size >= 2) & (good_pairs == size * (size - 1) // 2)
+        merged = 0
+        targets = []
+        for c in np.flatnonzero(mergeable):  # a few groups per optimisation
+            members = which[comp == c]
+            keep_id = int(members.min())
+            inside_group = np.flatnonzero(np.isin(a, members) & np.isin(b, members))
+            self.merge_log.extend((graph.num_nodes - 1, int(a[q]), int(b[q]), float(np.hypot(*dd[q])),
+                                   float(np.sqrt(m2[q])), float(np.sqrt(big[q]))) for q in inside_group)
+            for drop in members[members != keep_id]:
+                self._lm[:k][lm_all == drop] = keep_id
+                self._seen[keep_id] += self._seen[drop]
+                self._seen[drop] = 0
+                self._last[keep_id] = max(self._last[keep_id], self._last[drop])
+                self._last[drop] = -(1 << 40)  # never tracked again
+                merged += 1
+            targets.append(keep_id)
+        if merged:
+            self.merged += merged
+            self._count("wall_end_landmarks_merged", merged)
+            self._refresh(np.asarray(targets, np.int64), poses)
+        return merged
