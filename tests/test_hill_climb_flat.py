@@ -238,6 +238,8 @@ def test_landmark_wall_ends_agree_with_wall_ends_and_weigh_each_end():
     line = wall_ends(ranges, angles, np.isfinite(ranges), 4.0)
     land = landmark_wall_ends(scan, 4.0, 0.03)
     assert land.shape == (1, 6)
+    grazing = _corridor_with_door(angles, end=2.5)  # 68 deg from the wall's normal: not taken, as by wall_ends()
+    assert landmark_wall_ends(LaserScan(0.0, grazing, -2.0, 4.0 / 681, 0.02, 4.0), 4.0, 0.03).shape[0] == 0
     np.testing.assert_allclose(land[0, :4], line[0, :4], atol=1e-3)  # the mount does not move the laser-frame rows
     gap = np.hypot(land[0, 0], land[0, 1]) * (4.0 / 681) / np.cos(np.pi / 4)  # between two rays, at 45 deg
     assert 0.0 < land[0, 4] < 0.02 and 0.9 < land[0, 5] < 1.0

@@ -116,7 +116,8 @@ class GMappingParams:
         help="not in GMapping: the wall ends flat_sigma matches. line: a beam on a straight wall (four before it "
         "within 2 cm of a line) whose next two pass 0.5 m beyond, each with flat_sigma; landmark: the wall-end "
         "detector karto's wall_end_landmarks use (least-squares wall, mixed-return and occlusion checks, "
-        "lost-return doorways), each with sqrt(flat_sigma^2 + its along-wall sigma^2) (the beam gap's)")
+        "lost-return doorways; at most 60 deg from the wall's normal, as line), each with sqrt(flat_sigma^2 + its "
+        "along-wall sigma^2) (the beam gap's)")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
