@@ -417,6 +417,11 @@ def test_guided_follows_a_turn_the_odometry_does_not_report():
     pose, updates = final["guided"]
     assert abs(se2.wrap_angle(pose[2] - 0.6)) < 0.03 and np.hypot(pose[0], pose[1]) < 0.05, pose
     assert updates >= 2
+    # motion_noise=update draws the update's noise around the same scan-matched increment, not the odometry's
+    slam = GMapping(GMappingParams(particles=5, between_updates="guided", motion_noise="update", stt=0.05, srt=0.05),
+                    seed=0).run(frames)
+    pose = slam.trajectory()[1][-1]
+    assert abs(se2.wrap_angle(pose[2] - 0.6)) < 0.05 and np.hypot(pose[0], pose[1]) < 0.05, pose
 
 
 def test_gaussian_proposal_tracks_too(arena):

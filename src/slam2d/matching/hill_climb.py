@@ -46,15 +46,17 @@ the climbs and so the filter are unchanged, bit for bit
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
+from slam2d.matching.wall_ends import detect_wall_ends
 
 __all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction",
-           "along_terms", "wall_ends", "wall_end_terms"]
+           "along_terms", "wall_ends", "landmark_wall_ends", "wall_end_terms"]
 
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
@@ -141,6 +143,38 @@ def wall_ends(ranges, angles, use, limit, jump=0.5, back=4, max_gap=0.15):
         out.append(np.stack([ax, ay, wx, wy, 0.5 * lam], axis=1)[good])
     return np.ascontiguousarray(np.concatenate(out)) if out else np.zeros((0, 5))
 
+
+
+_LANDMARK_RANGE_SIGMA = 0.01  # m: the least range sigma karto's wall-end landmarks give the detector (its default)
+# rad: as wall_ends(); beyond it the map's wall end, from a few grazing hits, moved a held pose started at the truth
+_LANDMARK_INCIDENCE = math.radians(60.0)
+
+
+def landmark_wall_ends(scan, limit, sigma):
+    """:func:`wall_ends`' rows from the shared detector (:func:`slam2d.matching.wall_ends.detect_wall_ends`), weighted.
+
+    Returned ``(K, 6)``, laser frame: the end beam's hit ``a`` (x, y), the wall's unit direction toward
+    the end (x, y), the distance from ``a`` to the detector's end point along it, and the end's weight
+    ``sigma^2 / (sigma^2 + s^2)``, ``s`` its along-wall standard deviation (the beam gap's): with the
+    common information ``1 / sigma^2`` (``flat_sigma``: the map's end and everything else) each end
+    counts with ``1 / (sigma^2 + s^2)``, so a near end's millimetre gap cannot pull harder than the
+    map can place it. Beams beyond ``limit`` (m) are no return to the detector, as the range used; ends
+    seen at over 60 degrees from the wall's normal are not taken (as :func:`wall_ends`; the detector's
+    own default is 80).
+    """
+    found = detect_wall_ends(dataclasses.replace(scan, mount=np.zeros(3)), _LANDMARK_RANGE_SIGMA, max_range=limit,
+                             max_incidence=_LANDMARK_INCIDENCE)
+    if len(found) == 0:
+        return np.zeros((0, 6))
+    k = found.beams
+    r = np.asarray(scan.ranges, dtype=np.float64)[k]
+    ang = np.asarray(scan.angles, dtype=np.float64)[k]
+    ax, ay = r * np.cos(ang), r * np.sin(ang)
+    wx, wy = -found.direction[:, 0], -found.direction[:, 1]  # the detector's points into the wall
+    half = (found.points[:, 0] - ax) * wx + (found.points[:, 1] - ay) * wy
+    s2 = np.einsum("ki,kij,kj->k", found.direction, found.covariances, found.direction)
+    weight = sigma * sigma / (sigma * sigma + s2)
+    return np.ascontiguousarray(np.stack([ax, ay, wx, wy, half, weight], axis=1))
 
 
 @njit(cache=True, inline="always")
@@ -599,7 +633,8 @@ def wall_end_terms(pool, occ, table, p, ox, oy, res, x, y, th, vx, vy, mount, en
     costs nothing. Moving the pose by ``s`` along ``v`` moves ``a``, so ``J = -(v . w)``. A wall
     end whose mapped wall is not found near ``a``, or runs on to the search's end (a lost return
     in mid-wall, or a pose farther off than the search), is left out, as are those beyond
-    ``reach`` (see :func:`along_terms`).
+    ``reach`` (see :func:`along_terms`). A sixth column of ``ends``, when there is one, weighs
+    each end's terms (its information relative to the caller's common one).
     """
     lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
     inv = 1.0 / res
@@ -674,8 +709,12 @@ def wall_end_terms(pool, occ, table, p, ox, oy, res, x, y, th, vx, vy, mount, en
             end = l_out
         resid = end - ends[e, 4]
         jac = -(vx * wxw + vy * wyw)
-        grad += resid * jac
-        curv += jac * jac
+        if ends.shape[1] > 5:  # the end's own weight (its information over the common one)
+            grad += ends[e, 5] * resid * jac
+            curv += ends[e, 5] * jac * jac
+        else:
+            grad += resid * jac
+            curv += jac * jac
         used += 1
     return grad, curv, used
 

@@ -39,6 +39,7 @@ from slam2d.matching.hill_climb import (
     gaussian_proposal,
     hold_flat_direction,
     match_one,
+    landmark_wall_ends,
     match_particles,
     wall_ends,
 )
@@ -110,6 +111,13 @@ class GMappingParams:
         "standard deviation, against the motion model's prior: the few beams that say where along a corridor the "
         "robot is, which the whole score's curvature cannot tell from the walls' ripple; 0: off, held at the "
         "odometry's")
+    flat_wall_ends: str = param(
+        "line", choices=("line", "landmark"),
+        help="not in GMapping: the wall ends flat_sigma matches. line: a beam on a straight wall (four before it "
+        "within 2 cm of a line) whose next two pass 0.5 m beyond, each with flat_sigma; landmark: the wall-end "
+        "detector karto's wall_end_landmarks use (least-squares wall, mixed-return and occlusion checks, "
+        "lost-return doorways; at most 60 deg from the wall's normal, as line), each with sqrt(flat_sigma^2 + its "
+        "along-wall sigma^2) (the beam gap's)")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -322,7 +330,10 @@ class GMapping(SlamMethod):
         ends = None
         if p.flat_sigma > 0.0 and p.flat_ratio > 0.0:
             limit = min(self._max_range, self._usable, math.inf if p.match_range is None else p.match_range)
-            ends = wall_ends(r, scan.angles, use, limit)
+            if p.flat_wall_ends == "line":
+                ends = wall_ends(r, scan.angles, use, limit)
+            else:
+                ends = landmark_wall_ends(scan, limit, p.flat_sigma)
         return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2, np.nan_to_num(s * s), ends)
 
     def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -403,9 +414,13 @@ class GMapping(SlamMethod):
         if beams is None:  # counted by update()
             return {"updated": 0.0}
         if p.motion_noise == "update":
+            # the increment since the update: the odometry's, or with guided the scan-matched one the particles
+            # followed (every particle the same, no noise drawn yet in this mode)
+            increment = (se2.relative(self._update_poses[0], self._state[0]) if p.between_updates == "guided"
+                         else se2.relative(self._update_odom, self._odom))
             self._state = self._update_poses.copy()
-            draw_from_motion(self._state, se2.relative(self._update_odom, self._odom),
-                             self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
+            draw_from_motion(self._state, increment, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str,
+                             p.stt)
         n = self._n
         out_poses = np.empty((n, 3))
         score, like, ok = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
