@@ -167,11 +167,12 @@ class GraphSlamParams(GridParams, WallEndParams):
         "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
     )
     near_chain_angle_offset: float = param(
-        0.0, unit="rad", low=0.0,
+        0.10471975511965978, unit="rad", low=0.0,
         help="half-width of the coarse angle window of the near-chain matches and their response bound (not in "
-        "Karto, which uses coarse_search_angle_offset): a near chain is already connected to the new scan in "
-        "the graph, so their relative heading is known far better than the odometry's; 0 uses "
-        "coarse_search_angle_offset",
+        "Karto, which uses coarse_search_angle_offset, 20 deg): a near chain is already connected to the new scan "
+        "in the graph, and the links it makes correct the heading by at most 2.6 deg on the four logs (99 % "
+        "within 0.84 deg), so 6 deg spares two thirds of their lookups and headings bounded, with the same "
+        "results on intel, aces, fr101 and the simulated rows (docs); 0 uses coarse_search_angle_offset",
     )
     coarse_point_spacing: float = param(
         0.0, unit="m", low=0.0,
