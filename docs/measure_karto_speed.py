@@ -8,7 +8,10 @@ CPU is user + system (``resource.getrusage``) around ``Karto.run`` (reading excl
 sha1 prefix of the trajectory's times and poses, so two runs with the same hash gave the same result.
 ``--lookups`` also prints the correlation-grid lookups (``MatchResult.evaluated``, coarse and fine) and
 the CPU of the 1 cm matches by kind (seeded sequential, whole sequential, near chain, loop, recovery);
-``--near-headings`` the heading corrections of the near-chain matches that link (response above 0.8).
+``--near-headings`` the heading corrections of the near-chain matches that link (response above 0.8);
+``--steps`` the CPU (``time.process_time``, inclusive) of the front end's main steps; ``--profile`` the
+functions taking most CPU by cProfile (timed by ``process_time``; the profiler slows Python, not the
+compiled kernels, so their share is understated).
 """
 
 from __future__ import annotations
@@ -16,8 +19,11 @@ from __future__ import annotations
 import argparse
 import ast
 import collections
+import cProfile
 import hashlib
+import io
 import math
+import pstats
 import sys
 import resource
 import time
@@ -44,7 +50,12 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="NAME=VALUE parameter override")
     ap.add_argument("--lookups", action="store_true", help="count lookups and CPU of the matches by kind")
     ap.add_argument("--near-headings", action="store_true", help="heading corrections of the near-chain links")
+    ap.add_argument("--steps", action="store_true", help="CPU of the front end's main steps")
+    ap.add_argument("--profile", action="store_true", help="cProfile's top functions by own time")
     args = ap.parse_args()
+    steps = collections.defaultdict(lambda: [0, 0.0])
+    if args.steps:
+        _time_steps(steps)
     kinds = collections.defaultdict(lambda: [0, 0, 0.0])
     headings = []
     if args.lookups:
@@ -62,8 +73,13 @@ def main() -> None:
     for log in args.logs.split(","):
         frames = list(open_recording(DATA / log / f"{log}.clf.gz").frames())
         slam = method(method.Params(**settings))
+        profiler = cProfile.Profile(time.process_time) if args.profile else None
         c0, w0 = _cpu(), time.perf_counter()
+        if profiler is not None:
+            profiler.enable()
         slam.run(frames)
+        if profiler is not None:
+            profiler.disable()
         cpu, wall = _cpu() - c0, time.perf_counter() - w0
         t, p = slam.trajectory()
         rt, rp = read_tum(DATA / log / "reference.tum")
@@ -74,6 +90,13 @@ def main() -> None:
         for kind, (n, lookups, seconds) in sorted(kinds.items(), key=lambda kv: -kv[1][1]):
             print(f"  {kind}: {n} matches, {lookups / 1e6:.0f} M lookups, {seconds:.2f} s")
         kinds.clear()
+        for step, (n, seconds) in sorted(steps.items(), key=lambda kv: -kv[1][1]):
+            print(f"  {step}: {n} calls, {seconds:.2f} s")
+        steps.clear()
+        if profiler is not None:
+            out = io.StringIO()
+            pstats.Stats(profiler, stream=out).sort_stats("tottime").print_stats(15)
+            print(out.getvalue())
         if headings:
             d = np.abs(np.array(headings))
             print("  near-chain links: %d, |heading correction| deg 50/90/99 %%, max: %s"
@@ -102,6 +125,29 @@ def _count_matches(kinds) -> None:
             return result
 
         setattr(CorrelativeMatcher, name, wrapped)
+
+
+def _time_steps(steps) -> None:
+    """Wrap the front end's and the grid cache's main steps to add their inclusive CPU to ``steps``."""
+    from slam2d.graph.frontend import GraphFrontend
+    from slam2d.matching.correlative import GridCache
+
+    names = [(GraphFrontend, n) for n in ("_link_near_chains", "_near_outcome", "_sequential_estimate",
+                                          "_seeded_match", "_try_close_loop", "optimize")]
+    names += [(GridCache, n) for n in ("bound", "materialize", "get", "reserve")]
+    for cls, name in names:
+        original = getattr(cls, name)
+
+        def wrapped(*a, _original=original, _key=f"{cls.__name__}.{name}", **k):
+            c0 = time.process_time()
+            try:
+                return _original(*a, **k)
+            finally:
+                entry = steps[_key]
+                entry[0] += 1
+                entry[1] += time.process_time() - c0
+
+        setattr(cls, name, wrapped)
 
 
 def _record_near_links(headings) -> None:
