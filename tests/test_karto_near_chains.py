@@ -200,3 +200,32 @@ def test_optimize_compares_the_poses_before_the_solve(office_frames):
     front.optimize()
     assert np.array_equal(front.graph.poses, shifted)
     assert seen["moved"][1:].all() and not seen["moved"][0]
+
+
+def test_near_chains_over_a_narrower_heading_window(monkeypatch, office_frames):
+    """near_chain_angle_offset (6 deg) narrows the near-chain matches and their bound only (the sequential
+    matcher keeps its window); the links it finds put the trajectory where the full window (0: Karto's
+    20 deg) does, to a centimetre."""
+    import math
+
+    from slam2d.methods import get_method
+
+    narrow = math.radians(6.0)
+    method = get_method("karto")
+    seen = []
+    original = GraphFrontend._near_outcome
+
+    def checked(self, entry, points, pose, lo, hi, hot):
+        seen.append((self.near.coarse_angle_offset, self.sequential.coarse_angle_offset))
+        return original(self, entry, points, pose, lo, hi, hot)
+
+    monkeypatch.setattr(GraphFrontend, "_near_outcome", checked)
+    slam = method(method.Params(near_chain_angle_offset=narrow), seed=0).run(office_frames)
+    monkeypatch.setattr(GraphFrontend, "_near_outcome", original)
+    full = method(method.Params(near_chain_angle_offset=0.0), seed=0).run(office_frames)
+    assert seen and all(n == pytest.approx(narrow) and s == pytest.approx(math.radians(20.0)) for n, s in seen)
+    links = [float(np.nansum(s.diagnostics.array("near_links"))) for s in (slam, full)]
+    assert links[0] > 0 and links[0] >= 0.8 * links[1]
+    (t0, p0), (t1, p1) = slam.trajectory(), full.trajectory()
+    assert np.array_equal(t0, t1)
+    assert float(np.sqrt(np.mean(np.sum((p0[:, :2] - p1[:, :2]) ** 2, axis=1)))) < 0.01

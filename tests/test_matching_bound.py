@@ -196,11 +196,12 @@ def test_karto_skips_only_near_chains_that_cannot_link(monkeypatch):
     original = GridCache.bound
     skipped = []
 
-    def checked(self, e, q, prior, stop=2.0, mark=None):
-        b = original(self, e, q, prior, stop=stop, mark=mark)
+    def checked(self, e, q, prior, stop=2.0, mark=None, matcher=None):
+        b = original(self, e, q, prior, stop=stop, mark=mark, matcher=matcher)
         if b < stop:
             lo, hi = self.matcher.search_box(q, prior)
-            r = self.matcher.match(None, None, q, prior, penalize=False, refine=True, grid=self.materialize(e, lo, hi))
+            r = (matcher or self.matcher).match(None, None, q, prior, penalize=False, refine=True,
+                                                grid=self.materialize(e, lo, hi))
             skipped.append((b, r.response, mark))
         return b
 
@@ -350,3 +351,22 @@ def test_bound_with_a_mark_answers_as_the_bound_does():
                 kinds.add((full < mark, full < stop))
             q = q[rng.random(q.shape[0]) < 0.8]
     assert kinds >= {(True, True), (False, True), (False, False)}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_cache_bound_for_a_narrower_angle_window_bounds_its_match(seed):
+    """GridCache.bound with another matcher (near chains' narrower heading window, same cells and smear)
+    bounds that matcher's response, and is at most the cache matcher's own bound (fewer headings)."""
+    world, q, prior = _scene(seed)
+    m = CorrelativeMatcher()
+    narrow = m.with_window(m.search_size)
+    narrow.coarse_angle_offset = math.radians(10.0)
+    sig = np.full(world.shape[0], 0.03)
+    cache = GridCache(m, lambda i: (world, sig))
+    lo, hi = m.search_box(q, prior)
+    e = cache.reserve([0], lo, hi)
+    wide_bound = cache.bound(e, q, prior)
+    bound = cache.bound(e, q, prior, matcher=narrow)
+    assert bound <= wide_bound + 1e-12
+    r = narrow.match(None, None, q, prior, penalize=False, refine=True, grid=cache.materialize(e, lo, hi))
+    assert r.response <= bound + 1e-12, (seed, r.response, bound)

@@ -359,3 +359,49 @@ def test_grid_cache_reserve_looser_superset_on_request():
     fresh, _, _ = m.correlation_grid(np.vstack(parts), np.concatenate(sig), np.array([ox, oy]), box_hi, clip=False)
     # Drawn where a query inside (lo, hi) reads it, the superset grid equals the fresh one there.
     assert g.shape == fresh.shape and np.array_equal(g, fresh)
+
+
+def test_coarse_search_point_order_does_not_change_the_match():
+    """The coarse search's integer sums do not depend on the points' order (its chunks are interleaved
+    for pruning): any order of the query gives the same match bit for bit."""
+    from slam2d.matching.correlative import _interleaved
+
+    rng = np.random.default_rng(4)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng, every=1)[::2]
+    assert q.shape[0] > 64
+    order = _interleaved(q)
+    assert sorted(map(tuple, order)) == sorted(map(tuple, q)) and not np.array_equal(order, q)
+    m = CorrelativeMatcher()
+    prior = truth + np.array([0.05, -0.04, 0.1])
+    grid = m.correlation_grid(ROOM, m.sigmas_for(None, ROOM.shape[0]), *m.search_box(q, prior))
+    for penalize in (True, False):
+        a = m.match(None, None, q, prior, penalize=penalize, grid=grid)
+        b = m.match(None, None, q[rng.permutation(q.shape[0])], prior, penalize=penalize, grid=grid)
+        assert np.array_equal(a.pose, b.pose) and np.array_equal(a.covariance, b.covariance)
+        assert a.response == b.response and a.heading_variance_coarse == b.heading_variance_coarse
+
+
+def test_coarse_point_spacing_thins_the_coarse_search_only():
+    from slam2d.matching.correlative import _spaced
+
+    rng = np.random.default_rng(5)
+    truth = np.array([0.3, -0.2, 0.15])
+    q = _query(ROOM, truth, rng, every=1)
+    kept = _spaced(q, 0.05)
+    # In scan order every kept point is at least the spacing from the one kept before it, the first is kept,
+    # and every dropped point lies within the spacing of the last one kept before it.
+    assert np.array_equal(kept[0], q[0]) and np.all(np.hypot(*np.diff(kept, axis=0).T) >= 0.05)
+    assert 0.2 * q.shape[0] < kept.shape[0] < 0.6 * q.shape[0]
+    m = CorrelativeMatcher()
+    assert m.coarse_points(q) is q
+    thin = CorrelativeMatcher()
+    thin.coarse_point_spacing = 0.05
+    assert np.array_equal(thin.coarse_points(q), kept)
+    prior = truth + np.array([0.08, -0.05, 0.1])
+    full, r = m.match(ROOM, None, q, prior), thin.match(ROOM, None, q, prior)
+    # The fine stage scores every point: the pose is as good, the coarse lookups fewer.
+    assert np.hypot(*(r.pose[:2] - truth[:2])) <= 0.015
+    assert abs(se2.wrap_angle(r.pose[2] - truth[2])) <= math.radians(0.3)
+    assert r.evaluated < 0.7 * full.evaluated
+    assert abs(r.response - full.response) < 0.05

@@ -1462,6 +1462,46 @@ def _fine_stage(grid, origin_x, origin_y, resolution, q, pose, px, py, pt, angle
     return pose, best, raw, max(var, floor), runs
 
 
+def _interleaved(q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``q`` reordered so that each chunk of :func:`_score_poses_pruned` spans the whole scan: points
+    0, s, 2s, ..., then 1, s + 1, ... (s: the points over the chunk size). Integer sums do not
+    depend on the order, so the scores are the same; a wrong heading misses over the whole scan at
+    once instead of wall by wall, and its bound falls below the band sooner."""
+    n = q.shape[0]
+    stride = n // _PRUNE_CHUNK
+    if stride < 2:
+        return q
+    key = ("interleave", n)
+    order = _ANGLES.get(key)
+    if order is None:
+        order = _ANGLES[key] = np.argsort(np.arange(n) % stride, kind="stable")
+    return np.ascontiguousarray(q[order])
+
+
+@njit(cache=True)
+def _spaced(q, spacing):
+    """The points of ``q`` (N, 2, in scan order) at least ``spacing`` from the last one kept (the first
+    always kept): the coarse search's points (see :attr:`CorrelativeMatcher.coarse_point_spacing`)."""
+    n = q.shape[0]
+    keep = np.empty(n, np.int64)
+    m = 0
+    s2 = spacing * spacing
+    lx = ly = 0.0
+    for k in range(n):
+        dx = q[k, 0] - lx
+        dy = q[k, 1] - ly
+        if m == 0 or dx * dx + dy * dy >= s2:
+            keep[m] = k
+            m += 1
+            lx = q[k, 0]
+            ly = q[k, 1]
+    out = np.empty((m, 2))
+    for k in range(m):
+        out[k, 0] = q[keep[k], 0]
+        out[k, 1] = q[keep[k], 1]
+    return out
+
+
 # --------------------------------------------------------------------------- the matcher
 
 
@@ -1517,6 +1557,9 @@ class CorrelativeMatcher:
         self.branch_and_bound = True
         # Extra fine searches re-centred on a best pose that lies on the fine window's edge.
         self.fine_recentre = 0
+        # The coarse search scores only the query points at least this far (m) from the last one kept
+        # in scan order (0: every point); the fine stage scores them all (see :meth:`coarse_points`).
+        self.coarse_point_spacing = 0.0
 
     def with_window(self, search_size: float) -> "CorrelativeMatcher":
         """The same matcher over a smaller (or larger) x, y window; its grids are interchangeable."""
@@ -1524,6 +1567,14 @@ class CorrelativeMatcher:
         out.search_size = float(search_size)
         out._coarse_half = max(1, int(round(0.5 * out.search_size / (2.0 * out.resolution))))
         return out
+
+    def coarse_points(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The query points the coarse search scores: with ``coarse_point_spacing`` only those at least
+        that far from the last one kept (dense clutter near the robot is hit by dozens of beams a
+        few millimetres apart, which a 2 cm lattice cannot tell apart), else all of them."""
+        if self.coarse_point_spacing > 0 and q.shape[0] > 1:
+            return _spaced(np.ascontiguousarray(q, dtype=np.float64), float(self.coarse_point_spacing))
+        return q
 
     # ----------------------------------------------------------------- pieces
 
@@ -1744,7 +1795,7 @@ class CorrelativeMatcher:
             cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
             args = (float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
                     self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
-            lookups = _score_poses_pruned(grid, origin[0], origin[1], res, q, cx, cy, ct, angles,
+            lookups = _score_poses_pruned(grid, origin[0], origin[1], res, _interleaved(q), cx, cy, ct, angles,
                                           np.argsort(np.abs(angles), kind="stable"), half, step, 0, 0, n_steps,
                                           *args[:8], -1.0, _PRUNE_CHUNK, sums)
             offs = (np.arange(n_steps) - half) * (step * res)
@@ -1891,11 +1942,12 @@ class CorrelativeMatcher:
         res = self.resolution
         offset = self.coarse_angle_offset
         lookups = 0
+        qc = self.coarse_points(q)
         for _ in range(4 if self.response_expansion else 1):
             n_half = int(round(offset / self.coarse_angle_resolution))
             angles, _ = _coarse_angles(offset, self.coarse_angle_resolution)
             pose, best, raw, resp, offs, n = self._search(
-                g, origin, q, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
+                g, origin, qc, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
             )
             lookups += n
             if best > 0.0:
@@ -1979,14 +2031,15 @@ class CorrelativeMatcher:
         # The part's angles nearest the seed's first: the best found early prunes the others.
         part = np.arange(a_lo, a_lo + 2 * k + 1)
         order = part[np.argsort(np.abs(part - a_seed), kind="stable")]
-        lookups = _score_poses_pruned(g, ox, oy, res, q, float(prior[0]), float(prior[1]), float(prior[2]), angles,
+        qc = self.coarse_points(q)
+        lookups = _score_poses_pruned(g, ox, oy, res, _interleaved(qc), float(prior[0]), float(prior[1]), float(prior[2]), angles,
                                       order, big, 2, i_lo, j_lo, 2 * h + 1, float(prior[0]), float(prior[1]),
                                       float(prior[2]), penalize, self.distance_variance_penalty,
                                       self.angle_variance_penalty, self.minimum_distance_penalty,
                                       self.minimum_angle_penalty, -1.0, _PRUNE_CHUNK, sums)
         offs = (np.arange(n_steps) - big) * step_m
         pose, best, raw, resp = _finish_search(
-            sums, q.shape[0], offs, angles, float(prior[0]), float(prior[1]), float(prior[2]), float(prior[0]),
+            sums, qc.shape[0], offs, angles, float(prior[0]), float(prior[1]), float(prior[2]), float(prior[0]),
             float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty, self.angle_variance_penalty,
             self.minimum_distance_penalty, self.minimum_angle_penalty)
         if not best > 0.0:
@@ -2404,16 +2457,19 @@ class GridCache:
             e["drawn_reach"] = m
         return grid
 
-    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0, mark: float | None = None) -> float:
+    def bound(self, e: dict, query_points, prior, *, stop: float = 2.0, mark: float | None = None,
+              matcher: CorrelativeMatcher | None = None) -> float:
         """:meth:`CorrelativeMatcher.response_bound` of a match on the entry's grid, drawn or not.
 
         The entry keeps its bound grid and extends it as scans are added, as it does the
         correlation grid. Each scan's share (its blocks in a lattice of origin 0, a few hundred)
         is computed once per scan until :meth:`invalidate`, so a new entry costs a scatter of
         those, not a smear of every point. The lattice differs from the correlation grid's by at
-        most a cell's rounding, which the bound's reach allows for.
+        most a cell's rounding, which the bound's reach allows for. ``matcher``: the match's own
+        (the cache's by default; another window or angle offset at the same resolution and smear).
         """
         m = self.matcher
+        searcher = matcher or m
         res = m.resolution
         b = _BOUND_BLOCK
         if e.get("pooled") is None:
@@ -2431,8 +2487,8 @@ class GridCache:
                          np.concatenate([q[2] for q in parts]), row0, col0)
             e["pooled_nodes"] = len(order)
             e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
-        return m.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
-                              tables=e.setdefault("pooled_tables", {}), mark=mark)
+        return searcher.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
+                                     tables=e.setdefault("pooled_tables", {}), mark=mark)
 
     def _node_blocks(self, n: int):
         got = self._blocks.get(n)
