@@ -12,7 +12,8 @@ of those were wrong: the sightings of the two merged parts, placed at the *true*
 nodes, more than 0.05 m apart (their means; the largest such gap is printed too); missed: pairs of
 landmarks left in the graph whose true means are within 0.1 m and never seen from one node.
 With ``--diagnose``, also: the mean chi-square at the *true* node poses of the landmark sightings
-(2 expected for a right covariance) and of the pose-graph edges (3 expected), and the mean
+(2 expected for a right covariance) and of the pose-graph edges (3 expected; also per kind:
+sequential, link = running-scan and near-chain links, loop; edge counts in brackets), and the mean
 position error (after the evaluation's alignment) in each twelfth of the trajectory, and per merged
 pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run.
 """
@@ -72,8 +73,16 @@ def diagnose(fe, truth, run_dir: Path) -> str:
     tp = truth.poses[idx]
     g = fe.graph
     e = edge_errors(tp, g.edge_i, g.edge_j, g.measurements)
-    edges = float(np.einsum("ki,kij,kj->k", e, g.information, e).mean())
-    out = f"pose edges at the truth: mean chi2 {edges:.2f}"
+    chi = np.einsum("ki,kij,kj->k", e, g.information, e)
+    # Edge kinds: loop closures as the front end logged them, sequential (node to the next), the rest
+    # links (running-scan and near-chain LinkChainToScan edges).
+    ei, ej = np.asarray(g.edge_i), np.asarray(g.edge_j)
+    loops = {(c.frm, c.to) for c in fe.loop_closures}
+    is_loop = np.array([(int(a), int(b)) in loops for a, b in zip(ei, ej)], dtype=bool)
+    is_seq = (ej == ei + 1) & ~is_loop
+    kinds = " ".join(f"{name} {float(chi[m].mean()) if m.any() else float('nan'):.2f} ({int(m.sum())})"
+                     for name, m in (("sequential", is_seq), ("link", ~is_seq & ~is_loop), ("loop", is_loop)))
+    out = f"pose edges at the truth: mean chi2 {float(chi.mean()):.2f} [{kinds}]"
     if fe.wall_ends is not None and len(fe.wall_ends.observations()):
         obs = fe.wall_ends.observations()
         pos, _ = landmark_positions(tp, obs, fe.wall_ends.num_landmarks)
