@@ -7,12 +7,14 @@
 The recordings of `karto-sim-lasers` (office 120 s, corridor-loop one pass; written once under
 --cache, as docs/measure_gmapping_proposal.py writes them), run in-process with the settings
 given and judged as `slam2d evaluate --truth`. Per seed: ATE (m), map error (mean truth-to-map,
-m), landmarks, merges of a tracked landmark into an older one (`wall_end_revisits`) and how many
-of those were wrong: the sightings of the two merged parts, placed at the *true* poses of their
-nodes, more than 0.05 m apart (their means; the largest such gap is printed too); missed: pairs of
-landmarks left in the graph whose true means are within 0.1 m and never seen from one node.
+m), landmarks, loop closures (and how many within 0.2 m and 1 deg of the truth), merges of a
+tracked landmark into an older one (`wall_end_revisits`) and how many of those were wrong: the
+sightings of the two merged parts, placed at the *true* poses of their nodes, more than 0.05 m
+apart (their means; the largest such gap is printed too); missed: pairs of landmarks left in the
+graph whose true means are within 0.1 m and never seen from one node.
 With ``--diagnose``, also: the mean chi-square at the *true* node poses of the landmark sightings
-(2 expected for a right covariance) and of the pose-graph edges (3 expected), and the mean
+(2 expected for a right covariance) and of the pose-graph edges (3 expected; also per kind:
+sequential, link = running-scan and near-chain links, loop; edge counts in brackets), and the mean
 position error (after the evaluation's alignment) in each twelfth of the trajectory, and per merged
 pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run.
 """
@@ -28,6 +30,7 @@ import numpy as np
 
 from slam2d.core import se2
 from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+from slam2d.graph.evaluation import loop_closure_precision
 from slam2d.methods.runner import build_method, run_method
 from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
 
@@ -72,8 +75,16 @@ def diagnose(fe, truth, run_dir: Path) -> str:
     tp = truth.poses[idx]
     g = fe.graph
     e = edge_errors(tp, g.edge_i, g.edge_j, g.measurements)
-    edges = float(np.einsum("ki,kij,kj->k", e, g.information, e).mean())
-    out = f"pose edges at the truth: mean chi2 {edges:.2f}"
+    chi = np.einsum("ki,kij,kj->k", e, g.information, e)
+    # Edge kinds: loop closures as the front end logged them, sequential (node to the next), the rest
+    # links (running-scan and near-chain LinkChainToScan edges).
+    ei, ej = np.asarray(g.edge_i), np.asarray(g.edge_j)
+    loops = {(c.frm, c.to) for c in fe.loop_closures}
+    is_loop = np.array([(int(a), int(b)) in loops for a, b in zip(ei, ej)], dtype=bool)
+    is_seq = (ej == ei + 1) & ~is_loop
+    kinds = " ".join(f"{name} {float(chi[m].mean()) if m.any() else float('nan'):.2f} ({int(m.sum())})"
+                     for name, m in (("sequential", is_seq), ("link", ~is_seq & ~is_loop), ("loop", is_loop)))
+    out = f"pose edges at the truth: mean chi2 {float(chi.mean()):.2f} [{kinds}]"
     if fe.wall_ends is not None and len(fe.wall_ends.observations()):
         obs = fe.wall_ends.observations()
         pos, _ = landmark_positions(tp, obs, fe.wall_ends.num_landmarks)
@@ -116,7 +127,9 @@ def main() -> None:
         ate = e["trajectory"]["ate"]["translation_m"]["rmse"]
         err = e["map_truth"]["truth_to_map_m"]["mean"]
         fe = slam.frontend
-        counts = json.loads((run_dir / "diagnostics.json").read_text())["counters"]
+        diag = json.loads((run_dir / "diagnostics.json").read_text())
+        counts = diag["counters"]
+        prec = loop_closure_precision(diag["summary"]["loop_closures"], truth.times, truth.poses)
         merges, wrong, missed, worst = (merge_truth(fe.wall_ends, fe.node_times(), truth, fe.params.wall_end_minimum_sightings)
                                  if fe.wall_ends is not None else (0, 0, 0, 0.0))
         ates.append(ate)
@@ -124,7 +137,8 @@ def main() -> None:
         print(f"{a.world} {a.laser} seed {seed}: ATE {ate:.3f} m, map {err:.3f} m, "
               f"{counts.get('wall_end_landmarks', 0)} landmarks, {merges} merges ({wrong} wrong, {missed} missed, "
               f"largest true gap {worst:.3f} m), "
-              f"{counts.get('loop_closures', 0)} loop closures, cpu {cpu:.0f} s", flush=True)
+              f"{counts.get('loop_closures', 0)} loop closures ({prec['correct']} within 0.2 m and 1 deg of the truth), "
+              f"cpu {cpu:.0f} s", flush=True)
         if a.diagnose:
             print("  " + diagnose(fe, truth, run_dir), flush=True)
             for node, x, y, dist, maha, sigma in (fe.wall_ends.merge_log if fe.wall_ends is not None else []):

@@ -557,3 +557,17 @@ def test_near_chains_bounded_between_the_marks_wait_for_the_robot_to_move(karto_
     assert prec["closures"] >= 1 and prec["correct"] == prec["closures"]
     # A trade, not free: here the ATE goes from 0.076 to 0.105 m (a chain that nearly linked links from the next pose).
     assert _ate(fast, loop_sim) < 0.2
+
+
+def test_match_covariance_scale_divides_every_edge_information_exactly():
+    """match_covariance_scale scales the matches' covariance only: on a run with no loop closure (so no
+    solve moves a pose) the same edges come out, each with its information divided by the factor."""
+    sim = simulate("corridor-loop", SimulationParams(duration=12.0, seed=3))
+    base = _run("karto", sim.frames())
+    scaled = _run("karto", sim.frames(), match_covariance_scale=4.0)
+    g0, g1 = base.frontend.graph, scaled.frontend.graph
+    assert not base.diagnostics.summary["loop_closures"] and len(g0.edge_i) > 20
+    assert np.array_equal(g0.edge_i, g1.edge_i) and np.array_equal(g0.edge_j, g1.edge_j)
+    assert np.array_equal(np.asarray(g0.measurements), np.asarray(g1.measurements))
+    assert np.array_equal(np.asarray(g0.information) / 4.0, np.asarray(g1.information))  # a power of 2: exact
+    assert not np.array_equal(np.asarray(g0.information), np.asarray(g1.information))

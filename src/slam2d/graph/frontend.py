@@ -247,6 +247,14 @@ class GraphSlamParams(GridParams, WallEndParams):
         "loop closure; 0 (default) keeps the window's variance, since 1-100 helped the simulated worlds but "
         "not intel, aces or fr101",
     )
+    match_covariance_scale: float = param(
+        1.0, unit="factor", low=1e-6,
+        help="factor on the covariance of every scan-match edge the graph gets (sequential, running and "
+        "near-chain links, loop closures; the edge information is divided by it); 1 (default) keeps the "
+        "matcher's response-surface covariance, some 10 (URG-04LX) to 25 (RPLidar) times too wide at the "
+        "true poses of the simulated runs; matters only against the wall-end landmarks' sightings (with "
+        "the pose edges alone a common factor does not move the optimum)",
+    )
     running_link_chain_covariance: bool = param(
         True,
         help="the edge from the closest running scan to a new node (Karto's LinkChainToScan over the running "
@@ -676,7 +684,7 @@ class GraphFrontend:
     def _add_edge(self, i: int, j: int, pose_j: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Edge i -> j measuring ``pose_j`` seen from node i's current pose; world covariance rotated into i."""
         z = se2.relative(self.graph.poses[i], pose_j)
-        self.graph.add_edge(i, j, z, np.linalg.inv(self._local_covariance(i, covariance)))
+        self.graph.add_edge(i, j, z, np.linalg.inv(self._local_covariance(i, covariance)) / self.params.match_covariance_scale)
 
     def _closest_to_node(self, chain: list[int], node: int, pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the node's (``pose`` before it has one)."""
@@ -703,7 +711,7 @@ class GraphFrontend:
         local = self._chain_covariance(closest, last, se2.relative(self.graph.poses[last], pose),
                                        self._local_covariance(last, cov))
         self._count("running_links_chained")
-        self.graph.add_edge(closest, node, z, np.linalg.inv(local))
+        self.graph.add_edge(closest, node, z, np.linalg.inv(local) / self.params.match_covariance_scale)
 
     def _chain_covariance(self, i: int, last: int, step: NDArray[np.float64], step_cov: NDArray[np.float64]):
         """Covariance, in node i's frame, of node i's sequential edges up to ``last`` followed by ``step``.
@@ -1242,7 +1250,7 @@ class GraphFrontend:
                     self.graph.poses[node] = fine.pose
                     self._world[node] = None
                 if not self._has_edge(h.frm, h.node):
-                    self.graph.add_edge(h.frm, h.node, h.z, np.linalg.inv(h.covariance))
+                    self.graph.add_edge(h.frm, h.node, h.z, np.linalg.inv(h.covariance) / self.params.match_covariance_scale)
             before, after = self.optimize()
             for h in (partner, hyp):
                 if h is None:
