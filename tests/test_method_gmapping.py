@@ -158,6 +158,67 @@ def test_tiled_maps_record_free_space_and_grow_keeping_data():
     assert hits3.sum() == 2 and visits3.sum() > visits.sum() + 40
 
 
+def _check_pool(maps):
+    """Reference counts are the table entries pointing at each tile; free and used tiles split the pool."""
+    used = maps.table[maps.table >= 0]
+    assert np.array_equal(np.bincount(used, minlength=maps.refs.size), maps.refs)
+    free = maps.free[: maps.n_free]
+    assert np.unique(free).size == free.size and not np.any(maps.refs[free])
+    assert free.size + np.count_nonzero(maps.refs) == maps.pool.shape[0] == maps.occ.shape[0] == maps.refs.size
+
+
+def _random_mapping(capacity, seed=0):
+    """Eight particles registering random scans from random poses and resampling now and then."""
+    rng = np.random.default_rng(seed)
+    angles = np.linspace(-np.pi, np.pi, 180, endpoint=False)
+    maps = TiledMaps(8, 0.05, (-3, -3, 3, 3), capacity=capacity)
+    capacities = [maps.pool.shape[0]]
+    for step in range(12):
+        poses = np.column_stack([rng.uniform(-4, 4, (8, 2)), rng.uniform(-np.pi, np.pi, 8)])
+        ranges = rng.uniform(0.5, 6.0, (8, angles.size))
+        maps.register(np.arange(8), poses, ranges, angles, max_range=5.5, usable_range=5.0,
+                      generate_map=step % 3 == 0)
+        if step % 4 == 3:
+            maps.resample(np.sort(rng.integers(0, 8, 8)))
+        _check_pool(maps)
+        capacities.append(maps.pool.shape[0])
+    return maps, capacities
+
+
+def test_tiled_pool_grows_by_doubling_and_keeps_maps_bit_for_bit():
+    """A pool started at 8 tiles grows (doubling) to what the maps need; the maps equal a large pool's."""
+    small, capacities = _random_mapping(capacity=8)
+    large, large_caps = _random_mapping(capacity=1 << 16)
+    assert large_caps == [1 << 16] * len(large_caps)  # never had to grow
+    grown = [b for a, b in zip(capacities, capacities[1:]) if b != a]
+    assert len(grown) >= 3  # it grew several times ...
+    assert all(b >= 2 * a for a, b in zip([capacities[0], *grown], grown))  # ... each time at least doubling
+    assert small.pool.shape[0] < 2 * max(small.peak_tiles, 64) + 64  # and not far past what was needed
+    assert small.tiles_in_use == large.tiles_in_use
+    for p in range(8):
+        hs, vs, os_ = small.dense(p)
+        hl, vl, ol = large.dense(p)
+        assert os_ == ol and np.array_equal(hs, hl) and np.array_equal(vs, vl)
+        # the sums of the hit points and the occupied flags too
+        for a, b in zip(*np.nonzero(small.table[p] >= 0)):
+            ts, tl = small.table[p, a, b], large.table[p, a, b]
+            assert np.array_equal(small.pool[ts], large.pool[tl]) and np.array_equal(small.occ[ts], large.occ[tl])
+
+
+def test_tiled_pool_reuses_freed_tiles_before_growing():
+    """After a resampling frees tiles, writing as many again takes them from the free list: no growth."""
+    maps, _ = _random_mapping(capacity=8)
+    maps.resample(np.zeros(8, dtype=np.int64))  # one ancestor: the others' own tiles are freed
+    _check_pool(maps)
+    cap, in_use = maps.pool.shape[0], maps.tiles_in_use
+    assert maps.n_free > 0
+    angles = np.linspace(0.1, 0.12, 5)  # end points in one tile
+    maps.register(np.array([3]), np.zeros((1, 3)), np.full((1, 5), 2.0), angles, max_range=5.5, usable_range=5.0,
+                  generate_map=False)
+    _check_pool(maps)
+    assert maps.pool.shape[0] == cap and maps.tiles_in_use == in_use + 1  # one tile copied for particle 3
+
+
 # --------------------------------------------------------------------------- scan matcher
 
 
@@ -585,7 +646,7 @@ def test_cells_hold_gmappings_accumulators():
     cells = maps.pool[t].reshape(-1, 4)
     hit = cells[cells[:, HITS] > 0]
     assert hit.shape[0] == 1 and hit[0, HITS] == 2 and hit[0, VISITS] == 2
-    assert TILE == 32
+    assert TILE == 16
 
 
 def test_defaults_meet_the_arena_target(paper_arena, tmp_path):

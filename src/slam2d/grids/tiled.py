@@ -36,8 +36,12 @@ from slam2d.grids.raycast import trace_ray
 
 __all__ = ["TiledMaps", "TILE_SHIFT", "TILE", "HITS", "VISITS", "SUM_X", "SUM_Y", "FULLNESS"]
 
-TILE_SHIFT = 5
-TILE = 1 << TILE_SHIFT  # 32 x 32 cells: 16 KB a tile, 1.6 m at 5 cm
+# 16 x 16 cells: 4 KB a tile, 0.8 m at 5 cm. A particle copies a whole tile to change one cell
+# of it, so smaller tiles copy less; trajectories do not depend on the size (bit for bit).
+# slam2d.matching.hill_climb compiles TILE_SHIFT in as a constant and numba's cache only
+# checks that file's own timestamp: after changing it, touch hill_climb.py and improved_proposal.py.
+TILE_SHIFT = 4
+TILE = 1 << TILE_SHIFT
 _MASK = TILE - 1
 HITS, VISITS, SUM_X, SUM_Y = 0, 1, 2, 3
 FULLNESS = 0.1  # GMapping m_fullnessThreshold: a cell with hits/visits above it is occupied
@@ -215,7 +219,7 @@ class TiledMaps:
         n: number of maps (particles).
         resolution: cell size, metres.
         bounds: ``(xmin, ymin, xmax, ymax)`` the table covers at first (it grows).
-        capacity: tiles allocated in the pool at first (it grows by half when full).
+        capacity: tiles allocated in the pool at first (it doubles when full).
     """
 
     def __init__(
@@ -261,10 +265,16 @@ class TiledMaps:
 
     def _grow_pool(self, at_least: int) -> None:
         cap = self.pool.shape[0]
-        extra = max(at_least, cap // 2, 64)
-        self.pool = np.concatenate([self.pool, np.zeros((extra,) + self.pool.shape[1:], np.float32)])
-        self.occ = np.concatenate([self.occ, np.zeros((extra,) + self.occ.shape[1:], np.bool_)])
-        self.refs = np.concatenate([self.refs, np.zeros(extra, np.int32)])
+        extra = max(at_least, cap, 64)
+        # np.zeros takes zero pages the OS maps on first write: the unused part of the new
+        # pool costs no memory until tiles are handed out (np.concatenate would write it all)
+        pool = np.zeros((cap + extra,) + self.pool.shape[1:], np.float32)
+        pool[:cap] = self.pool
+        occ = np.zeros((cap + extra,) + self.occ.shape[1:], np.bool_)
+        occ[:cap] = self.occ
+        refs = np.zeros(cap + extra, np.int32)
+        refs[:cap] = self.refs
+        self.pool, self.occ, self.refs = pool, occ, refs
         # new tiles go on the stack below the free ones (order does not matter)
         free = np.empty(cap + extra, dtype=np.int32)
         free[:extra] = np.arange(cap + extra - 1, cap - 1, -1, dtype=np.int32)

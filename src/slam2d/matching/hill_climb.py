@@ -58,6 +58,8 @@ from slam2d.matching.wall_ends import detect_wall_ends
 __all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction",
            "along_terms", "wall_ends", "landmark_wall_ends", "wall_end_terms"]
 
+# TILE_SHIFT is compiled in as a constant, and numba's cache only checks this file's timestamp:
+# touch this file (and improved_proposal.py, which calls _evaluate) when tiled.py changes it
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
 _SLOTS = 4  # cached windows per beam in a climb: a 2 x 2 block of cells (by row and column parity)

@@ -41,6 +41,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+# _evaluate compiles in grids.tiled.TILE_SHIFT; numba's cache only checks this file's
+# timestamp, so touch this file too when the tile size changes
 from slam2d.matching.hill_climb import _evaluate
 
 __all__ = ["laplace_proposal"]
