@@ -14,6 +14,7 @@ per seed: the ATE (m), the rms along and across (m) and the rms heading error af
 from __future__ import annotations
 
 import argparse
+import sys
 import math
 from pathlib import Path
 
@@ -23,7 +24,9 @@ from slam2d.core import se2
 from slam2d.eval.evaluate import load_run, load_truth
 from slam2d.eval.trajectory_metrics import align_se2, associate
 from slam2d.methods.runner import run_method
-from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+sys.path.insert(0, str(Path(__file__).parent))
+from measure_gmapping_proposal import cached_recording  # noqa: E402
 
 
 def main() -> None:
@@ -36,11 +39,8 @@ def main() -> None:
     ap.add_argument("settings", nargs="*")
     a = ap.parse_args()
     settings = dict(s.split("=", 1) for s in a.settings)
-    duration = 120.0 if a.world == "office" else None  # as measure_gmapping_proposal.py
     for seed in (int(s) for s in a.seeds.split(",")):
-        sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
-        if not (sim_dir / "recording.log.gz").exists():
-            write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
+        sim_dir = cached_recording(a.cache, a.world, a.laser, seed)
         run_dir = Path(a.cache) / f"split-gmapping-{a.world}-{a.laser}-{seed}-{'_'.join(a.settings)}"
         run_method("gmapping", sim_dir / "recording.log.gz", run_dir, settings=settings)
         run, truth = load_run(run_dir), load_truth(sim_dir)

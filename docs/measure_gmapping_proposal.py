@@ -25,6 +25,18 @@ from slam2d.methods.runner import run_method
 from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
 
 
+def cached_recording(cache: str, world: str, laser: str, seed: int) -> Path:
+    """The simulated recording of (world, laser, seed) under ``cache``, simulated once.
+
+    The office runs 120 s (as `gmapping-sim-lasers` and `karto-sim-lasers`), other worlds one pass.
+    """
+    sim_dir = Path(cache) / f"{world}-{laser}-{seed}"
+    if not (sim_dir / "recording.log.gz").exists():
+        duration = 120.0 if world == "office" else None
+        write_outputs(simulate(world, SimulationParams(duration=duration, seed=seed, laser=laser)), sim_dir)
+    return sim_dir
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--method", default="gmapping", help="any registered method (karto's sweep on its page used this)")
@@ -52,12 +64,9 @@ def main() -> None:
                   f"failures, {counts.get('degenerate_matches', 0)} degenerate matches, cpu {cpu:.0f} s", flush=True)
         print(f"mean ATE {sum(ates) / len(ates):.3f} m; settings {' '.join(a.settings) or '(defaults)'}")
         return
-    duration = 120.0 if a.world == "office" else None  # as gmapping-sim-lasers; others: one pass
     ates, maps = [], []
     for seed in (int(s) for s in a.seeds.split(",")):
-        sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
-        if not (sim_dir / "recording.log.gz").exists():
-            write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
+        sim_dir = cached_recording(a.cache, a.world, a.laser, seed)
         run_dir = Path(a.cache) / f"run-{a.method}-{a.world}-{a.laser}-{seed}-{abs(hash(tuple(a.settings)))}"
         cpu = time.process_time()
         run_method(a.method, sim_dir / "recording.log.gz", run_dir, settings=settings)

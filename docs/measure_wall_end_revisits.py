@@ -22,6 +22,7 @@ pair its estimated distance, Mahalanobis distance and the largest sigma of the d
 from __future__ import annotations
 
 import argparse
+import sys
 import json
 import time
 from pathlib import Path
@@ -32,7 +33,9 @@ from slam2d.core import se2
 from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
 from slam2d.graph.evaluation import loop_closure_precision
 from slam2d.methods.runner import build_method, run_method
-from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
+
+sys.path.insert(0, str(Path(__file__).parent))
+from measure_gmapping_proposal import cached_recording  # noqa: E402
 
 
 def merge_truth(wall_ends, node_times, truth, minimum_sightings: int = 3) -> tuple[int, int, int, float]:
@@ -111,12 +114,9 @@ def main() -> None:
     a = ap.parse_args()
     settings = dict(s.split("=", 1) for s in a.settings)
     settings.setdefault("wall_end_landmarks", "true")
-    duration = 120.0 if a.world == "office" else None  # as karto-sim-lasers
     ates, maps = [], []
     for seed in (int(s) for s in a.seeds.split(",")):
-        sim_dir = Path(a.cache) / f"{a.world}-{a.laser}-{seed}"
-        if not (sim_dir / "recording.log.gz").exists():
-            write_outputs(simulate(a.world, SimulationParams(duration=duration, seed=seed, laser=a.laser)), sim_dir)
+        sim_dir = cached_recording(a.cache, a.world, a.laser, seed)
         run_dir = Path(a.cache) / f"run-revisits-{a.world}-{a.laser}-{seed}"
         slam = build_method("karto", settings=settings)
         cpu = time.process_time()
