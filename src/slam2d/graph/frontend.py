@@ -105,6 +105,17 @@ class GraphSlamParams(GridParams, WallEndParams):
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
     )
+    between_nodes_skip_travel: float = param(
+        0.0, unit="m", low=0.0,
+        help="a scan that adds no node is not matched while the odometry since the last matched scan has moved "
+        "less than this and turned less than between_nodes_skip_turn: its pose is that scan's plus the odometry "
+        "since it (not in Karto; a speed setting, 0 = every such scan matched, see docs/methods/karto.md)",
+    )
+    between_nodes_skip_turn: float = param(
+        2.0 * _DEG, unit="rad", low=0.0,
+        help="with between_nodes_skip_travel, a scan that adds no node is matched anyway once the odometry "
+        "since the last matched scan has turned this far (not in Karto)",
+    )
     seeded_search_window: float = param(
         0.2, unit="m", low=0.0,
         help="with match_between_nodes, a sequential match (of a scan that adds no node, or of a node right after "
@@ -556,6 +567,7 @@ class GraphFrontend:
         self._after_between = False  # whether the last frame was matched between nodes
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
+        self._matched_odom: NDArray[np.float64] | None = None  # odometry at the last matched scan
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         # Per node after the first: its sequential edge's measurement and covariance (previous node's frame).
         self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -875,6 +887,18 @@ class GraphFrontend:
                 self.offset = se2.relative(self.graph.poses[last], chained)
                 self._frame_pose = chained
             return None
+        if not moved and p.between_nodes_skip_travel > 0 and chained is not None and self._matched_odom is not None:
+            # Between nodes the odometry over a few cm is good to well under the matcher's cell:
+            # chain the last scan's pose instead of matching, until it has moved or turned enough.
+            since = se2.relative(self._matched_odom, odom)
+            if (math.hypot(since[0], since[1]) < p.between_nodes_skip_travel
+                    and abs(float(since[2])) < p.between_nodes_skip_turn):
+                self._count("frames_chained_between_nodes")
+                self.anchor, self.offset = last, se2.relative(self.graph.poses[last], chained)
+                self._frame_pose = chained
+                self._frame_response = last_response
+                self._after_between = True
+                return None
         if not moved:
             # A scan that adds no node is still matched against the running scans, for its own
             # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
@@ -886,6 +910,7 @@ class GraphFrontend:
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
+            self._matched_odom = odom
             self._after_between = True
             return None
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
@@ -948,6 +973,7 @@ class GraphFrontend:
         self.anchor, self.offset = node, np.zeros(3)
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
+        self._matched_odom = odom
         return values
 
     def _recover_sequential(self, result, points, predicted, values, last_response=math.nan):
