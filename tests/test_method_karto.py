@@ -153,6 +153,16 @@ def test_skipping_matches_between_nodes_chains_odometry_and_keeps_the_heading(ka
     assert rms(step_all) < rms(step) < 3.0, (rms(step), rms(step_all))
 
 
+def test_near_chains_linked_nearby_are_not_matched_again(karto_run, loop_sim):
+    """near_link_skip_distance: a near chain that linked is skipped until the robot is that far on; off
+    by default. Skipping links leaves fewer near links than linking from every node."""
+    assert "near_skipped_linked" not in karto_run.diagnostics.counters
+    skip = _run("karto", loop_sim.frames(), near_link_skip_distance=0.6)
+    assert skip.diagnostics.counters["near_skipped_linked"] > 0, dict(skip.diagnostics.counters)
+    links = lambda run: float(np.nansum(run.diagnostics.array("near_links")))  # noqa: E731
+    assert links(skip) < links(karto_run), (links(skip), links(karto_run))
+
+
 def test_prediction_from_the_last_scan_recovers_a_bad_turn():
     """A turn whose odometry heading goes 28 deg wrong between two nodes (office, RPLidar, seed 2, t = 56 s).
 

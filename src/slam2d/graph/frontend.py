@@ -388,6 +388,12 @@ class GraphSlamParams(GridParams, WallEndParams):
         "link from there) is bounded again only once the robot is this far from where it was bounded or the "
         "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/karto.md)",
     )
+    near_link_skip_distance: float = param(
+        0.0, unit="m", low=0.0,
+        help="a near chain that linked is not matched again (no link) until the robot is this far from where "
+        "it linked or the graph was optimised since (not in Karto, which links it from every node; 0: matched "
+        "at every kept scan; a speed setting, see docs/methods/karto.md)",
+    )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
     )
@@ -559,6 +565,7 @@ class GraphFrontend:
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._near_between: list[tuple[int, int, float, float]] = []
+        self._near_linked_at: list[tuple[int, int, float, float]] = []  # near chains linked (near_link_skip_distance)
         # Near chains (start, end) that responded at least _NEAR_HOT of the link threshold from the last node.
         self._near_hot: list[tuple[int, int]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -1072,6 +1079,9 @@ class GraphFrontend:
             if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
                 self._count("near_skipped_retry")
                 continue
+            if self._tried_nearby(a, b, pose, p.near_link_skip_distance, self._near_linked_at):
+                self._count("near_skipped_linked")
+                continue
             chain = list(range(a, b))
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
@@ -1108,6 +1118,9 @@ class GraphFrontend:
                 covs.append(cov)
                 self._link_chain_to_scan(chain, node, result.pose, cov)
                 count += 1
+                if p.near_link_skip_distance > 0:
+                    self._near_linked_at.append((a, b, float(pose[0]), float(pose[1])))
+                    del self._near_linked_at[:-100]
         return count
 
     def _near_outcome(self, entry: dict, points, pose, lo, hi, hot: bool):
@@ -1463,6 +1476,7 @@ class GraphFrontend:
         self._tried.clear()
         self._near_failed.clear()
         self._near_between.clear()
+        self._near_linked_at.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
