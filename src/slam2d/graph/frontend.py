@@ -105,6 +105,17 @@ class GraphSlamParams(GridParams, WallEndParams):
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
     )
+    between_nodes_skip_travel: float = param(
+        0.0, unit="m", low=0.0,
+        help="a scan that adds no node is not matched while the odometry since the last matched scan has moved "
+        "less than this and turned less than between_nodes_skip_turn: its pose is that scan's plus the odometry "
+        "since it (not in Karto; a speed setting, 0 = every such scan matched, see docs/methods/karto.md)",
+    )
+    between_nodes_skip_turn: float = param(
+        2.0 * _DEG, unit="rad", low=0.0,
+        help="with between_nodes_skip_travel, a scan that adds no node is matched anyway once the odometry "
+        "since the last matched scan has turned this far (not in Karto)",
+    )
     seeded_search_window: float = param(
         0.2, unit="m", low=0.0,
         help="with match_between_nodes, a sequential match (of a scan that adds no node, or of a node right after "
@@ -377,6 +388,12 @@ class GraphSlamParams(GridParams, WallEndParams):
         "link from there) is bounded again only once the robot is this far from where it was bounded or the "
         "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/karto.md)",
     )
+    near_link_skip_distance: float = param(
+        0.0, unit="m", low=0.0,
+        help="a near chain that linked is not matched again (no link) until the robot is this far from where "
+        "it linked or the graph was optimised since (not in Karto, which links it from every node; 0: matched "
+        "at every kept scan; a speed setting, see docs/methods/karto.md)",
+    )
     correlation_search_space_dimension: float = param(
         0.3, unit="m", low=0.001, help="side of the sequential matcher's x, y window [CorrelationSearchSpaceDimension]"
     )
@@ -548,6 +565,7 @@ class GraphFrontend:
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._near_between: list[tuple[int, int, float, float]] = []
+        self._near_linked_at: list[tuple[int, int, float, float]] = []  # near chains linked (near_link_skip_distance)
         # Near chains (start, end) that responded at least _NEAR_HOT of the link threshold from the last node.
         self._near_hot: list[tuple[int, int]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -556,6 +574,7 @@ class GraphFrontend:
         self._after_between = False  # whether the last frame was matched between nodes
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
+        self._matched_odom: NDArray[np.float64] | None = None  # odometry at the last matched scan
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         # Per node after the first: its sequential edge's measurement and covariance (previous node's frame).
         self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -875,6 +894,18 @@ class GraphFrontend:
                 self.offset = se2.relative(self.graph.poses[last], chained)
                 self._frame_pose = chained
             return None
+        if not moved and p.between_nodes_skip_travel > 0 and chained is not None and self._matched_odom is not None:
+            # Between nodes the odometry over a few cm is good to well under the matcher's cell:
+            # chain the last scan's pose instead of matching, until it has moved or turned enough.
+            since = se2.relative(self._matched_odom, odom)
+            if (math.hypot(since[0], since[1]) < p.between_nodes_skip_travel
+                    and abs(float(since[2])) < p.between_nodes_skip_turn):
+                self._count("frames_chained_between_nodes")
+                self.anchor, self.offset = last, se2.relative(self.graph.poses[last], chained)
+                self._frame_pose = chained
+                self._frame_response = last_response
+                self._after_between = True
+                return None
         if not moved:
             # A scan that adds no node is still matched against the running scans, for its own
             # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
@@ -886,6 +917,7 @@ class GraphFrontend:
             self._count("frames_matched_between_nodes")
             self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
             self._frame_pose = pose
+            self._matched_odom = odom
             self._after_between = True
             return None
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
@@ -948,6 +980,7 @@ class GraphFrontend:
         self.anchor, self.offset = node, np.zeros(3)
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
+        self._matched_odom = odom
         return values
 
     def _recover_sequential(self, result, points, predicted, values, last_response=math.nan):
@@ -1046,6 +1079,9 @@ class GraphFrontend:
             if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
                 self._count("near_skipped_retry")
                 continue
+            if self._tried_nearby(a, b, pose, p.near_link_skip_distance, self._near_linked_at):
+                self._count("near_skipped_linked")
+                continue
             chain = list(range(a, b))
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
@@ -1082,6 +1118,9 @@ class GraphFrontend:
                 covs.append(cov)
                 self._link_chain_to_scan(chain, node, result.pose, cov)
                 count += 1
+                if p.near_link_skip_distance > 0:
+                    self._near_linked_at.append((a, b, float(pose[0]), float(pose[1])))
+                    del self._near_linked_at[:-100]
         return count
 
     def _near_outcome(self, entry: dict, points, pose, lo, hi, hot: bool):
@@ -1437,6 +1476,7 @@ class GraphFrontend:
         self._tried.clear()
         self._near_failed.clear()
         self._near_between.clear()
+        self._near_linked_at.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
