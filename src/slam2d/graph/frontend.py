@@ -178,7 +178,7 @@ class GraphSlamParams(GridParams, WallEndParams):
         "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
     )
     near_chain_angle_offset: float = param(
-        0.10471975511965978, unit="rad", low=0.0,
+        6.0 * _DEG, unit="rad", low=0.0,
         help="half-width of the coarse angle window of the near-chain matches and their response bound (not in "
         "Karto, which uses coarse_search_angle_offset, 20 deg): a near chain is already connected to the new scan "
         "in the graph, and the links it makes correct the heading by at most 2.6 deg on the four logs (99 % "
@@ -700,10 +700,14 @@ class GraphFrontend:
             return True
         return abs(float(se2.wrap_angle(odom[2] - last[2]))) >= p.minimum_travel_heading
 
+    def _match_information(self, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The information a scan-match edge gets from its covariance (scaled by match_covariance_scale)."""
+        return np.linalg.inv(covariance) / self.params.match_covariance_scale
+
     def _add_edge(self, i: int, j: int, pose_j: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
         """Edge i -> j measuring ``pose_j`` seen from node i's current pose; world covariance rotated into i."""
         z = se2.relative(self.graph.poses[i], pose_j)
-        self.graph.add_edge(i, j, z, np.linalg.inv(self._local_covariance(i, covariance)) / self.params.match_covariance_scale)
+        self.graph.add_edge(i, j, z, self._match_information(self._local_covariance(i, covariance)))
 
     def _closest_to_node(self, chain: list[int], node: int, pose: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to the node's (``pose`` before it has one)."""
@@ -730,7 +734,7 @@ class GraphFrontend:
         local = self._chain_covariance(closest, last, se2.relative(self.graph.poses[last], pose),
                                        self._local_covariance(last, cov))
         self._count("running_links_chained")
-        self.graph.add_edge(closest, node, z, np.linalg.inv(local) / self.params.match_covariance_scale)
+        self.graph.add_edge(closest, node, z, self._match_information(local))
 
     def _chain_covariance(self, i: int, last: int, step: NDArray[np.float64], step_cov: NDArray[np.float64]):
         """Covariance, in node i's frame, of node i's sequential edges up to ``last`` followed by ``step``.
@@ -1289,7 +1293,7 @@ class GraphFrontend:
                     self.graph.poses[node] = fine.pose
                     self._world[node] = None
                 if not self._has_edge(h.frm, h.node):
-                    self.graph.add_edge(h.frm, h.node, h.z, np.linalg.inv(h.covariance) / self.params.match_covariance_scale)
+                    self.graph.add_edge(h.frm, h.node, h.z, self._match_information(h.covariance))
             before, after = self.optimize()
             for h in (partner, hyp):
                 if h is None:
