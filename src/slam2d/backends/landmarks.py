@@ -160,11 +160,9 @@ def landmark_covariance(graph: PoseGraph, poses: NDArray, landmarks: NDArray, ob
     ``landmarks`` (count, 2) and restricted to the x, y of those landmarks: what the graph knows
     about where each is relative to the gauge node, and so about their differences. Every landmark
     in ``which`` must be observed. The landmark headings, untouched by anything, get a unit
-    diagonal; a sparse LU solve with 2J right-hand sides.
+    diagonal; one SuperLU solve (LinearSolver "splu") with 2J right-hand sides.
     """
-    import scipy.sparse.linalg as spla
-
-    from slam2d.backends.linear import BlockPattern, assemble_normal_equations
+    from slam2d.backends.linear import BlockPattern, LinearSolver, assemble_normal_equations
 
     which = np.asarray(which, dtype=np.int64)
     used = np.unique(obs.landmark)
@@ -185,11 +183,8 @@ def landmark_covariance(graph: PoseGraph, poses: NDArray, landmarks: NDArray, ob
                               pattern.slots, pattern.gslots, 0, 1.0, data, grad)
     diag = np.zeros(pattern.size)
     diag[pattern.base[n + np.arange(used.size)] + 2] = 1.0  # landmark headings
-    values = data.copy()
-    values[pattern.diag_slot] += diag
-    lu = spla.splu(pattern._csc(values), permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     cols = (pattern.base[n + index[which]][:, None] + np.arange(2)[None, :]).ravel()
     rhs = np.zeros((pattern.size, cols.size))
     rhs[cols, np.arange(cols.size)] = 1.0
-    sol = lu.solve(rhs)
+    sol = LinearSolver("splu", pattern).solve(data, diag, rhs)
     return sol[cols]
