@@ -405,3 +405,23 @@ def test_coarse_point_spacing_thins_the_coarse_search_only():
     assert abs(se2.wrap_angle(r.pose[2] - truth[2])) <= math.radians(0.3)
     assert r.evaluated < 0.7 * full.evaluated
     assert abs(r.response - full.response) < 0.05
+
+
+def test_smear_kernel_equals_the_per_cell_exponential():
+    """The kernel's recurrence gives the values exp() per cell would, rounded to 0..255 (many sigmas)."""
+    import math
+
+    from slam2d.matching.correlative import _SCALE, smear_points
+
+    res = 0.01
+    for s in np.random.default_rng(3).uniform(0.004, 0.1, 400):
+        half = int(math.ceil(2.0 * s / res))
+        n = 2 * half + 1
+        d = (np.arange(n) - half) * (res / s)
+        ex = np.exp(-0.5 * d * d) * _SCALE
+        expected = np.empty((n, n), np.uint8)
+        for i in range(n):  # the formula as Karto writes it: exp() per row and column, then their product
+            expected[i] = [int(ex[i] / _SCALE * ex[j] + 0.5) for j in range(n)]
+        grid = np.zeros((n, n), np.uint8)
+        smear_points(grid, 0.0, 0.0, res, np.array([(half + 0.5) * res]), np.array([(half + 0.5) * res]), np.array([s]))
+        np.testing.assert_array_equal(grid, expected, err_msg=f"sigma {s}")
