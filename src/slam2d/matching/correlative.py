@@ -82,6 +82,8 @@ _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
 # Angle offsets that depend only on a matcher's settings, computed once (see _coarse_angles); never written to.
 _ANGLES: dict = {}
+# Interleaved point orders by point count, computed once (see _interleaved); never written to.
+_INTERLEAVE_ORDERS: dict = {}
 # Response bounds of at least this many points x headings share their headings among threads.
 _PARALLEL_BOUND = 4000
 # Karto's MAX_VARIANCE: the covariance of a match that found nothing.
@@ -1485,10 +1487,9 @@ def _interleaved(q: NDArray[np.float64]) -> NDArray[np.float64]:
     stride = n // _PRUNE_CHUNK
     if stride < 2:
         return q
-    key = ("interleave", n)
-    order = _ANGLES.get(key)
+    order = _INTERLEAVE_ORDERS.get(n)
     if order is None:
-        order = _ANGLES[key] = np.argsort(np.arange(n) % stride, kind="stable")
+        order = _INTERLEAVE_ORDERS[n] = np.argsort(np.arange(n) % stride, kind="stable")
     return np.ascontiguousarray(q[order])
 
 
