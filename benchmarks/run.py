@@ -3,6 +3,7 @@
 
     .venv/bin/python benchmarks/run.py              # everything, rewrite BENCHMARKS.md
     .venv/bin/python benchmarks/run.py --only read  # cases whose name contains "read"; prints, no rewrite
+    .venv/bin/python benchmarks/run.py --update NAME[,NAME]  # re-measure these cases, replace their rows
 
 Each case runs in a fresh child process, so its peak memory (max RSS, read
 with ``wait4``) is its own. A case reports the wall time of the work it
@@ -87,6 +88,45 @@ def _fmt_seconds(v: float | None) -> str:
     return _fmt(v)
 
 
+def _row_line(r: dict) -> str:
+    c = r["case"]
+    return (f"| `{c.name}` | {c.what} | {r['runs']} | {_fmt_seconds(r['seconds'])} | {_fmt(r['peak'], 0)} | "
+            f"{c.target or '-'} | {r['verdict']} | {r['extra']} |")
+
+
+def _update_rows(path: Path, rows: list[dict]) -> None:
+    """Replace the rows of ``rows``' cases in the case table of ``path`` (a new case goes where CASES puts it).
+
+    A line under the header says which rows were re-measured when; the file is written to a temporary
+    name and renamed, so an interrupted update leaves the old file.
+    """
+    lines = path.read_text().splitlines()
+    order = [c.name for c in cases.CASES]
+    new = {r["case"].name: _row_line(r) for r in rows}
+
+    def name_of(line: str) -> str | None:
+        return line.split("`")[1] if line.startswith("| `") else None
+
+    first = next(i for i, line in enumerate(lines) if name_of(line))
+    last = first
+    while last + 1 < len(lines) and name_of(lines[last + 1]):
+        last += 1
+    table = {name_of(line): line for line in lines[first:last + 1]}
+    table.update(new)
+    body = [table[n] for n in order if n in table] + [line for n, line in table.items() if n not in order]
+    stamp = (f"Rows {', '.join(f'`{n}`' for n in new)} re-measured "
+             f"{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} (`benchmarks/run.py --update`); "
+             "the others as measured above.")
+    head = lines[:first]
+    at = next((i for i, line in enumerate(head) if line.startswith("Measured ")), 0) + 1
+    head = head[:at] + [stamp] + head[at:]
+    text = "\n".join(head + body + lines[last + 1:]) + "\n"
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    print(f"updated {len(new)} rows of {path}", file=sys.stderr)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", help="run only cases whose name contains this text (no rewrite)")
@@ -94,9 +134,21 @@ def main() -> int:
     parser.add_argument("--output", type=Path, default=ROOT / "BENCHMARKS.md")
     parser.add_argument("--no-methods", action="store_true",
                         help="skip the methods x datasets table (no rewrite)")
+    parser.add_argument("--update", help="comma-separated case names: run them and replace (or add) their rows "
+                        "in the existing --output, leaving the other rows as they were measured")
     args = parser.parse_args()
 
-    selected = [c for c in cases.CASES if not args.only or args.only in c.name]
+    if args.update:
+        names = [n.strip() for n in args.update.split(",") if n.strip()]
+        unknown = sorted(set(names) - {c.name for c in cases.CASES})
+        if unknown:
+            print(f"error: --update: no case named {', '.join(unknown)}", file=sys.stderr)
+            return 2
+        if not args.output.exists():
+            print(f"error: --update: {args.output} does not exist (run the whole benchmark first)", file=sys.stderr)
+            return 2
+    selected = [c for c in cases.CASES if (not args.only or args.only in c.name)
+                and (not args.update or c.name in names)]
     rows = []
     with tempfile.TemporaryDirectory(prefix="slam2d-bench-") as tmp:
         workdir = Path(tmp)
@@ -120,6 +172,9 @@ def main() -> int:
             rows.append(row)
             print(f"{case.name}: {seconds:.3f} s, {peak:.0f} MB peak {extra} -> {verdict}", file=sys.stderr)
 
+    if args.update:
+        _update_rows(args.output, rows)
+        return 0
     method_rows: list[dict] = []
     if not args.no_methods and not args.only:
         import methods as method_matrix  # benchmarks/methods.py
@@ -144,12 +199,7 @@ def main() -> int:
         "| case | what is measured | runs | time (s) | peak memory (MB) | target | met | notes |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for r in rows:
-        c = r["case"]
-        lines.append(
-            f"| `{c.name}` | {c.what} | {r['runs']} | {_fmt_seconds(r['seconds'])} | {_fmt(r['peak'], 0)} | "
-            f"{c.target or '-'} | {r['verdict']} | {r['extra']} |"
-        )
+    lines += [_row_line(r) for r in rows]
     lines += [
         "",
         "## Methods x datasets",
