@@ -65,6 +65,8 @@ from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, Gri
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams
+from slam2d.graph.wall_refinement import (WallRefinementParams, odometry_graph, refine_walls, scan_segments,
+                                          scan_wall_ends)
 
 __all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
 
@@ -72,7 +74,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass
-class GraphSlamParams(GridParams, WallEndParams):
+class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams):
     """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
 
     Squared quantities are given squared (m^2, rad^2) and angles in radians:
@@ -1486,6 +1488,43 @@ class GraphFrontend:
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
         )
         return float(res.cost_before), float(res.cost_after)
+
+    def refine_walls(self) -> dict[str, float]:
+        """The wall bundle adjustment (``wall_refinement``) of the finished graph: its poses replaced.
+
+        Returns a summary (walls, beams on them, objective before and after, CPU seconds).
+        """
+        import time
+
+        cpu = time.process_time()
+        p = self.params
+        sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in self._scans]
+        segs = scan_segments(self._scans, sig, p, p.range_threshold)
+        we = self.wall_ends
+        ends = scan_wall_ends(self._scans, sig, p) if we is None and p.wall_refinement_ends else None
+        graph = self.graph
+        if p.wall_refinement_edges != "graph":
+            graph = odometry_graph(self.graph.poses, self.odometry_at_nodes(), p, self.graph.fixed)
+            if p.wall_refinement_edges == "odometry+loops" and self.loop_closures:
+                loops = {(c.frm, c.to) for c in self.loop_closures}
+                ei, ej = self.graph.edge_i, self.graph.edge_j
+                sel = np.array([(int(a), int(b)) in loops for a, b in zip(ei, ej)], dtype=bool)
+                graph.add_edges(ei[sel], ej[sel], self.graph.measurements[sel], self.graph.information[sel])
+        res = refine_walls(graph, segs, p, we.observations() if we is not None else None,
+                           we.num_landmarks if we is not None else 0, ends)
+        if np.all(np.isfinite(res.poses)):
+            self.graph.poses = res.poses
+        else:
+            self._count("optimizer_failures")
+        self._world = [None] * len(self._world)
+        cpu = time.process_time() - cpu
+        self.optimizations.append(
+            {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
+             "cost_after": res.cost_after, "iterations": len(res.rounds), "cpu_s": cpu, "wall_refinement": 1.0}
+        )
+        return {"walls": float(res.walls), "beams": float(res.beams), "segments": float(segs.seg_node.size),
+                "points": float(res.points),
+                "objective_before": res.cost_before, "objective_after": res.cost_after, "cpu_s": cpu}
 
     # ----------------------------------------------------------------- outputs
 

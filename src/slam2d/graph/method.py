@@ -110,6 +110,8 @@ class GraphSlam(SlamMethod):
         fe = self.frontend
         if (fe.loop_closures or (fe.wall_ends is not None and fe.wall_ends.pending)) and fe.graph.num_edges:
             fe.optimize()  # a last pass over the edges added since the last closure
+        if self.params.wall_refinement and fe.num_nodes > 1:
+            self.diagnostics.summary["wall_refinement"] = fe.refine_walls()
         s = fe.summary()
         self.diagnostics.summary.update(
             {
