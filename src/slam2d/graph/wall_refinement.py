@@ -65,6 +65,12 @@ class WallRefinementParams:
         "(every beam on a wall against its line, the pose-graph edges, the wall-end landmarks when on) by a "
         "batch least squares; the trajectory and map follow (not in Karto; docs/methods/karto.md)",
     )
+    wall_refinement_frames: bool = param(
+        True,
+        help="refine every placed frame (its scan, and the odometry between consecutive frames), not only the "
+        "graph's nodes: about three times the readings (wall_refinement); needs odometry on every frame, else "
+        "the nodes alone are refined",
+    )
     wall_refinement_iterations: int = param(
         5, unit="rounds", low=1, help="rounds of association then Levenberg-Marquardt steps (wall_refinement)"
     )
@@ -102,7 +108,7 @@ class WallRefinementParams:
         3, unit="nodes", low=2, help="walls seen from fewer nodes are not used (wall_refinement)"
     )
     wall_refinement_range_sigma: float = param(
-        0.02, unit="m", low=1e-6,
+        0.04, unit="m", low=1e-6,
         help="least sigma of a beam's distance from its wall (a sensor model's per-beam range sigma is used when "
         "larger) (wall_refinement)",
     )
