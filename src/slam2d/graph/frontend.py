@@ -1509,8 +1509,8 @@ class GraphFrontend:
         sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
         segs = scan_segments(scans, sig, p, p.range_threshold)
         we = self.wall_ends
-        ends = scan_wall_ends(scans, sig, p) if we is None and p.wall_refinement_ends else None
-        obs = we.observations() if we is not None else None
+        ends = scan_wall_ends(scans, sig, p) if p.wall_refinement_ends else None
+        obs = we.observations() if we is not None and ends is None else None
         if obs is not None and node_frame is not None:
             obs = type(obs)(node_frame[obs.pose], obs.landmark, obs.z, obs.information)
         where = (lambda k: k) if node_frame is None else (lambda k: node_frame[k])
@@ -1529,7 +1529,7 @@ class GraphFrontend:
                 sel = np.zeros(ei.shape[0], dtype=bool)
             if sel.any():
                 graph.add_edges(where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
-        res = refine_walls(graph, segs, p, obs, we.num_landmarks if we is not None else 0, ends)
+        res = refine_walls(graph, segs, p, obs, we.num_landmarks if obs is not None else 0, ends)
         refined = None
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses if node_frame is None else res.poses[node_frame]

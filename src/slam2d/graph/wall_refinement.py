@@ -118,9 +118,21 @@ class WallRefinementParams:
     )
     wall_refinement_ends: bool = param(
         True,
-        help="with wall_end_landmarks off, detect the wall ends of every kept scan (as wall_end_landmarks does, "
-        "with its detection parameters), associate them over all nodes within wall_refinement_end_gate and add "
-        "them as points to the refinement (wall_refinement); with wall_end_landmarks on, its landmarks are used",
+        help="detect the wall ends of every refined scan (wall_end_landmarks' detector and parameters, but "
+        "wall_refinement_end_incidence and wall_refinement_end_open_incidence), associate them over all scans "
+        "within wall_refinement_end_gate and add them as points to the refinement (wall_refinement); off: "
+        "with wall_end_landmarks on, that tracker's landmarks are used, else none",
+    )
+    wall_refinement_end_incidence: float = param(
+        85.0 * _DEG, unit="rad", low=0.0, high=math.pi / 2,
+        help="largest incidence of a wall end (wall_refinement_ends; wall_end_maximum_incidence for the refinement): "
+        "the jambs far ahead along a corridor are seen at grazing incidence, and at 80 deg each is lost before the "
+        "next is seen, which leaves the stretch between them to the odometry",
+    )
+    wall_refinement_end_open_incidence: float = param(
+        80.0 * _DEG, unit="rad", low=0.0, high=math.pi / 2,
+        help="largest incidence of a wall end with no return after it (wall_refinement_ends; "
+        "wall_end_open_incidence for the refinement)",
     )
     wall_refinement_end_gate: float = param(
         0.15, unit="m", low=0.0,
@@ -413,7 +425,8 @@ class EndSightings:
 
 
 def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p: Any) -> EndSightings:
-    """The wall ends of every scan (:func:`slam2d.matching.wall_ends.detect_wall_ends`, the WallEndParams)."""
+    """The wall ends of every scan (:func:`slam2d.matching.wall_ends.detect_wall_ends`, the WallEndParams but the
+    incidence limits ``wall_refinement_end_incidence`` and ``wall_refinement_end_open_incidence``)."""
     from slam2d.matching.wall_ends import detect_wall_ends
 
     node, z, info = [], [], []
@@ -421,7 +434,8 @@ def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p
         sig = sigmas[i] if sigmas[i] is not None else np.full(scan.num_beams, np.nan)
         sig = np.fmax(np.where(np.isfinite(sig), sig, 0.0), p.wall_end_range_sigma)
         ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
-                                max_incidence=p.wall_end_maximum_incidence, open_incidence=p.wall_end_open_incidence,
+                                max_incidence=p.wall_refinement_end_incidence,
+                                open_incidence=p.wall_refinement_end_open_incidence,
                                 max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma)
         if len(ends):
             node.append(np.full(len(ends), i, np.int64))
