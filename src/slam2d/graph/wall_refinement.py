@@ -1,34 +1,38 @@
-"""Wall bundle adjustment: karto's finished trajectory refined against straight walls (``wall_refinement``).
+"""Wall bundle adjustment: karto's finished trajectory refined against straight walls and wall ends (``wall_refinement``).
 
 Along a corridor longer than the laser's reach the correlative matches are flat along it and
 the odometry decides (docs/methods/karto.md, *Why the simulated worlds stay at 0.1 m*); the
 accuracy bound (docs/accuracy_bound.md) reaches 1-3 cm by solving every range reading against
-the wall it hit, jointly with the walls and the odometry. This is that estimator without the
-truth, run once on the finished graph:
+the wall it hit and every wall end's bearing, jointly with the walls and the odometry. This is
+that estimator without the truth, run once on the finished run (``GraphSlam.refine_walls``), over
+every placed frame (``wall_refinement_frames``) or over the graph's nodes:
 
-1. **Lines per node** (:func:`extract_segments`, compiled): each kept scan's returns, in beam
-   order, are cut where neighbours are more than ``wall_refinement_break_distance`` apart, then
-   split recursively at the point farthest from the chord while it is more than
-   ``wall_refinement_split_distance`` off (split-and-merge); a piece of at least
-   ``wall_refinement_minimum_points`` beams whose total-least-squares line fits with an RMS under
-   ``wall_refinement_fit_rms`` is a segment.
-2. **Walls** (:func:`associate_segments`): every segment, placed by its node's current pose,
+1. **Lines per scan** (:func:`extract_segments`, compiled): the returns, in beam order, are cut
+   where neighbours are more than ``wall_refinement_break_distance`` apart, then split recursively
+   at the point farthest from the chord while it is more than ``wall_refinement_split_distance``
+   off (split-and-merge); a piece of at least ``wall_refinement_minimum_points`` beams whose
+   total-least-squares line fits with an RMS under ``wall_refinement_fit_rms`` is a segment.
+2. **Walls** (:func:`associate_segments`): every segment, placed by its scan's current pose,
    joins the wall (an infinite line ``n(alpha) . p = d``) of the longest segments already taken
    whose angle is within ``wall_refinement_angle_gate``, both of whose end points are within
    ``wall_refinement_offset_gate`` of the line, and whose extent along the line is within
    ``wall_refinement_overlap_gap`` of the segment's; otherwise it starts a wall. Walls seen from
-   fewer than ``wall_refinement_minimum_nodes`` nodes are dropped.
-3. **Joint least squares** (:func:`refine_walls`): unknowns are the node poses (local
-   perturbations, as SPA's), the walls' ``(alpha, d)`` and, with ``wall_end_landmarks``, the
-   wall-end landmarks' points. Residuals: each beam of a segment on a wall, its point-to-line
-   distance over the range sigma (Huber at
-   ``wall_refinement_robust_delta`` sigmas); every edge of the pose graph with its information
-   (times ``wall_refinement_edge_scale``); every wall-end sighting with its information.
-   Levenberg-Marquardt steps with a sparse solve (scipy); the association is redone with the new
-   poses between rounds (``wall_refinement_iterations``). The graph's fixed node is the gauge.
+   fewer than ``wall_refinement_minimum_nodes`` scans are dropped.
+3. **Wall ends** (:func:`scan_wall_ends`, :func:`associate_ends`): the wall-end detector of
+   ``wall_end_landmarks`` with its own incidence limits, each end joining the nearest landmark
+   within ``wall_refinement_end_gate`` (never two ends of one scan).
+4. **Joint least squares** (:func:`refine_walls`): unknowns are the poses (local perturbations, as
+   SPA's), the walls' ``(alpha, d)`` and the wall ends' points. Residuals: each beam of a segment
+   on a wall, its point-to-line distance over ``wall_refinement_range_sigma`` (Huber at
+   ``wall_refinement_robust_delta`` sigmas); each wall-end sighting with its covariance (Huber
+   too); and what ties the poses (``wall_refinement_edges``): the odometry between consecutive
+   poses with a GMapping-style noise model (:func:`odometry_graph`), plus the loop closures'
+   edges, or the pose graph's own edges. Levenberg-Marquardt steps with a sparse solve (scipy);
+   the association is redone with the new poses between rounds (``wall_refinement_iterations``).
+   The graph's fixed node is the gauge.
 
-It changes nothing during the run: the poses of the finished graph are replaced, so the returned
-trajectory and map follow them.
+It changes nothing during the run: the finished poses are replaced, so the returned trajectory
+and map follow them.
 """
 
 from __future__ import annotations
@@ -61,9 +65,10 @@ class WallRefinementParams:
 
     wall_refinement: bool = param(
         False,
-        help="after the run, refine the graph's node poses jointly with straight walls fitted to the kept scans "
-        "(every beam on a wall against its line, the pose-graph edges, the wall-end landmarks when on) by a "
-        "batch least squares; the trajectory and map follow (not in Karto; docs/methods/karto.md)",
+        help="after the run, refine the poses (every placed frame, or the graph's nodes) jointly with straight "
+        "walls fitted to their scans and the wall ends they see (every beam on a wall against its line, every "
+        "end against its point, and the odometry or the pose graph's edges) by a batch least squares; the "
+        "trajectory and map follow (not in Karto; docs/methods/karto.md, URG-04LX: a wall bundle adjustment)",
     )
     wall_refinement_frames: bool = param(
         True,
@@ -105,7 +110,8 @@ class WallRefinementParams:
         help="... and whose extent along the line is at most this far from the segment's (wall_refinement)",
     )
     wall_refinement_minimum_nodes: int = param(
-        3, unit="nodes", low=2, help="walls seen from fewer nodes are not used (wall_refinement)"
+        3, unit="scans", low=2,
+        help="walls and wall ends seen from fewer scans are not used (wall_refinement)"
     )
     wall_refinement_range_sigma: float = param(
         0.04, unit="m", low=1e-6,
@@ -159,7 +165,7 @@ class WallRefinementParams:
     )
     wall_refinement_edge_scale: float = param(
         1.0, low=0.0,
-        help="factor on the information of the pose graph's edges in the refinement (wall_refinement)",
+        help="factor on the information of the edges that tie the poses (wall_refinement_edges) (wall_refinement)",
     )
 
 
