@@ -25,9 +25,9 @@ every placed frame (``wall_refinement_frames``) or over the graph's nodes:
    SPA's), the walls' ``(alpha, d)`` and the wall ends' points. Residuals: each beam of a segment
    on a wall, its point-to-line distance over ``wall_refinement_range_sigma`` (Huber at
    ``wall_refinement_robust_delta`` sigmas); each wall-end sighting with its covariance (Huber
-   too); and what ties the poses (``wall_refinement_edges``): the odometry between consecutive
-   poses with a GMapping-style noise model (:func:`odometry_graph`), plus the loop closures'
-   edges, or the pose graph's own edges. Levenberg-Marquardt steps with a sparse solve (scipy);
+   too); and what ties the poses (``wall_refinement_edges``): the pose graph's own edges (and,
+   over all frames, the odometry between consecutive frames with a GMapping-style noise model,
+   :func:`odometry_graph`), or that odometry alone, or it and the loop closures' edges. Levenberg-Marquardt steps with a sparse solve (scipy);
    the association is redone with the new poses between rounds (``wall_refinement_iterations``).
    The graph's fixed node is the gauge.
 
@@ -146,10 +146,11 @@ class WallRefinementParams:
         "(wall_refinement_ends)",
     )
     wall_refinement_edges: str = param(
-        "odometry+loops", choices=("graph", "odometry", "odometry+loops"),
-        help="what ties the poses besides the walls (wall_refinement): the pose graph's edges (scan matches, "
-        "loop closures), or the odometry between consecutive nodes with the wall_refinement_odometry_* noise "
-        "model (odometry+loops: and the loop closures' edges)",
+        "graph", choices=("graph", "odometry", "odometry+loops"),
+        help="what ties the poses besides the walls (wall_refinement): graph = the pose graph's edges (scan "
+        "matches, loop closures; over all frames, plus the odometry between consecutive frames with the "
+        "wall_refinement_odometry_* noise model), odometry = that odometry alone, odometry+loops = it and the "
+        "loop closures' edges",
     )
     wall_refinement_odometry_srr: float = param(
         0.1, unit="m/m", low=0.0, help="odometry noise: translation from translation (GMapping srr) (wall_refinement_edges)"
