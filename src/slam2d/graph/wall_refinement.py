@@ -73,7 +73,7 @@ class WallRefinementParams:
     wall_refinement_frames: bool = param(
         True,
         help="refine every placed frame (its scan, and the odometry between consecutive frames), not only the "
-        "graph's nodes: about three times the readings (wall_refinement); needs odometry on every frame, else "
+        "graph's nodes: several times the readings (wall_refinement); needs odometry on every frame, else "
         "the nodes alone are refined",
     )
     wall_refinement_iterations: int = param(
@@ -401,8 +401,8 @@ def associate_segments(segs: Segments, poses: NDArray[np.float64], p: Any) -> ND
 
 
 def _place(pose: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-    return np.stack([pose[:, 0] + c * q[:, 0] - s * q[:, 1], pose[:, 1] + s * q[:, 0] + c * q[:, 1]], -1)
+    """Point ``q[k]`` (base frame) placed by pose ``pose[k]``: (K, 2)."""
+    return se2.transform_points(pose, q[:, None, :])[:, 0, :]
 
 
 def _fit_lines(world: NDArray[np.float64], wall: NDArray[np.int64], count: int):
