@@ -48,13 +48,13 @@ from numba import njit
 from numpy.typing import NDArray
 
 from slam2d.backends.graph import PoseGraph, edge_jacobians
-from slam2d.backends.landmarks import PointObservations, landmark_positions, point_jacobians
+from slam2d.backends.landmarks import PointObservations, landmark_positions, point_errors, point_jacobians
 from slam2d.backends.spa import robust_objective, robust_weights
 from slam2d.core import se2
 from slam2d.params import param
 
 __all__ = ["WallRefinementParams", "Segments", "extract_segments", "scan_segments", "associate_segments",
-           "EndSightings", "scan_wall_ends", "associate_ends", "refine_walls", "WallRefinementResult"]
+           "EndSightings", "scan_wall_ends", "associate_ends", "odometry_graph", "refine_walls", "WallRefinementResult"]
 
 _DEG = math.pi / 180.0
 
@@ -546,8 +546,6 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
     landmarks) or ``ends`` (sightings associated again every round, :func:`associate_ends`).
     The graph is not modified. Returns the refined poses and a summary per round.
     """
-    from slam2d.backends.landmarks import point_errors
-
     x = np.array(graph.poses, dtype=np.float64)
     n = x.shape[0]
     fixed = int(graph.fixed)
