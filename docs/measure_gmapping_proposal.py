@@ -58,10 +58,14 @@ def main() -> None:
             run_method(a.method, log, run_dir, settings=settings, seed=seed)
             cpu = time.process_time() - cpu
             ate = evaluate_run(load_run(run_dir), reference)["trajectory"]["ate"]["translation_m"]["rmse"]
-            counts = json.loads((run_dir / "diagnostics.json").read_text())["counters"]
+            diag = json.loads((run_dir / "diagnostics.json").read_text())
+            counts = diag["counters"]
+            refine = diag["summary"].get("wall_refinement")  # karto's wall_refinement, when on
+            refined = (f", wall_refinement {refine['walls']:.0f} walls over {refine['poses']:.0f} poses, cpu "
+                       f"{refine['cpu_s']:.1f} s" if refine else "")
             ates.append(ate)
             print(f"{log.parent.name} filter seed {seed}: ATE {ate:.3f} m, {counts.get('match_failures', 0)} match "
-                  f"failures, {counts.get('degenerate_matches', 0)} degenerate matches, cpu {cpu:.0f} s", flush=True)
+                  f"failures, {counts.get('degenerate_matches', 0)} degenerate matches, cpu {cpu:.0f} s{refined}", flush=True)
         print(f"mean ATE {sum(ates) / len(ates):.3f} m; settings {' '.join(a.settings) or '(defaults)'}")
         return
     ates, maps = [], []

@@ -16,7 +16,8 @@ With ``--diagnose``, also: the mean chi-square at the *true* node poses of the l
 (2 expected for a right covariance) and of the pose-graph edges (3 expected; also per kind:
 sequential, link = running-scan and near-chain links, loop; edge counts in brackets), and the mean
 position error (after the evaluation's alignment) in each twelfth of the trajectory, and per merged
-pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run.
+pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run,
+and with ``wall_refinement=true`` the refinement's walls, wall-end landmarks, poses and CPU seconds.
 """
 
 from __future__ import annotations
@@ -134,11 +135,14 @@ def main() -> None:
                                  if fe.wall_ends is not None else (0, 0, 0, 0.0))
         ates.append(ate)
         maps.append(err)
+        refine = diag["summary"].get("wall_refinement")
+        refined = (f", wall_refinement {refine['walls']:.0f} walls, {refine['points']:.0f} wall ends over "
+                   f"{refine['poses']:.0f} poses, cpu {refine['cpu_s']:.1f} s" if refine else "")
         print(f"{a.world} {a.laser} seed {seed}: ATE {ate:.3f} m, map {err:.3f} m, "
               f"{counts.get('wall_end_landmarks', 0)} landmarks, {merges} merges ({wrong} wrong, {missed} missed, "
               f"largest true gap {worst:.3f} m), "
               f"{counts.get('loop_closures', 0)} loop closures ({prec['correct']} within 0.2 m and 1 deg of the truth), "
-              f"cpu {cpu:.0f} s", flush=True)
+              f"cpu {cpu:.0f} s{refined}", flush=True)
         if a.diagnose:
             print("  " + diagnose(fe, truth, run_dir), flush=True)
             for node, x, y, dist, maha, sigma in (fe.wall_ends.merge_log if fe.wall_ends is not None else []):

@@ -65,6 +65,8 @@ from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, Gri
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams
+from slam2d.graph.wall_refinement import (WallRefinementParams, odometry_graph, refine_walls, scan_segments,
+                                          scan_wall_ends)
 
 __all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
 
@@ -72,7 +74,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass
-class GraphSlamParams(GridParams, WallEndParams):
+class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams):
     """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
 
     Squared quantities are given squared (m^2, rad^2) and angles in radians:
@@ -1486,6 +1488,64 @@ class GraphFrontend:
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}
         )
         return float(res.cost_before), float(res.cost_after)
+
+    def refine_walls(self, frames: tuple | None = None) -> tuple[dict[str, float], NDArray[np.float64] | None]:
+        """The wall bundle adjustment (``wall_refinement``) of the finished graph: the node poses replaced.
+
+        ``frames`` (optional): ``(scans, odometry (F, 3), poses (F, 3), node_frame (N,))``, every placed
+        frame with its scan, odometry and current pose, and the frame of each node: the refinement then
+        runs over all frames (odometry between consecutive frames), and the refined frame poses are
+        returned too. Returns (a summary: walls, beams on them, objective before and after, CPU
+        seconds; the refined frame poses or None).
+        """
+        import time
+
+        cpu = time.process_time()
+        p = self.params
+        if frames is None:
+            scans, odom, poses, node_frame = self._scans, self.odometry_at_nodes(), self.graph.poses, None
+        else:
+            scans, odom, poses, node_frame = frames
+        sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
+        segs = scan_segments(scans, sig, p, p.range_threshold)
+        we = self.wall_ends
+        ends = scan_wall_ends(scans, sig, p) if p.wall_refinement_ends else None
+        obs = we.observations() if we is not None and ends is None else None
+        if obs is not None and node_frame is not None:
+            obs = type(obs)(node_frame[obs.pose], obs.landmark, obs.z, obs.information)
+        where = (lambda k: k) if node_frame is None else (lambda k: node_frame[k])
+        fixed = where(self.graph.fixed)
+        if p.wall_refinement_edges == "graph" and node_frame is None:
+            graph = self.graph
+        else:
+            graph = odometry_graph(poses, odom, p, int(fixed))
+            ei, ej = self.graph.edge_i, self.graph.edge_j
+            if p.wall_refinement_edges == "graph":
+                sel = np.ones(ei.shape[0], dtype=bool)
+            elif p.wall_refinement_edges == "odometry+loops" and self.loop_closures:
+                loops = {(c.frm, c.to) for c in self.loop_closures}
+                sel = np.array([(int(a), int(b)) in loops for a, b in zip(ei, ej)], dtype=bool)
+            else:
+                sel = np.zeros(ei.shape[0], dtype=bool)
+            if sel.any():
+                graph.add_edges(where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
+        res = refine_walls(graph, segs, p, obs, we.num_landmarks if obs is not None else 0, ends)
+        refined = None
+        if np.all(np.isfinite(res.poses)):
+            self.graph.poses = res.poses if node_frame is None else res.poses[node_frame]
+            refined = res.poses if node_frame is not None else None
+        else:
+            self._count("optimizer_failures")
+        self._world = [None] * len(self._world)
+        cpu = time.process_time() - cpu
+        self.optimizations.append(
+            {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
+             "cost_after": res.cost_after, "iterations": len(res.rounds), "cpu_s": cpu, "wall_refinement": 1.0}
+        )
+        summary = {"walls": float(res.walls), "beams": float(res.beams), "segments": float(segs.seg_node.size),
+                   "points": float(res.points), "poses": float(res.poses.shape[0]),
+                   "objective_before": res.cost_before, "objective_after": res.cost_after, "cpu_s": cpu}
+        return summary, refined
 
     # ----------------------------------------------------------------- outputs
 

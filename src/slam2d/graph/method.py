@@ -49,18 +49,28 @@ class GraphSlam(SlamMethod):
         self._grid: OccupancyGrid | None = None
         self._grid_nodes = 0  # nodes drawn into the grid
         self._grid_version = -1  # optimisation count the grid was drawn at
+        # wall_refinement over all frames: per placed frame its scan, odometry and node (-1: none)
+        self._frame_scans: list[Any] = []
+        self._frame_odom: list[Any] = []
+        self._frame_node: list[int] = []
+        self._refined: NDArray[np.float64] | None = None  # the refined pose of every placed frame
 
     def _grid_params(self) -> GridParams:
         names = {p.name for p in describe(GridParams)}
         return GridParams(**{n: getattr(self.params, n) for n in names})
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
+        nodes = self.frontend.num_nodes
         values = self.frontend.process(frame)
         fe = self.frontend
         if fe.anchor >= 0:
             self._anchor.append(fe.anchor)
             self._offset.append(np.asarray(fe.offset, dtype=np.float64))
             self._frame_times.append(frame.timestamp)
+            if self.params.wall_refinement and self.params.wall_refinement_frames:
+                self._frame_scans.append(frame.scan)
+                self._frame_odom.append(frame.odometry)
+                self._frame_node.append(fe.anchor if fe.num_nodes > nodes else -1)
         if values is not None:
             values = dict(values)
             values["nodes"] = float(fe.num_nodes)
@@ -74,6 +84,8 @@ class GraphSlam(SlamMethod):
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if not self._anchor:
             return np.zeros(0), np.zeros((0, 3))
+        if self._refined is not None:
+            return np.asarray(self._frame_times), self._refined.copy()
         fe = self.frontend
         nodes = fe.graph.poses
         anchor = np.asarray(self._anchor)
@@ -110,6 +122,8 @@ class GraphSlam(SlamMethod):
         fe = self.frontend
         if (fe.loop_closures or (fe.wall_ends is not None and fe.wall_ends.pending)) and fe.graph.num_edges:
             fe.optimize()  # a last pass over the edges added since the last closure
+        if self.params.wall_refinement and fe.num_nodes > 1:
+            self.refine_walls()
         s = fe.summary()
         self.diagnostics.summary.update(
             {
@@ -126,6 +140,22 @@ class GraphSlam(SlamMethod):
                 "grid_kept": s["grid_kept"],
             }
         )
+
+    def refine_walls(self) -> None:
+        """The wall bundle adjustment (``wall_refinement``): over every placed frame when each has odometry
+        (``wall_refinement_frames``), else over the graph's nodes; the trajectory and map follow."""
+        fe = self.frontend
+        frames = None
+        if self.params.wall_refinement_frames and self._frame_scans and all(o is not None for o in self._frame_odom):
+            node_frame = np.full(fe.num_nodes, -1, np.int64)
+            fn = np.asarray(self._frame_node)
+            node_frame[fn[fn >= 0]] = np.flatnonzero(fn >= 0)
+            if np.all(node_frame >= 0):
+                self._refined = None
+                _, poses = self.trajectory()
+                frames = (self._frame_scans, np.asarray(self._frame_odom, dtype=np.float64), poses, node_frame)
+        summary, self._refined = fe.refine_walls(frames)
+        self.diagnostics.summary["wall_refinement"] = summary
 
     def extra_outputs(self, out_dir: Any) -> list[Any]:
         """``graph.g2o``: the optimised pose graph (g2o's VERTEX_SE2 / EDGE_SE2)."""

@@ -1,0 +1,147 @@
+"""The wall bundle adjustment of karto's finished graph (`wall_refinement`): lines, association, the joint solve."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slam2d.backends import PoseGraph
+from slam2d.core import se2
+from slam2d.graph.frontend import GraphSlamParams
+from slam2d.graph.wall_refinement import (associate_segments, extract_segments, refine_walls, scan_segments,
+                                          scan_wall_ends)
+from slam2d.methods import get_method
+from slam2d.params import from_mapping
+from slam2d.sim.simulate import SimulationParams, simulate
+
+from tests._room import PILLAR, ROOM, room_scan
+
+
+def _line_of(alpha, d):
+    """(alpha, d) with alpha in [0, pi): one form per line."""
+    alpha = float(alpha) % (2 * math.pi)
+    if alpha >= math.pi:
+        alpha, d = alpha - math.pi, -d
+    return alpha, float(d)
+
+
+def _same(line, other, angle, offset):
+    """Whether two lines (alpha, d) agree to ``angle`` and ``offset``, in either of their forms."""
+    (a, d), (b, e) = line, other
+    da = math.remainder(a - b, 2 * math.pi)
+    if abs(da) > math.pi / 2:  # the other form: the normal turned round
+        da, e = math.remainder(da + math.pi, 2 * math.pi), -e
+    return abs(da) < angle and abs(d - e) < offset
+
+
+def test_line_extraction_recovers_the_room_walls():
+    rng = np.random.default_rng(3)
+    pose = np.array([0.3, -0.4, 0.2])
+    scan = room_scan(pose, n=721, fov=np.radians(360) * 720 / 721)
+    scan.ranges[:] = scan.ranges + rng.normal(0.0, 0.005, scan.ranges.shape)
+    ok = scan.valid
+    pts = se2.transform_points(pose, scan.points())  # world frame: the walls are the room's
+    starts, ends, alpha, d, rms = extract_segments(pts, np.flatnonzero(ok), break_distance=0.2, split_distance=0.04,
+                                                   min_points=10, max_rms=0.02)
+    xmin, ymin, xmax, ymax = ROOM
+    truth = {_line_of(0.0, xmax), _line_of(math.pi, -xmin), _line_of(math.pi / 2, ymax), _line_of(-math.pi / 2, -ymin)}
+    found = [_line_of(a, dd) for a, dd in zip(alpha, d)]
+    for ta, td in truth:  # every room wall is found, to 0.5 deg and 1 cm
+        assert any(_same(f, (ta, td), math.radians(0.5), 0.01) for f in found), (ta, td, found)
+    # every segment lies on a wall of the room or a face of the pillar
+    px0, py0, px1, py1 = PILLAR
+    faces = truth | {_line_of(0.0, px0), _line_of(0.0, px1), _line_of(math.pi / 2, py0), _line_of(math.pi / 2, py1)}
+    for f in found:
+        assert any(_same(f, face, math.radians(1), 0.02) for face in faces), f
+    assert np.all(rms < 0.01) and np.all(ends - starts + 1 >= 10)
+    # a corner is split: no segment spans two walls
+    assert len(found) >= 4
+
+
+def _room_problem(seed=0, nodes=30):
+    """Poses round the room, exact scans (5 mm noise), noisy relative-pose edges, and noisy poses to start from."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 2 * math.pi, nodes, endpoint=False)
+    truth = np.stack([0.4 + 2.0 * np.cos(t), 0.6 + 1.5 * np.sin(t), t + math.pi / 2], -1)
+    scans = []
+    for i, pose in enumerate(truth):
+        s = room_scan(pose, n=361, t=float(i))
+        s.ranges[:] = s.ranges + rng.normal(0.0, 0.005, s.ranges.shape)
+        scans.append(s)
+    graph = PoseGraph()
+    sig = np.array([0.05, 0.05, math.radians(2)])
+    info = np.diag(1.0 / sig**2)
+    start = truth + rng.normal(0.0, 1.0, truth.shape) * np.array([0.06, 0.06, math.radians(1.5)])
+    start[0] = truth[0]
+    graph.add_nodes(start)
+    for i in range(nodes - 1):
+        graph.add_edge(i, i + 1, se2.relative(truth[i], truth[i + 1]) + rng.normal(0.0, sig), info)
+    return truth, scans, graph
+
+
+def _rms(poses, truth):
+    return float(np.sqrt(((poses[:, :2] - truth[:, :2]) ** 2).sum(1).mean()))
+
+
+def test_refinement_reduces_the_pose_error_on_a_room():
+    truth, scans, graph = _room_problem()
+    p = GraphSlamParams(wall_refinement=True)
+    segs = scan_segments(scans, [None] * len(scans), p)
+    walls = associate_segments(segs, truth, p)
+    assert walls.max() + 1 >= 4  # the room's four walls at least
+    before = _rms(graph.poses, truth)
+    res = refine_walls(graph, segs, p, ends=scan_wall_ends(scans, [None] * len(scans), p))
+    after = _rms(res.poses, truth)
+    assert before > 0.05, before
+    assert after < 0.2 * before and after < 0.01, (before, after)
+    heading = np.abs(se2.wrap_angle(res.poses[:, 2] - truth[:, 2])).max()
+    assert heading < math.radians(0.5), heading
+    np.testing.assert_array_equal(res.poses[0], graph.poses[0])  # the gauge: the fixed node stays
+    assert res.cost_after <= res.cost_before
+
+
+def test_segments_of_one_wall_seen_from_many_nodes_share_it():
+    truth, scans, _ = _room_problem(nodes=12)
+    p = GraphSlamParams(wall_refinement=True)
+    segs = scan_segments(scans, [None] * len(scans), p)
+    walls = associate_segments(segs, truth, p)
+    # at the true poses nearly every segment finds its wall (a pillar face seen from under 3 nodes is dropped)
+    assert np.mean(walls >= 0) > 0.9 and walls.max() + 1 >= 4
+    # each wall's segments lie on one face of the room or the pillar
+    xmin, ymin, xmax, ymax = ROOM
+    px0, py0, px1, py1 = PILLAR
+    faces = [(0.0, xmax), (0.0, xmin), (math.pi / 2, ymax), (math.pi / 2, ymin),
+             (0.0, px0), (0.0, px1), (math.pi / 2, py0), (math.pi / 2, py1)]
+    alpha = segs.seg_alpha + truth[segs.seg_node, 2]
+    c, s = np.cos(truth[segs.seg_node, 2]), np.sin(truth[segs.seg_node, 2])
+    tx, ty = truth[segs.seg_node, 0], truth[segs.seg_node, 1]
+    d = segs.seg_d + np.cos(alpha) * tx + np.sin(alpha) * ty  # the line in the world frame
+    face = np.array([[_same((a, dd), f, math.radians(2), 0.03) for f in faces] for a, dd in zip(alpha, d)])
+    on_face = face.sum(1) >= 1  # (a short piece round a corner can be off both faces by more than 2 deg)
+    assert on_face.mean() > 0.95
+    for w in np.unique(walls[walls >= 0]):
+        assert np.any(np.all(face[(walls == w) & on_face], axis=0)), w  # one face holds all of them
+
+
+def _karto(sim, **settings):
+    cls = get_method("karto")
+    slam = cls(from_mapping(cls.Params, settings), seed=0)
+    return slam.run(sim.frames())
+
+
+def test_off_leaves_karto_bit_for_bit_and_on_changes_it():
+    sim = simulate("office", SimulationParams(duration=20.0, seed=1))
+    base = _karto(sim)
+    off = _karto(sim, wall_refinement=False, wall_refinement_iterations=1, wall_refinement_range_sigma=0.5)
+    t0, p0 = base.trajectory()
+    t1, p1 = off.trajectory()
+    np.testing.assert_array_equal(t0, t1)
+    np.testing.assert_array_equal(p0, p1)
+    np.testing.assert_array_equal(base.map().logodds, off.map().logodds)
+    assert "wall_refinement" not in base.diagnostics.summary
+    on = _karto(sim, wall_refinement=True)
+    _, p2 = on.trajectory()
+    assert not np.array_equal(p0, p2)
+    s = on.diagnostics.summary["wall_refinement"]
+    assert s["walls"] > 0 and s["objective_after"] <= s["objective_before"]
