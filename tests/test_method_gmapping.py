@@ -679,3 +679,21 @@ def test_coarse_kernel_pulls_in_a_particle_beyond_the_climbs_reach():
         end[coarse] = slam.trajectory()[1][-1]
     assert abs(end[0][0] + 0.13) < 1e-9  # the plain climb stays where the odometry put it
     assert abs(end[3][0]) < 0.01 and abs(end[3][2]) < 0.01
+
+
+def test_wall_refinement_refines_the_best_path_and_leaves_the_filter_alone(arena):
+    """wall_refinement replaces the reported path (and the map's poses) after the run, never the filter's."""
+    frames = recording_frames(arena / "recording.log.gz")
+    truth = arena / "truth.tum"
+    plain = GMapping(GMappingParams(particles=10), seed=3).run(frames)
+    refined = GMapping(GMappingParams(particles=10, wall_refinement=True), seed=3).run(frames)
+    assert np.array_equal(plain.best_nodes(), refined.best_nodes())
+    before, after = _ate(plain, truth), _ate(refined, truth)
+    assert after < before, (before, after)
+    summary = refined.diagnostics.summary["wall_refinement"]
+    assert summary["walls"] >= 4 and summary["objective_after"] < summary["objective_before"]
+    t, p = refined.trajectory()
+    assert len(t) == len(frames) and np.all(np.isfinite(p))
+    again = GMapping(GMappingParams(particles=10, wall_refinement=True), seed=3).run(frames)
+    assert np.array_equal(again.trajectory()[1], p)
+    assert refined.map().occupied().sum() > 100

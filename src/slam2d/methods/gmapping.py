@@ -32,6 +32,8 @@ from slam2d.filters import (
     systematic_resample,
     weight_entropy,
 )
+from slam2d.graph.wall_end_landmarks import WallEndParams
+from slam2d.graph.wall_refinement import WallRefinementParams, odometry_graph, refine_walls, scan_segments, scan_wall_ends
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
 from slam2d.matching.hill_climb import (
@@ -59,8 +61,9 @@ _PRIOR_FLOOR = np.array([0.01, 0.01, 0.01])  # m, m, rad: the prior's smallest s
 
 
 @dataclass
-class GMappingParams:
-    """GMapping's parameters, with the names and defaults of slam_gmapping."""
+class GMappingParams(WallRefinementParams):
+    """GMapping's parameters, with the names and defaults of slam_gmapping (and, not in GMapping, the wall
+    refinement of the finished best path: ``wall_refinement``, over the odometry between frames)."""
 
     particles: int = param(30, low=1, high=10000, help="number of particles")
     maxUrange: float | None = param(
@@ -232,6 +235,8 @@ class GMapping(SlamMethod):
         self._frame_odom: list[NDArray[np.float64]] = []
         self._frame_node: list[int] = []
         self._frame_rel: list[NDArray[np.float64] | None] = []  # matched pose relative to its node (between_updates)
+        self._frame_scans: list = []  # every frame's scan, kept only for wall_refinement
+        self._refined: NDArray[np.float64] | None = None  # every frame's pose after wall_refinement
         self._track_pose: NDArray[np.float64] | None = None  # last matched pose of the best particle, and its odometry
         self._track_odom: NDArray[np.float64] | None = None
         self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
@@ -285,7 +290,7 @@ class GMapping(SlamMethod):
             rel = se2.relative(self._node_poses[self._nodes - 1, self.best_particle()], tracked)
         if due:
             values = self._filter_update(frame, beams)
-        self._store_frame(frame.timestamp, rel)
+        self._store_frame(frame.timestamp, rel, frame.scan)
         return values
 
     def _initialise(self, frame: Frame, odom: NDArray[np.float64]) -> Mapping[str, float]:
@@ -304,7 +309,7 @@ class GMapping(SlamMethod):
         self._maps.resample(np.zeros(self._n, dtype=np.int64))
         self._last_update_time = frame.timestamp
         self._store_node(None, scan)
-        self._store_frame(frame.timestamp)
+        self._store_frame(frame.timestamp, scan=scan)
         return {"updated": 1.0, "neff": float(self._n), "resampled": 0.0, "match_failures": 0.0,
                 "tiles": float(self._maps.tiles_in_use)}
 
@@ -551,7 +556,9 @@ class GMapping(SlamMethod):
         self._scans.append((scan.ranges, scan.angles, scan.mount))
         self._nodes += 1
 
-    def _store_frame(self, timestamp: float, rel: NDArray[np.float64] | None = None) -> None:
+    def _store_frame(self, timestamp: float, rel: NDArray[np.float64] | None = None, scan=None) -> None:
+        if self.params.wall_refinement:
+            self._frame_scans.append(scan)
         self._frame_times.append(timestamp)
         self._frame_odom.append(self._odom)
         self._frame_node.append(self._nodes - 1)
@@ -579,9 +586,12 @@ class GMapping(SlamMethod):
         return backtrack(self._node_poses[: self._nodes], self._node_parents[: self._nodes], self.best_particle())
 
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """The best particle's path: its tree nodes, and odometry composed onto the last node in between."""
+        """The best particle's path: its tree nodes, and odometry composed onto the last node in between
+        (after ``wall_refinement``, the refined path)."""
         if not self._frame_times:
             return np.zeros(0), np.zeros((0, 3))
+        if self._refined is not None:
+            return np.array(self._frame_times), self._refined.copy()
         nodes = self.best_nodes()
         k = np.asarray(self._frame_node)
         odom = np.stack(self._frame_odom)
@@ -592,7 +602,7 @@ class GMapping(SlamMethod):
         return np.array(self._frame_times), se2.compose(nodes[k], rel)
 
     def map(self) -> OccupancyGrid:
-        key = (self._nodes, self.best_particle())
+        key = (self._nodes, self.best_particle(), self._refined is not None)
         if self._map_cache is not None and self._map_cache[0] == key:
             return self._map_cache[1]
         grid = self._build_map()
@@ -603,10 +613,10 @@ class GMapping(SlamMethod):
         p = self.params
         if self._maps is None:
             return OccupancyGrid(None)
-        if p.map_output == "best-particle":
+        if p.map_output == "best-particle" and self._refined is None:
             hits, visits, origin = self._maps.dense(self.best_particle())
         else:
-            path = self.best_nodes()
+            path = self.best_nodes() if self._refined is None else self._refined[self._node_frames()]
             bounds = (path[0, 0] + p.xmin, path[0, 1] + p.ymin, path[0, 0] + p.xmax, path[0, 1] + p.ymax)
             rebuilt = TiledMaps(1, p.delta, bounds)
             groups: dict[tuple, list[int]] = {}
@@ -623,7 +633,38 @@ class GMapping(SlamMethod):
         occ[seen] = np.where(hits[seen] > p.occ_thresh * visits[seen], 100, 0)
         return OccupancyGrid.from_occupancy(occ, p.delta, origin)
 
+    def _node_frames(self) -> NDArray[np.int64]:
+        """The frame of every update (the first frame that follows its node)."""
+        k = np.asarray(self._frame_node)
+        return np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+
+    def refine_walls(self) -> dict[str, float]:
+        """``wall_refinement``: the best path over every frame refined jointly with straight walls fitted to
+        the scans and the wall ends seen from several frames, tied by the odometry between frames
+        (:mod:`slam2d.graph.wall_refinement`); the trajectory and map follow."""
+        import time
+
+        cpu = time.process_time()
+        p = self.params
+        _, poses = self.trajectory()
+        scans = self._frame_scans
+        odom = np.stack(self._frame_odom)
+        sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
+        segs = scan_segments(scans, sig, p, self._usable)
+        ends = scan_wall_ends(scans, sig, WallEndParams()) if p.wall_refinement_ends else None
+        res = refine_walls(odometry_graph(poses, odom, p, 0), segs, p, None, 0, ends)
+        if np.all(np.isfinite(res.poses)):
+            self._refined = res.poses
+            self._map_cache = None
+        else:
+            self.diagnostics.count("optimizer_failures")
+        return {"walls": float(res.walls), "beams": float(res.beams), "points": float(res.points),
+                "objective_before": res.cost_before, "objective_after": res.cost_after,
+                "cpu_s": time.process_time() - cpu}
+
     def finish(self) -> None:
+        if self.params.wall_refinement and self._maps is not None and len(self._frame_times) > 1:
+            self.diagnostics.summary["wall_refinement"] = self.refine_walls()
         if self._maps is not None:
             self.diagnostics.summary["map_tiles_peak"] = self._maps.peak_tiles
             self.diagnostics.summary["map_tile_references"] = self._maps.tile_references
