@@ -659,7 +659,7 @@ class GMapping(SlamMethod):
         else:
             self.diagnostics.count("optimizer_failures")
         return {"walls": float(res.walls), "beams": float(res.beams), "points": float(res.points),
-                "objective_before": res.cost_before, "objective_after": res.cost_after,
+                "poses": float(res.poses.shape[0]), "objective_before": res.cost_before, "objective_after": res.cost_after,
                 "cpu_s": time.process_time() - cpu}
 
     def finish(self) -> None:
