@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -651,7 +652,9 @@ class GMapping(SlamMethod):
         odom = np.stack(self._frame_odom)
         sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
         segs = scan_segments(scans, sig, p, self._usable)
-        ends = scan_wall_ends(scans, sig, WallEndParams()) if p.wall_refinement_ends else None
+        # The wall-end detector's other settings are karto's defaults (gmapping has no wall_end_* parameters).
+        detect = SimpleNamespace(**{**vars(WallEndParams()), **vars(p)})
+        ends = scan_wall_ends(scans, sig, detect) if p.wall_refinement_ends else None
         res = refine_walls(odometry_graph(poses, odom, p, 0), segs, p, None, 0, ends)
         if np.all(np.isfinite(res.poses)):
             self._refined = res.poses
