@@ -65,8 +65,7 @@ from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, Gri
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams
-from slam2d.graph.wall_refinement import (WallRefinementParams, odometry_graph, refine_walls, scan_segments,
-                                          scan_wall_ends)
+from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 
 __all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
 
@@ -1506,19 +1505,15 @@ class GraphFrontend:
             scans, odom, poses, node_frame = self._scans, self.odometry_at_nodes(), self.graph.poses, None
         else:
             scans, odom, poses, node_frame = frames
-        sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
-        segs = scan_segments(scans, sig, p, p.range_threshold)
         we = self.wall_ends
-        ends = scan_wall_ends(scans, sig, p) if p.wall_refinement_ends else None
-        obs = we.observations() if we is not None and ends is None else None
+        obs = we.observations() if we is not None else None
         if obs is not None and node_frame is not None:
             obs = type(obs)(node_frame[obs.pose], obs.landmark, obs.z, obs.information)
         where = (lambda k: k) if node_frame is None else (lambda k: node_frame[k])
-        fixed = where(self.graph.fixed)
+        graph, extra = None, None
         if p.wall_refinement_edges == "graph" and node_frame is None:
             graph = self.graph
         else:
-            graph = odometry_graph(poses, odom, p, int(fixed))
             ei, ej = self.graph.edge_i, self.graph.edge_j
             if p.wall_refinement_edges == "graph":
                 sel = np.ones(ei.shape[0], dtype=bool)
@@ -1527,9 +1522,10 @@ class GraphFrontend:
                 sel = np.array([(int(a), int(b)) in loops for a, b in zip(ei, ej)], dtype=bool)
             else:
                 sel = np.zeros(ei.shape[0], dtype=bool)
-            if sel.any():
-                graph.add_edges(where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
-        res = refine_walls(graph, segs, p, obs, we.num_landmarks if obs is not None else 0, ends)
+            extra = (where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
+        res, segs = refine_path(scans, poses, p, graph=graph, odometry=odom, fixed=int(where(self.graph.fixed)),
+                                extra_edges=extra, sensor_model=self.sensor_model, range_limit=p.range_threshold,
+                                points=obs, point_count=we.num_landmarks if we is not None else 0)
         refined = None
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses if node_frame is None else res.poses[node_frame]

@@ -52,8 +52,9 @@ from slam2d.backends.landmarks import PointObservations, landmark_positions, poi
 from slam2d.backends.spa import robust_objective, robust_weights
 from slam2d.core import se2
 from slam2d.params import param
+from slam2d.sensors.beam_model import beam_sigmas
 
-__all__ = ["WallRefinementParams", "Segments", "extract_segments", "scan_segments", "associate_segments",
+__all__ = ["WallRefinementParams", "refine_path", "Segments", "extract_segments", "scan_segments", "associate_segments",
            "EndSightings", "scan_wall_ends", "associate_ends", "odometry_graph", "refine_walls", "WallRefinementResult"]
 
 _DEG = math.pi / 180.0
@@ -694,3 +695,32 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
                        "sightings": float(len(obs) if obs is not None else 0), "objective": obj})
     last = rounds[-1] if rounds else {"beams": 0.0, "points": 0.0, "objective": math.nan}
     return WallRefinementResult(x, nw, int(last["beams"]), int(last["points"]), cost_before, last["objective"], rounds)
+
+
+def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: PoseGraph | None = None,
+                odometry: NDArray[np.float64] | None = None, fixed: int = 0,
+                extra_edges: tuple | None = None, sensor_model: Any = None, range_limit: float = math.inf,
+                points: PointObservations | None = None, point_count: int = 0,
+                detector: Any = None) -> tuple[WallRefinementResult, Segments]:
+    """The wall bundle adjustment of a path of scans, as a method calls it after its run.
+
+    ``poses`` (one per scan) are the starting estimate. They are tied by ``graph`` when given (its own
+    edges), else by the odometry between consecutive scans (:func:`odometry_graph`, ``odometry`` one
+    reading per scan, ``fixed`` the gauge) plus ``extra_edges`` ``(i, j, measurements, information)``.
+    The per-beam range sigma comes from ``sensor_model`` (none: ``wall_refinement_range_sigma``);
+    returns beyond ``range_limit`` are not fitted. With ``wall_refinement_ends`` the wall ends are
+    detected with ``detector``'s wall-end settings (default ``p``) and associated over all scans;
+    otherwise ``points`` (``point_count`` landmarks, e.g. a tracker's) are used, if any.
+    Returns the result (the refined poses, or non-finite ones if the solve failed) and the segments.
+    """
+    sig = [beam_sigmas(s, sensor_model, 0.0) if sensor_model is not None else None for s in scans]
+    segs = scan_segments(scans, sig, p, range_limit)
+    ends = scan_wall_ends(scans, sig, p if detector is None else detector) if p.wall_refinement_ends else None
+    if graph is None:
+        graph = odometry_graph(poses, odometry, p, int(fixed))
+        if extra_edges is not None and len(extra_edges[0]):
+            graph.add_edges(*extra_edges)
+    if ends is not None:
+        points, point_count = None, 0
+    return refine_walls(graph, segs, p, points, point_count, ends), segs
+

@@ -34,7 +34,7 @@ from slam2d.filters import (
     weight_entropy,
 )
 from slam2d.graph.wall_end_landmarks import WallEndParams
-from slam2d.graph.wall_refinement import WallRefinementParams, odometry_graph, refine_walls, scan_segments, scan_wall_ends
+from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
 from slam2d.matching.hill_climb import (
@@ -648,14 +648,10 @@ class GMapping(SlamMethod):
         cpu = time.process_time()
         p = self.params
         _, poses = self.trajectory()
-        scans = self._frame_scans
-        odom = np.stack(self._frame_odom)
-        sig = [beam_sigmas(s, self.sensor_model, 0.0) if self.sensor_model is not None else None for s in scans]
-        segs = scan_segments(scans, sig, p, self._usable)
         # The wall-end detector's other settings are karto's defaults (gmapping has no wall_end_* parameters).
-        detect = SimpleNamespace(**{**vars(WallEndParams()), **vars(p)})
-        ends = scan_wall_ends(scans, sig, detect) if p.wall_refinement_ends else None
-        res = refine_walls(odometry_graph(poses, odom, p, 0), segs, p, None, 0, ends)
+        detector = SimpleNamespace(**{**vars(WallEndParams()), **vars(p)})
+        res, _ = refine_path(self._frame_scans, poses, p, odometry=np.stack(self._frame_odom),
+                             sensor_model=self.sensor_model, range_limit=self._usable, detector=detector)
         if np.all(np.isfinite(res.poses)):
             self._refined = res.poses
             self._map_cache = None
