@@ -1538,10 +1538,7 @@ class GraphFrontend:
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": len(res.rounds), "cpu_s": cpu, "wall_refinement": 1.0}
         )
-        summary = {"walls": float(res.walls), "beams": float(res.beams), "segments": float(segs.seg_node.size),
-                   "points": float(res.points), "poses": float(res.poses.shape[0]),
-                   "objective_before": res.cost_before, "objective_after": res.cost_after, "cpu_s": cpu}
-        return summary, refined
+        return res.summary(segs.seg_node.size, cpu), refined
 
     # ----------------------------------------------------------------- outputs
 

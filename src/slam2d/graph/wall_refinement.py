@@ -531,6 +531,12 @@ class WallRefinementResult:
     cost_after: float
     rounds: list[dict[str, float]]
 
+    def summary(self, segments: int, cpu_s: float) -> dict[str, float]:
+        """What a method records in ``diagnostics.summary['wall_refinement']``."""
+        return {"walls": float(self.walls), "beams": float(self.beams), "segments": float(segments),
+                "points": float(self.points), "poses": float(self.poses.shape[0]),
+                "objective_before": self.cost_before, "objective_after": self.cost_after, "cpu_s": cpu_s}
+
 
 def _sqrt_info(info: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per matrix ``S`` with ``S^T S = info`` (symmetric square root; PSD matrices allowed)."""

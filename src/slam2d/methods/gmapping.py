@@ -650,16 +650,14 @@ class GMapping(SlamMethod):
         _, poses = self.trajectory()
         # The wall-end detector's other settings are karto's defaults (gmapping has no wall_end_* parameters).
         detector = SimpleNamespace(**{**vars(WallEndParams()), **vars(p)})
-        res, _ = refine_path(self._frame_scans, poses, p, odometry=np.stack(self._frame_odom),
+        res, segs = refine_path(self._frame_scans, poses, p, odometry=np.stack(self._frame_odom),
                              sensor_model=self.sensor_model, range_limit=self._usable, detector=detector)
         if np.all(np.isfinite(res.poses)):
             self._refined = res.poses
             self._map_cache = None
         else:
             self.diagnostics.count("optimizer_failures")
-        return {"walls": float(res.walls), "beams": float(res.beams), "points": float(res.points),
-                "poses": float(res.poses.shape[0]), "objective_before": res.cost_before, "objective_after": res.cost_after,
-                "cpu_s": time.process_time() - cpu}
+        return res.summary(segs.seg_node.size, time.process_time() - cpu)
 
     def finish(self) -> None:
         if self.params.wall_refinement and self._maps is not None and len(self._frame_times) > 1:
