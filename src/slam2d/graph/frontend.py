@@ -836,6 +836,61 @@ class GraphFrontend:
         self._count("seeded_matches_searched_whole")
         return matcher.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
 
+    def _append_node(self, scan, sig, points, sigmas, pose, odom, timestamp: float) -> int:
+        """Add a node at ``pose`` with the scan's points, reference, odometry and time; returns its index."""
+        p = self.params
+        node = self.graph.add_node(pose)
+        self._points.append(points)
+        self._sigmas.append(sigmas)
+        if p.reference_range_margin > 0:
+            with np.errstate(invalid="ignore"):
+                wide = scan.valid & (scan.ranges <= p.range_threshold + p.reference_range_margin)
+            ref = self._scan_points(scan, sig, wide)
+        else:
+            ref = (points, sigmas)
+        self._ref.append(_fill_gaps(*ref, p.reference_gap_fill, 2.0 * self.sequential.resolution))
+        self._world.append(None)
+        self._odom.append(odom)
+        self._times.append(timestamp)
+        bary = points.mean(axis=0) if points.shape[0] else np.zeros(2)  # no point: the robot's position
+        self._bary_base = np.vstack([self._bary_base, bary[None, :]])
+        self._scans.append(scan)
+        return node
+
+    def add_placed_node(self, scan, odom: NDArray[np.float64], timestamp: float,
+                        step: NDArray[np.float64] | None = None,
+                        information: NDArray[np.float64] | None = None) -> int:
+        """A node the caller placed (no sequential match, no near chains), then the loop closure search.
+
+        The node lies at the previous node's current pose composed with ``step`` (the first node at
+        ``odom``), with an edge from the previous node holding ``step`` and ``information``; then
+        :meth:`_try_close_loop` runs as in :meth:`process` (candidate chains, coarse then fine
+        match, thresholds, hypotheses, the back end after each accepted closure). For a path
+        estimated elsewhere (gmapping's ``loop_correction``). Returns the closures accepted.
+        """
+        p = self.params
+        odom = np.asarray(odom, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            use = scan.valid & (scan.ranges <= p.range_threshold)
+        sig = beam_sigmas(scan, self.sensor_model, 0.0)
+        points, sigmas = self._scan_points(scan, sig, use)
+        last = self.graph.num_nodes - 1
+        if last < 0:
+            pose = odom.copy()
+        else:
+            step = np.asarray(step, dtype=np.float64)
+            pose = se2.compose(self.graph.poses[last], step)
+        node = self._append_node(scan, sig, points, sigmas, pose, odom, timestamp)
+        if last >= 0:
+            self.graph.add_edge(last, node, step, information)
+            self._seq_steps.append((step.copy(), np.linalg.inv(information)))
+            self._steps.append(step.copy())
+        self._running.append(node)
+        self._trim_running()
+        if not (p.do_loop_closing and node > 0 and points.shape[0]):
+            return 0
+        return self._try_close_loop(node, points)
+
     # ----------------------------------------------------------------- the main step
 
     def process(self, frame: Frame) -> dict[str, float] | None:
@@ -937,21 +992,7 @@ class GraphFrontend:
             values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
         elif last >= 0:
             cov = _odometry_covariance()
-        node = self.graph.add_node(pose)
-        self._points.append(points)
-        self._sigmas.append(sigmas)
-        if p.reference_range_margin > 0:
-            with np.errstate(invalid="ignore"):
-                wide = scan.valid & (scan.ranges <= p.range_threshold + p.reference_range_margin)
-            ref = self._scan_points(scan, sig, wide)
-        else:
-            ref = (points, sigmas)
-        self._ref.append(_fill_gaps(*ref, p.reference_gap_fill, 2.0 * self.sequential.resolution))
-        self._world.append(None)
-        self._odom.append(odom)
-        self._times.append(frame.timestamp)
-        self._bary_base = np.vstack([self._bary_base, points.mean(axis=0)[None, :]])
-        self._scans.append(scan)
+        node = self._append_node(scan, sig, points, sigmas, pose, odom, frame.timestamp)
         if last >= 0:
             means = [pose]
             covs = [cov]

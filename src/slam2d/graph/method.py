@@ -12,6 +12,7 @@ from slam2d.backends import PoseGraph
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.graph.loop_correction import spread_node_corrections
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.methods.base import SlamMethod
 from slam2d.params import describe
@@ -90,20 +91,9 @@ class GraphSlam(SlamMethod):
         nodes = fe.graph.poses
         anchor = np.asarray(self._anchor)
         offset = np.stack(self._offset)
-        dead_reckoned = se2.compose(nodes[anchor], offset)
         # Between two nodes, spread the correction the next node got over the frames in between
         # (by the share of the odometry motion done), instead of dead reckoning to the jump.
-        inner = anchor < len(nodes) - 1
-        if np.any(inner):
-            k = anchor[inner]
-            step = fe.between_node_steps()[k]
-            correction = se2.relative(se2.compose(nodes[k], step), nodes[k + 1])
-            done = np.hypot(offset[inner, 0], offset[inner, 1]) + np.abs(offset[inner, 2])
-            total = np.hypot(step[:, 0], step[:, 1]) + np.abs(step[:, 2])
-            share = np.clip(np.divide(done, total, out=np.zeros_like(done), where=total > 1e-12), 0.0, 1.0)
-            dead_reckoned[inner] = se2.compose(
-                dead_reckoned[inner], se2.interpolate(np.zeros_like(correction), correction, share)
-            )
+        dead_reckoned = spread_node_corrections(nodes, fe.between_node_steps(), anchor, offset)
         return np.asarray(self._frame_times), dead_reckoned
 
     def map(self) -> OccupancyGrid:

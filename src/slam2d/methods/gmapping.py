@@ -34,6 +34,7 @@ from slam2d.filters import (
     weight_entropy,
 )
 from slam2d.graph.wall_end_landmarks import WallEndParams
+from slam2d.graph.loop_correction import LoopCorrectionParams, correct_path, spread_node_corrections
 from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import HITS, VISITS, TiledMaps
@@ -59,12 +60,14 @@ __all__ = ["GMappingParams", "GMapping"]
 # maxRange when the laser reports no finite range_max (the ROS wiki's maxUrange default)
 _FALLBACK_MAX_RANGE = 80.0
 _PRIOR_FLOOR = np.array([0.01, 0.01, 0.01])  # m, m, rad: the prior's smallest standard deviations
+_STEP_FLOOR = np.array([0.01, 0.01, 0.005])  # m, m, rad: loop_correction's smallest step standard deviations
 
 
 @dataclass
-class GMappingParams(WallRefinementParams):
-    """GMapping's parameters, with the names and defaults of slam_gmapping (and, not in GMapping, the wall
-    refinement of the finished best path: ``wall_refinement``, over the odometry between frames)."""
+class GMappingParams(WallRefinementParams, LoopCorrectionParams):
+    """GMapping's parameters, with the names and defaults of slam_gmapping (and, not in GMapping, the loop
+    correction of the finished best path by a pose graph, ``loop_correction``, and its wall refinement,
+    ``wall_refinement``, over the odometry between frames)."""
 
     particles: int = param(30, low=1, high=10000, help="number of particles")
     maxUrange: float | None = param(
@@ -237,6 +240,7 @@ class GMapping(SlamMethod):
         self._frame_node: list[int] = []
         self._frame_rel: list[NDArray[np.float64] | None] = []  # matched pose relative to its node (between_updates)
         self._frame_scans: list = []  # every frame's scan, kept only for wall_refinement
+        self._node_scans: list = []  # every update's scan, kept only for loop_correction
         self._refined: NDArray[np.float64] | None = None  # every frame's pose after wall_refinement
         self._track_pose: NDArray[np.float64] | None = None  # last matched pose of the best particle, and its odometry
         self._track_odom: NDArray[np.float64] | None = None
@@ -555,6 +559,8 @@ class GMapping(SlamMethod):
         self._node_parents[k] = np.arange(self._n) if parents is None else parents
         self._node_odom[k] = self._odom
         self._scans.append((scan.ranges, scan.angles, scan.mount))
+        if self.params.loop_correction:
+            self._node_scans.append(scan)
         self._nodes += 1
 
     def _store_frame(self, timestamp: float, rel: NDArray[np.float64] | None = None, scan=None) -> None:
@@ -659,7 +665,35 @@ class GMapping(SlamMethod):
             self.diagnostics.count("optimizer_failures")
         return res.summary(segs.seg_node.size, time.process_time() - cpu)
 
+    def correct_loops(self) -> dict:
+        """``loop_correction``: the best particle's path as a pose graph (a node per update, the path's own steps
+        with the motion model's covariance), closed by karto's loop search and solved by SPA
+        (:mod:`slam2d.graph.loop_correction`); the frames between updates get their nodes' corrections spread
+        over them, and the trajectory and map follow."""
+        p = self.params
+        times, poses = self.trajectory()
+        nodes = self.best_nodes()
+        steps = se2.relative(nodes[:-1], nodes[1:])
+        info = np.zeros((steps.shape[0], 3, 3))
+        for k, step in enumerate(steps):  # post-processing, once per update
+            std = np.maximum(gmapping_motion_std(step, p.srr, p.srt, p.str, p.stt), _STEP_FLOOR)
+            info[k] = np.diag(1.0 / std**2)
+        frames = self._node_frames()
+        res = correct_path(self._node_scans, nodes, self._node_odom[: self._nodes], times[frames], info, p,
+                           sensor_model=self.sensor_model)
+        summary = res.summary(nodes)
+        if not np.all(np.isfinite(res.poses)):
+            self.diagnostics.count("optimizer_failures")
+        elif res.closures:
+            anchor = np.asarray(self._frame_node)
+            offset = se2.relative(nodes[anchor], poses)
+            self._refined = spread_node_corrections(res.poses, steps, anchor, offset)
+            self._map_cache = None
+        return summary
+
     def finish(self) -> None:
+        if self.params.loop_correction and self._maps is not None and self._nodes > 1:
+            self.diagnostics.summary["loop_correction"] = self.correct_loops()
         if self.params.wall_refinement and self._maps is not None and len(self._frame_times) > 1:
             self.diagnostics.summary["wall_refinement"] = self.refine_walls()
         if self._maps is not None:
