@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.backends.graph import graph_cost
 from slam2d.core import se2
 from slam2d.params import param
 
@@ -53,6 +54,8 @@ class LoopCorrectionResult:
     poses: NDArray[np.float64]
     closures: list[dict[str, Any]]
     attempts: int
+    cost_before: float  # the final graph's cost (sum e^T Omega e) at the given path
+    cost_after: float  # and at the corrected one
     optimizations: list[dict[str, float]]
     cpu_s: float
 
@@ -66,8 +69,8 @@ class LoopCorrectionResult:
             "closure_count": len(self.closures),
             "attempts": self.attempts,
             "optimizations": len(opt),
-            "cost_before": float(opt[0]["cost_before"]) if opt else 0.0,
-            "cost_after": float(opt[-1]["cost_after"]) if opt else 0.0,
+            "cost_before": self.cost_before,
+            "cost_after": self.cost_after,
             "max_shift_m": float(shift.max()) if shift.size else 0.0,
             "cpu_s": self.cpu_s,
         }
@@ -100,8 +103,11 @@ def correct_path(scans: list[Any], poses: NDArray[np.float64], odometry: NDArray
     if fe.loop_closures:
         fe.optimize()  # as karto's finish: a last pass over the edges added since the last closure
     out = fe.graph.poses.copy() if fe.loop_closures else poses.copy()
+    g = fe.graph
+    args = (g.edge_i, g.edge_j, g.measurements, g.information)
     return LoopCorrectionResult(out, [c.as_dict() for c in fe.loop_closures], len(fe.loop_attempts),
-                                list(fe.optimizations), time.process_time() - cpu)
+                                graph_cost(poses, *args), graph_cost(out, *args), list(fe.optimizations),
+                                time.process_time() - cpu)
 
 
 def spread_node_corrections(nodes: NDArray[np.float64], steps: NDArray[np.float64], anchor: NDArray[np.int64],
