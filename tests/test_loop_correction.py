@@ -70,7 +70,9 @@ def test_a_drifted_loop_is_closed_and_the_path_brought_back():
     scans = [_scan(p, float(k)) for k, p in enumerate(truth)]
     path = _drifted(truth, math.radians(0.1))  # 10 deg round the loop
     times = np.arange(len(truth), dtype=float)
-    params = LoopCorrectionParams(loop_correction=True, loop_correction_distance=4.0, loop_correction_range=20.0)
+    # the matcher's own covariance for the closure: the steps' information here is the test's own
+    params = LoopCorrectionParams(loop_correction=True, loop_correction_distance=4.0, loop_correction_range=20.0,
+                                  loop_correction_closure_scale=1.0)
     res = correct_path(scans, path, path, times, _info(len(truth) - 1), params)
     err_before = _aligned_errors(path, truth)
     err_after = _aligned_errors(res.poses, truth)

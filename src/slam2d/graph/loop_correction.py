@@ -42,6 +42,14 @@ class LoopCorrectionParams:
     loop_correction_distance: float = param(
         12.0, unit="m", low=0.0, help="loop_correction: loop candidates lie within this distance of a node "
         "(karto's loop_search_maximum_distance, 4 m there; 12 m chosen on aces seeds 0-4, docs)")
+    loop_correction_step_scale: float = param(
+        0.1, low=1e-6, help="loop_correction: factor on the motion model's standard deviations of the path's steps "
+        "(floored at 1 cm, 0.005 rad): the filter's steps are scan matches, far better than the odometry noise they "
+        "were drawn with (0.1 chosen on aces seeds 0-4 with fr101 and fr079 not made worse, docs)")
+    loop_correction_closure_scale: float = param(
+        100.0, low=1e-6, help="loop_correction: factor on the covariance of every loop closure (karto's "
+        "match_covariance_scale): the correlative matcher's covariance is centimetres and tenths of a degree, tighter "
+        "than a closure's error against the steps it bends (100 chosen with loop_correction_step_scale, docs)")
     loop_correction_range: float = param(
         20.0, unit="m", low=0.0, help="loop_correction: returns beyond this are not matched by the loop search "
         "(karto's range_threshold, 12 m there; 20 m chosen on aces seeds 0-4, docs)")
@@ -83,8 +91,9 @@ def correct_path(scans: list[Any], poses: NDArray[np.float64], odometry: NDArray
 
     ``information`` (N-1, 3, 3): of each step ``relative(poses[k], poses[k+1])`` in node k's frame.
     ``odometry`` and ``times`` are the nodes' (karto's bookkeeping; the edges do not use the odometry).
-    The loop search and back end are karto's defaults but for ``loop_correction_distance`` and
-    ``loop_correction_range``; without an accepted closure the poses come back unchanged.
+    The loop search and back end are karto's defaults but for ``loop_correction_distance``,
+    ``loop_correction_range`` and ``loop_correction_closure_scale`` (its ``match_covariance_scale``); without
+    an accepted closure the poses come back unchanged.
     """
     from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
 
@@ -92,6 +101,7 @@ def correct_path(scans: list[Any], poses: NDArray[np.float64], odometry: NDArray
     poses = np.asarray(poses, dtype=np.float64)
     kp = GraphSlamParams(loop_search_maximum_distance=params.loop_correction_distance,
                          range_threshold=params.loop_correction_range, wall_end_landmarks=False,
+                         match_covariance_scale=params.loop_correction_closure_scale,
                          wall_refinement=False)
     fe = GraphFrontend(kp, sensor_model=sensor_model, diagnostics=diagnostics)
     steps = se2.relative(poses[:-1], poses[1:])

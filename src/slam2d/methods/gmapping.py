@@ -665,6 +665,18 @@ class GMapping(SlamMethod):
             self.diagnostics.count("optimizer_failures")
         return res.summary(segs.seg_node.size, time.process_time() - cpu)
 
+    def step_information(self, steps: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``loop_correction``: the information of each step of the best path (in its first node's frame): the
+        inverse of the motion model's (``srr``...``stt``) variances for that step, the spread the filter drew its
+        particles with, times ``loop_correction_step_scale`` and floored at 1 cm and 0.005 rad."""
+        p = self.params
+        info = np.zeros((steps.shape[0], 3, 3))
+        for k, step in enumerate(steps):  # post-processing, once per update
+            std = gmapping_motion_std(step, p.srr, p.srt, p.str, p.stt) * p.loop_correction_step_scale
+            std = np.maximum(std, _STEP_FLOOR)
+            info[k] = np.diag(1.0 / std**2)
+        return info
+
     def correct_loops(self) -> dict:
         """``loop_correction``: the best particle's path as a pose graph (a node per update, the path's own steps
         with the motion model's covariance), closed by karto's loop search and solved by SPA
@@ -674,13 +686,9 @@ class GMapping(SlamMethod):
         times, poses = self.trajectory()
         nodes = self.best_nodes()
         steps = se2.relative(nodes[:-1], nodes[1:])
-        info = np.zeros((steps.shape[0], 3, 3))
-        for k, step in enumerate(steps):  # post-processing, once per update
-            std = np.maximum(gmapping_motion_std(step, p.srr, p.srt, p.str, p.stt), _STEP_FLOOR)
-            info[k] = np.diag(1.0 / std**2)
         frames = self._node_frames()
-        res = correct_path(self._node_scans, nodes, self._node_odom[: self._nodes], times[frames], info, p,
-                           sensor_model=self.sensor_model)
+        res = correct_path(self._node_scans, nodes, self._node_odom[: self._nodes], times[frames],
+                           self.step_information(steps), p, sensor_model=self.sensor_model)
         summary = res.summary(nodes)
         if not np.all(np.isfinite(res.poses)):
             self.diagnostics.count("optimizer_failures")
