@@ -11,6 +11,11 @@ information (the motion model's, as ``loop_correction`` uses; a constant one; th
 heading's standard deviation scaled; the motion model widened by the step's disagreement with the
 odometry's) and of the back end (SPA with a Cauchy kernel). Prints the ATE (m) against the
 ``reference.tum`` beside the log, judged as ``slam2d evaluate --reference`` judges it, and the closures.
+
+With ``--explain`` it prints instead, per seed, every closure's error against the reference (its
+measured relative pose against the reference's between the two nodes' times) and the error of the
+filter's own path over stretches of ``--stretch`` nodes (the relative pose from a stretch's first node
+to its last, against the reference's): what a loop correction can and cannot repair.
 """
 
 from __future__ import annotations
@@ -82,11 +87,39 @@ VARIANTS = [
 ]
 
 
+def explain(slam, reference, seed: int, stretch: int) -> None:
+    """Closures against the reference, and the filter's path against it over stretches of nodes."""
+    def at(t):
+        return reference.poses[np.argmin(np.abs(reference.times - t))]
+
+    summary = slam.correct_loops()
+    print(f"seed {seed}: {summary['closure_count']} closures; error against the reference (m, m, deg):")
+    for c in summary["closures"]:
+        e = se2.relative(se2.relative(at(c["time_from"]), at(c["time_to"])), np.asarray(c["measurement"]))
+        print(f"  {c['frm']:4d} -> {c['to']:4d} (t {c['time_from']:.0f} -> {c['time_to']:.0f} s, fine {c['response_fine']:.2f})"
+              f": {e[0]:+.3f} {e[1]:+.3f} {np.degrees(e[2]):+.2f}")
+    nodes = slam.best_nodes()
+    times = np.asarray(slam._frame_times)[slam._node_frames()]
+    ref = np.array([at(t) for t in times])
+    print(f"seed {seed}: the filter's path over stretches of {stretch} nodes against the reference:")
+    for i in range(0, nodes.shape[0] - 1, stretch):
+        j = min(i + stretch, nodes.shape[0] - 1)
+        e = se2.relative(se2.relative(ref[i], ref[j]), se2.relative(nodes[i], nodes[j]))
+        length = float(np.hypot(*np.diff(ref[i:j + 1, :2], axis=0).T).sum())
+        worst = max(range(i, j), key=lambda k: float(np.hypot(*se2.relative(se2.relative(ref[k], ref[k + 1]),
+                                                                            se2.relative(nodes[k], nodes[k + 1]))[:2])))
+        w = se2.relative(se2.relative(ref[worst], ref[worst + 1]), se2.relative(nodes[worst], nodes[worst + 1]))
+        print(f"  nodes {i:4d}-{j:4d} (t {times[i]:.0f}-{times[j]:.0f} s, {length:5.1f} m): {np.hypot(*e[:2]):.2f} m "
+              f"{np.degrees(e[2]):+.1f} deg; worst step {worst} (t {times[worst + 1]:.0f} s) {np.hypot(*w[:2]):.2f} m")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
     ap.add_argument("--seeds", type=seed_list, default=seed_list("0-4"))
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a method parameter (repeatable)")
+    ap.add_argument("--explain", action="store_true", help="closures' and the path's stretches' errors instead")
+    ap.add_argument("--stretch", type=int, default=15, help="--explain: nodes a stretch")
     a = ap.parse_args()
     reference = load_reference(a.log.parent / "reference.tum")
     settings = dict(s.split("=", 1) for s in a.set)
@@ -102,6 +135,9 @@ def main() -> None:
             assoc = associate(t, p, reference.times, reference.poses, max_gap=0.5)
             return absolute_trajectory_error(assoc)["translation_m"]["rmse"]
 
+        if a.explain:
+            explain(slam, reference, seed, a.stretch)
+            continue
         rows["filter alone"].append(f"{ate():.3f}")
         base = {k: getattr(slam.params, k) for k in ("loop_correction_distance", "loop_correction_range",
                                                      "loop_correction_step_scale", "loop_correction_closure_scale")}
@@ -125,6 +161,8 @@ def main() -> None:
                 slam.step_information = own_info.__get__(slam)
             rows.setdefault(name, []).append(f"{ate():.3f} ({summary['closure_count']})")
         print(f"seed {seed} done", file=sys.stderr, flush=True)
+    if a.explain:
+        return
     print(f"gmapping on {a.log.name}, {' '.join(a.set)} loop_correction=true; ATE (m) against reference.tum "
           "(closures), seeds " + ", ".join(map(str, a.seeds)))
     print("| variant | " + " | ".join(f"seed {s}" for s in a.seeds) + " |")

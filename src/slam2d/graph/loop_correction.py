@@ -36,7 +36,8 @@ class LoopCorrectionParams:
     loop_correction: bool = param(
         False, help="not in GMapping: after the last scan, the best particle's path becomes a pose graph (a node per "
         "update, consecutive nodes tied by the path's own relative poses with the motion model's srr...stt "
-        "covariance), karto's loop closure search runs over it node by node (coarse then fine correlative match, "
+        "covariance times loop_correction_step_scale), karto's loop closure search runs over it node by node "
+        "(coarse then fine correlative match, "
         "karto's response and variance thresholds) and SPA solves it after each closure; the trajectory (frames "
         "between updates interpolated) and map follow the corrected path; off: the filter's path")
     loop_correction_distance: float = param(
