@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from slam2d.backends.spa import robust_objective, robust_weights
 from slam2d.core import se2
+from slam2d.graph.wall_refinement import tls_line
 from slam2d.params import param
 
 __all__ = ["DenseRefinementParams", "DenseTerm", "scan_normals"]
@@ -101,11 +102,11 @@ def _normals(x, y, half, break_distance):
     """Per point (scan order) the normal of the TLS line through its run's neighbours within ``half`` points."""
     n = x.shape[0]
     run = np.empty(n, np.int64)  # the run each point is on (cut at gaps)
-    r = 0
+    cut = 0
     for k in range(n):
         if k > 0 and math.hypot(x[k] - x[k - 1], y[k] - y[k - 1]) > break_distance:
-            r += 1
-        run[k] = r
+            cut += 1
+        run[k] = cut
     nx = np.zeros(n)
     ny = np.zeros(n)
     rms = np.full(n, np.inf)
@@ -116,34 +117,12 @@ def _normals(x, y, half, break_distance):
             s += 1
         while run[e] != run[k]:
             e -= 1
-        cnt = e - s + 1
-        if cnt < 3:
+        if e - s + 1 < 3:
             continue
-        cx = 0.0
-        cy = 0.0
-        for j in range(s, e + 1):
-            cx += x[j]
-            cy += y[j]
-        cx /= cnt
-        cy /= cnt
-        sxx = 0.0
-        syy = 0.0
-        sxy = 0.0
-        for j in range(s, e + 1):
-            ux = x[j] - cx
-            uy = y[j] - cy
-            sxx += ux * ux
-            syy += uy * uy
-            sxy += ux * uy
-        sxx /= cnt
-        syy /= cnt
-        sxy /= cnt
-        h = 0.5 * (sxx - syy)
-        lam = 0.5 * (sxx + syy) - math.sqrt(h * h + sxy * sxy)
-        a = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * math.pi
+        a, _, _, r = tls_line(x, y, s, e)
         nx[k] = math.cos(a)
         ny[k] = math.sin(a)
-        rms[k] = math.sqrt(max(lam, 0.0))
+        rms[k] = r
     return nx, ny, rms
 
 

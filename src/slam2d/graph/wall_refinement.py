@@ -175,6 +175,35 @@ class WallRefinementParams:
 
 
 @njit(cache=True)
+def tls_line(x, y, s, e):
+    """The total-least-squares line of points ``s..e`` (inclusive): normal angle, centroid x, y, RMS distance."""
+    cnt = e - s + 1
+    cx = 0.0
+    cy = 0.0
+    for j in range(s, e + 1):
+        cx += x[j]
+        cy += y[j]
+    cx /= cnt
+    cy /= cnt
+    sxx = 0.0
+    syy = 0.0
+    sxy = 0.0
+    for j in range(s, e + 1):
+        ux = x[j] - cx
+        uy = y[j] - cy
+        sxx += ux * ux
+        syy += uy * uy
+        sxy += ux * uy
+    sxx /= cnt
+    syy /= cnt
+    sxy /= cnt
+    half = 0.5 * (sxx - syy)
+    lam = 0.5 * (sxx + syy) - math.sqrt(half * half + sxy * sxy)
+    a = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * math.pi  # the normal: least spread
+    return a, cx, cy, math.sqrt(max(lam, 0.0))
+
+
+@njit(cache=True)
 def _split_and_fit(x, y, beam, break_distance, split_distance, min_points, max_rms):
     """Segments (start, end inclusive) of ordered points and their lines (alpha, d, rms)."""
     n = x.shape[0]
@@ -218,32 +247,9 @@ def _split_and_fit(x, y, beam, break_distance, split_distance, min_points, max_r
                 stack[top, 1] = e
                 top += 1
                 continue
-            cnt = e - s + 1
-            cx = 0.0
-            cy = 0.0
-            for j in range(s, e + 1):
-                cx += x[j]
-                cy += y[j]
-            cx /= cnt
-            cy /= cnt
-            sxx = 0.0
-            syy = 0.0
-            sxy = 0.0
-            for j in range(s, e + 1):
-                ux = x[j] - cx
-                uy = y[j] - cy
-                sxx += ux * ux
-                syy += uy * uy
-                sxy += ux * uy
-            sxx /= cnt
-            syy /= cnt
-            sxy /= cnt
-            half = 0.5 * (sxx - syy)
-            lam = 0.5 * (sxx + syy) - math.sqrt(half * half + sxy * sxy)
-            r = math.sqrt(max(lam, 0.0))
+            a, cx, cy, r = tls_line(x, y, s, e)
             if r > max_rms:
                 continue
-            a = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * math.pi  # the normal: least spread
             starts[m] = s
             ends[m] = e
             alpha[m] = a
