@@ -65,6 +65,7 @@ from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, Gri
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams
+from slam2d.graph.dense_refinement import DenseRefinementParams
 from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 
 __all__ = ["GraphSlamParams", "GraphFrontend", "LoopClosure"]
@@ -73,7 +74,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass
-class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams):
+class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefinementParams):
     """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
 
     Squared quantities are given squared (m^2, rad^2) and angles in radians:
@@ -1566,7 +1567,8 @@ class GraphFrontend:
             extra = (where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
         res, segs = refine_path(scans, poses, p, graph=graph, odometry=odom, fixed=int(where(self.graph.fixed)),
                                 extra_edges=extra, sensor_model=self.sensor_model, range_limit=p.range_threshold,
-                                points=obs, point_count=we.num_landmarks if we is not None else 0)
+                                points=obs, point_count=we.num_landmarks if we is not None else 0,
+                                dense=p if p.dense_refinement else None)
         refined = None
         if np.all(np.isfinite(res.poses)):
             self.graph.poses = res.poses if node_frame is None else res.poses[node_frame]

@@ -175,6 +175,35 @@ class WallRefinementParams:
 
 
 @njit(cache=True)
+def tls_line(x, y, s, e):
+    """The total-least-squares line of points ``s..e`` (inclusive): normal angle, centroid x, y, RMS distance."""
+    cnt = e - s + 1
+    cx = 0.0
+    cy = 0.0
+    for j in range(s, e + 1):
+        cx += x[j]
+        cy += y[j]
+    cx /= cnt
+    cy /= cnt
+    sxx = 0.0
+    syy = 0.0
+    sxy = 0.0
+    for j in range(s, e + 1):
+        ux = x[j] - cx
+        uy = y[j] - cy
+        sxx += ux * ux
+        syy += uy * uy
+        sxy += ux * uy
+    sxx /= cnt
+    syy /= cnt
+    sxy /= cnt
+    half = 0.5 * (sxx - syy)
+    lam = 0.5 * (sxx + syy) - math.sqrt(half * half + sxy * sxy)
+    a = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * math.pi  # the normal: least spread
+    return a, cx, cy, math.sqrt(max(lam, 0.0))
+
+
+@njit(cache=True)
 def _split_and_fit(x, y, beam, break_distance, split_distance, min_points, max_rms):
     """Segments (start, end inclusive) of ordered points and their lines (alpha, d, rms)."""
     n = x.shape[0]
@@ -218,32 +247,9 @@ def _split_and_fit(x, y, beam, break_distance, split_distance, min_points, max_r
                 stack[top, 1] = e
                 top += 1
                 continue
-            cnt = e - s + 1
-            cx = 0.0
-            cy = 0.0
-            for j in range(s, e + 1):
-                cx += x[j]
-                cy += y[j]
-            cx /= cnt
-            cy /= cnt
-            sxx = 0.0
-            syy = 0.0
-            sxy = 0.0
-            for j in range(s, e + 1):
-                ux = x[j] - cx
-                uy = y[j] - cy
-                sxx += ux * ux
-                syy += uy * uy
-                sxy += ux * uy
-            sxx /= cnt
-            syy /= cnt
-            sxy /= cnt
-            half = 0.5 * (sxx - syy)
-            lam = 0.5 * (sxx + syy) - math.sqrt(half * half + sxy * sxy)
-            r = math.sqrt(max(lam, 0.0))
+            a, cx, cy, r = tls_line(x, y, s, e)
             if r > max_rms:
                 continue
-            a = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * math.pi  # the normal: least spread
             starts[m] = s
             ends[m] = e
             alpha[m] = a
@@ -530,12 +536,16 @@ class WallRefinementResult:
     cost_before: float
     cost_after: float
     rounds: list[dict[str, float]]
+    dense_pairs: int = -1  # the dense stage's return-to-return pairs in its last round (-1: it did not run)
 
     def summary(self, segments: int, cpu_s: float) -> dict[str, float]:
         """What a method records in ``diagnostics.summary['wall_refinement']``."""
-        return {"walls": float(self.walls), "beams": float(self.beams), "segments": float(segments),
-                "points": float(self.points), "poses": float(self.poses.shape[0]),
-                "objective_before": self.cost_before, "objective_after": self.cost_after, "cpu_s": cpu_s}
+        out = {"walls": float(self.walls), "beams": float(self.beams), "segments": float(segments),
+               "points": float(self.points), "poses": float(self.poses.shape[0]),
+               "objective_before": self.cost_before, "objective_after": self.cost_after, "cpu_s": cpu_s}
+        if self.dense_pairs >= 0:
+            out["dense_pairs"] = float(self.dense_pairs)
+        return out
 
 
 def _sqrt_info(info: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -546,12 +556,16 @@ def _sqrt_info(info: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservations | None = None,
-                 point_count: int = 0, ends: EndSightings | None = None) -> WallRefinementResult:
+                 point_count: int = 0, ends: EndSightings | None = None, extra: Any = None,
+                 iterations: int | None = None, steps: int | None = None) -> WallRefinementResult:
     """Refine ``graph``'s poses jointly with the walls of ``segs`` and point landmarks.
 
     The points are either ``points`` (sightings with their landmarks, fixed; ``point_count``
     landmarks) or ``ends`` (sightings associated again every round, :func:`associate_ends`).
-    The graph is not modified. Returns the refined poses and a summary per round.
+    ``extra``: one more block of pose residuals (e.g. :class:`slam2d.graph.dense_refinement.DenseTerm`:
+    ``associate(poses)`` every round, ``objective(poses)``, ``rows(poses, first_row)``).
+    ``iterations`` / ``steps``: rounds and LM steps per round (default ``wall_refinement_iterations`` /
+    ``_steps``). The graph is not modified. Returns the refined poses and a summary per round.
     """
     x = np.array(graph.poses, dtype=np.float64)
     n = x.shape[0]
@@ -607,17 +621,20 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
         if obs_ is not None:
             e = np.einsum("kij,kj->ki", psq_, point_errors(x_, lm_, obs_))
             obj += float(robust_objective((e * e).sum(1), "huber", delta).sum())
+        if extra is not None:
+            obj += extra.objective(x_)
         return obj
 
     rounds: list[dict[str, float]] = []
     cost_before = math.nan
     nw = 0
-    for _ in range(p.wall_refinement_iterations):
+    for _ in range(p.wall_refinement_iterations if iterations is None else iterations):
         seg_wall = associate_segments(segs, x, p)
         nw = int(seg_wall.max()) + 1 if seg_wall.size and seg_wall.max() >= 0 else 0
         obs, lm, psq = point_setup(x)
         nl = lm.shape[0]
-        if nw == 0 and nl == 0:
+        pairs = extra.associate(x) if extra is not None else 0
+        if nw == 0 and nl == 0 and pairs == 0:
             break
         bw = seg_wall[segs.segment]
         on0 = bw >= 0
@@ -629,7 +646,7 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
         if math.isnan(cost_before):
             cost_before = obj
         lam = 1e-4
-        for _ in range(p.wall_refinement_steps):
+        for _ in range(p.wall_refinement_steps if steps is None else steps):
             rows, cols, vals, rhs = [], [], [], []
             # beams: d res / d local pose step = n^T R [I | (-q_y, q_x)], d res / d (alpha, d) = (n_perp . p, -1)
             k, w, q, c, s, world, na, r, sig = beam_terms(x, seg_wall, alpha, d)
@@ -670,6 +687,13 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
                 vals += [(pw * (psq @ jp)).ravel(), (pw * (psq @ jl)).ravel()]
                 rhs.append((pw[:, :, 0] * we).ravel())
                 row0 += 2 * mp
+            if pairs:
+                rr, cc, vv, ee = extra.rows(x, row0)
+                rows.append(rr)
+                cols.append(cc)
+                vals.append(vv)
+                rhs.append(ee)
+                row0 += ee.size
             J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                               shape=(row0, nvar))[:, np.flatnonzero(free)]
             rvec = np.concatenate(rhs)
@@ -698,7 +722,8 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
             if not accepted:
                 break
         rounds.append({"walls": float(nw), "beams": float(int(on0.sum())), "points": float(nl),
-                       "sightings": float(len(obs) if obs is not None else 0), "objective": obj})
+                       "sightings": float(len(obs) if obs is not None else 0), "pairs": float(pairs),
+                       "objective": obj})
     last = rounds[-1] if rounds else {"beams": 0.0, "points": 0.0, "objective": math.nan}
     return WallRefinementResult(x, nw, int(last["beams"]), int(last["points"]), cost_before, last["objective"], rounds)
 
@@ -707,7 +732,7 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
                 odometry: NDArray[np.float64] | None = None, fixed: int = 0,
                 extra_edges: tuple | None = None, sensor_model: Any = None, range_limit: float = math.inf,
                 points: PointObservations | None = None, point_count: int = 0,
-                detector: Any = None) -> tuple[WallRefinementResult, Segments]:
+                detector: Any = None, dense: Any = None) -> tuple[WallRefinementResult, Segments]:
     """The wall bundle adjustment of a path of scans, as a method calls it after its run.
 
     ``poses`` (one per scan) are the starting estimate. They are tied by ``graph`` when given (its own
@@ -717,6 +742,9 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
     returns beyond ``range_limit`` are not fitted. With ``wall_refinement_ends`` the wall ends are
     detected with ``detector``'s wall-end settings (default ``p``) and associated over all scans;
     otherwise ``points`` (``point_count`` landmarks, e.g. a tracker's) are used, if any.
+    ``dense``: the :class:`slam2d.graph.dense_refinement.DenseRefinementParams` of a dense alignment run
+    after it from its poses (:class:`slam2d.graph.dense_refinement.DenseTerm` as an extra block of the
+    same solve, with the same edges, and the walls and ends when ``dense_refinement_walls``); None: none.
     Returns the result (the refined poses, or non-finite ones if the solve failed) and the segments.
     """
     sig = [beam_sigmas(s, sensor_model, 0.0) if sensor_model is not None else None for s in scans]
@@ -728,5 +756,21 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
             graph.add_edges(*extra_edges)
     if ends is not None:
         points, point_count = None, 0
-    return refine_walls(graph, segs, p, points, point_count, ends), segs
+    res = refine_walls(graph, segs, p, points, point_count, ends)
+    if dense is None or not np.all(np.isfinite(res.poses)):
+        return res, segs
+    from slam2d.graph.dense_refinement import DenseTerm
+
+    term = DenseTerm(scans, sig, dense, range_limit)
+    g = graph.copy()
+    g.poses = res.poses
+    if dense.dense_refinement_walls:
+        second = refine_walls(g, segs, p, points, point_count, ends, extra=term,
+                              iterations=dense.dense_refinement_iterations, steps=dense.dense_refinement_steps)
+    else:
+        second = refine_walls(g, scan_segments([], [], p), p, extra=term,
+                              iterations=dense.dense_refinement_iterations, steps=dense.dense_refinement_steps)
+    pairs = int(second.rounds[-1]["pairs"]) if second.rounds else 0
+    return WallRefinementResult(second.poses, res.walls, res.beams, res.points, res.cost_before, res.cost_after,
+                                res.rounds + second.rounds, pairs), segs
 
