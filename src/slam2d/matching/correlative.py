@@ -77,6 +77,9 @@ _PARALLEL_LOOKUPS = 1_000_000
 _PRUNE_CHUNK = 32
 # Smears of at least this many points are drawn in row bands, one per thread.
 _PARALLEL_POINTS = 4000
+# Pieces per thread a threaded smear or search is cut into; the threads take them in turn as they
+# come free (see _split), so a thread that starts late or runs slower takes fewer.
+_PIECES_PER_THREAD = 3
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
@@ -305,35 +308,47 @@ def _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, 
         _smear_band(grid, origin_x, origin_y, resolution, sx[a:z], sy[a:z], ss[a:z], skip_drawn, lo, hi)
 
 
-def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
+def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2,
+                       threads=None):
     """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, shared among threads.
 
     A band gets every point whose kernel reaches it and writes only its own rows, so no
     two threads write one cell; max-combining is order-free, so the grid is the serial
-    one bit for bit. Bands hold about equal numbers of points.
+    one bit for bit, whichever thread draws which band. Bands hold about equal numbers of
+    points; ``threads`` (default: as many as bands) take them in turn (see :func:`_split`).
     """
     if px.shape[0] == 0:
         return
     sx, sy, ss, start = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
     edge = _band_edges(start, sx.shape[0], grid.shape[0], bands)
     _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
-                                       skip_drawn), bands)
+                                       skip_drawn), bands, pieces=bands, threads=threads)
 
 
-def _split(work, n) -> None:
-    """Run ``work(i0, i1)`` over [0, n) cut into one piece per worker, this thread doing the first.
+def _split(work, n, pieces=None, threads=None) -> None:
+    """Run ``work(i0, i1)`` over [0, n) cut into ``pieces`` (default: one per thread), shared among threads.
 
     The pieces are compiled ``nogil`` kernels writing disjoint outputs, so Python threads run
     them side by side; they wait passively (no OpenMP spinning that would steal a busy
-    machine's cores).
+    machine's cores). Each thread, this one included, takes the next piece not yet taken
+    until none is left, so a worker that wakes late (a busy machine) or a slower piece does
+    not leave the others waiting; which thread runs which piece never changes the result.
     """
-    parts = min(_THREADS, n)
+    parts = min(_THREADS if threads is None else threads, n)
     if parts <= 1:
         work(0, n)
         return
-    cuts = [(k * n) // parts for k in range(parts + 1)]
-    futures = [_pool().submit(work, cuts[k], cuts[k + 1]) for k in range(1, parts)]
-    work(cuts[0], cuts[1])
+    pieces = min(max(parts, pieces or parts), n)
+    cuts = [(k * n) // pieces for k in range(pieces + 1)]
+    # next() on a shared range iterator hands each index out once (it runs under the GIL).
+    todo = iter(range(pieces))
+
+    def run():
+        for k in todo:
+            work(cuts[k], cuts[k + 1])
+
+    futures = [_pool().submit(run) for _ in range(1, parts)]
+    run()
     for f in futures:
         f.result()
 
@@ -352,7 +367,8 @@ def _pool() -> ThreadPoolExecutor:
 def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
     """:func:`smear_in_row_order`, in row bands on every thread when there are points enough to pay."""
     if _THREADS > 1 and px.shape[0] >= _PARALLEL_POINTS:
-        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, _THREADS)
+        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn,
+                           _THREADS * _PIECES_PER_THREAD, _THREADS)
     else:
         smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn)
 
@@ -1797,7 +1813,7 @@ class CorrelativeMatcher:
         # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
         # result (``stop``, or the best over every heading) does not depend on which did.
         if q.shape[0] * angles.shape[0] >= _PARALLEL_BOUND:
-            _split(over, angles.shape[0])
+            _split(over, angles.shape[0], pieces=_THREADS * _PIECES_PER_THREAD)
         else:
             over(0, angles.shape[0])
         return float(max(parts.values())) / n
@@ -1840,7 +1856,8 @@ class CorrelativeMatcher:
                 sums = np.empty((angles.shape[0], n_steps, n_steps))
                 cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
                 _split(lambda a0, a1: _score_poses(grid, origin[0], origin[1], res, q, cx, cy, ct, angles, half, step,
-                                                   a0, a1, sums), angles.shape[0])
+                                                   a0, a1, sums), angles.shape[0],
+                       pieces=_THREADS * _PIECES_PER_THREAD)
                 offs = (np.arange(n_steps) - half) * (step * res)
                 pose, best, raw_best, resp = _finish_search(
                     sums, n_points, offs, angles, cx, cy, ct, float(prior[0]), float(prior[1]), float(prior[2]),
@@ -2270,6 +2287,12 @@ class GridCache:
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
+        if len(nodes) == 1 and isinstance(nodes, list):
+            # One node (a kept scan joining an entry): its own box, without the reductions below.
+            n = int(nodes[0])
+            if n < self._known.size and self._known[n]:
+                b = self._box[n]
+                return b[:2].copy(), b[2:4].copy(), float(b[4]) + 2.0 * self.matcher.resolution
         idx = np.asarray(nodes, dtype=np.int64)
         if idx.size == 0:
             return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
