@@ -9,7 +9,12 @@ sha1 prefix of the trajectory's times and poses, so two runs with the same hash 
 ``--lookups`` also prints the correlation-grid lookups (``MatchResult.evaluated``, coarse and fine) and
 the CPU of the 1 cm matches by kind (seeded sequential, whole sequential, near chain, loop, recovery);
 ``--near-headings`` the heading corrections of the near-chain matches that link (response above 0.8);
-``--steps`` the CPU (``time.process_time``, inclusive) of the front end's main steps; ``--profile`` the
+``--steps`` the CPU (``time.process_time``, inclusive) of the front end's main steps; ``--kernels`` (after a
+first whole run that loads every compiled function, so without the loading) the wall
+time spent in compiled (numba) calls, on the main thread and on the worker threads, and per kind of frame
+(kept scan or between nodes) the wall time of ``GraphFrontend.process`` and its main-thread share in
+compiled calls (the rest is Python and numpy), with the worker threads' start after each hand-over
+(``_split``); ``--profile`` the
 functions taking most CPU by cProfile (timed by ``process_time``; the profiler slows Python, not the
 compiled kernels, so their share is understated).
 """
@@ -52,7 +57,10 @@ def main() -> None:
     ap.add_argument("--near-headings", action="store_true", help="heading corrections of the near-chain links")
     ap.add_argument("--steps", action="store_true", help="CPU of the front end's main steps")
     ap.add_argument("--profile", action="store_true", help="cProfile's top functions by own time")
+    ap.add_argument("--kernels", action="store_true",
+                    help="wall time in compiled calls (main thread, workers) and per kind of frame")
     args = ap.parse_args()
+    kernel_times = None
     steps = collections.defaultdict(lambda: [0, 0.0])
     if args.steps:
         _time_steps(steps)
@@ -72,6 +80,11 @@ def main() -> None:
     method = get_method("karto")
     for log in args.logs.split(","):
         frames = list(open_recording(DATA / log / f"{log}.clf.gz").frames())
+        if args.kernels and kernel_times is None:
+            # Every compiled function loaded (or compiled) first, by a whole run: numba cannot compile a
+            # function whose callee is the timing wrapper. So this mode's cpu and wall exclude loading.
+            get_method("karto")(get_method("karto").Params(**settings)).run(frames)
+            kernel_times = _time_kernels()
         slam = method(method.Params(**settings))
         profiler = cProfile.Profile(time.process_time) if args.profile else None
         c0, w0 = _cpu(), time.perf_counter()
@@ -94,6 +107,8 @@ def main() -> None:
         for kind, (n, lookups, seconds) in sorted(kinds.items(), key=lambda kv: -kv[1][1]):
             print(f"  {kind}: {n} matches, {lookups / 1e6:.0f} M lookups, {seconds:.2f} s")
         kinds.clear()
+        if kernel_times is not None:
+            _print_kernels(kernel_times)
         for step, (n, seconds) in sorted(steps.items(), key=lambda kv: -kv[1][1]):
             print(f"  {step}: {n} calls, {seconds:.2f} s")
         steps.clear()
@@ -152,6 +167,93 @@ def _time_steps(steps) -> None:
                 entry[1] += time.process_time() - c0
 
         setattr(cls, name, wrapped)
+
+
+def _time_kernels() -> dict:
+    """Wrap every compiled function the front end and the matcher call from Python, and their process step.
+
+    Compiled functions calling each other are not affected (the wrappers sit on the module names
+    Python code looks up), so each compiled call from Python is timed once.
+    """
+    import threading
+
+    from numba.core.registry import CPUDispatcher
+
+    import slam2d.graph.frontend as frontend
+    import slam2d.matching.correlative as correlative
+
+    main = threading.get_ident()
+    times = {"main": 0.0, "workers": 0.0, "frames": collections.defaultdict(lambda: [0, 0.0, 0.0]),
+             "by_name": collections.defaultdict(float), "starts": []}
+    current = [0.0]
+    for module in (correlative, frontend):
+        for name, obj in list(vars(module).items()):
+            if not isinstance(obj, CPUDispatcher):
+                continue
+
+            def wrapped(*a, _obj=obj, _name=name, **k):
+                t0 = time.perf_counter()
+                try:
+                    return _obj(*a, **k)
+                finally:
+                    dt = time.perf_counter() - t0
+                    times["by_name"][_name] += dt
+                    if threading.get_ident() == main:
+                        times["main"] += dt
+                        current[0] += dt
+                    else:
+                        times["workers"] += dt
+
+            setattr(module, name, wrapped)
+    split = correlative._split
+
+    def timed_split(work, n, *a, **k):
+        t0 = time.perf_counter()
+        first = []
+
+        def marked(i0, i1):
+            if threading.get_ident() != main and not first:
+                first.append(time.perf_counter() - t0)
+            work(i0, i1)
+
+        split(marked, n, *a, **k)
+        times["starts"].append(first[0] if first else math.nan)  # NaN: this thread ran every piece
+
+    correlative._split = timed_split
+    process = frontend.GraphFrontend.process
+
+    def timed_process(self, frame):
+        before = current[0]
+        t0 = time.perf_counter()
+        out = process(self, frame)
+        entry = times["frames"]["kept scan" if out is not None else "between nodes"]
+        entry[0] += 1
+        entry[1] += time.perf_counter() - t0
+        entry[2] += current[0] - before
+        return out
+
+    frontend.GraphFrontend.process = timed_process
+    return times
+
+
+def _print_kernels(times: dict) -> None:
+    print(f"  compiled calls: main thread {times['main']:.2f} s, worker threads {times['workers']:.2f} s (wall)")
+    for name, seconds in sorted(times["by_name"].items(), key=lambda kv: -kv[1])[:8]:
+        print(f"    {name}: {seconds:.2f} s")
+    for kind, (n, total, compiled) in sorted(times["frames"].items()):
+        print(f"  {kind}: {n} frames, process {total:.2f} s, compiled {compiled:.2f} s, Python and numpy "
+              f"{total - compiled:.2f} s ({1e6 * (total - compiled) / max(n, 1):.0f} us per frame)")
+    if times["starts"]:
+        d = np.array(times["starts"])
+        took = d[np.isfinite(d)]
+        print(f"  hand-overs: {d.size}, a worker took a piece in {took.size}, its first began after median "
+              f"{1e6 * np.median(took) if took.size else math.nan:.0f} us, mean "
+              f"{1e6 * took.mean() if took.size else math.nan:.0f} us")
+    for key in ("main", "workers"):
+        times[key] = 0.0
+    for key in ("frames", "by_name"):
+        times[key].clear()
+    times["starts"].clear()
 
 
 def _record_near_links(headings) -> None:

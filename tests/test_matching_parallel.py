@@ -82,3 +82,35 @@ def test_threads_work_in_a_forked_child():
     with ctx.Pool(1) as pool:
         got = pool.apply_async(_search_sums, (True, grid, q, 8, 2)).get(timeout=120)
     assert np.array_equal(got, serial)
+
+
+def test_shared_pieces_are_each_run_once_whichever_thread_takes_them():
+    """_split with more pieces than threads: every piece runs once, the pieces cover [0, n) without overlap."""
+    import threading
+
+    done = []
+    lock = threading.Lock()
+
+    def work(a, b):
+        with lock:
+            done.append((a, b))
+
+    _split(work, 20, pieces=7, threads=2)
+    assert sorted(done) == [((k * 20) // 7, ((k + 1) * 20) // 7) for k in range(7)]
+    done.clear()
+    _split(work, 3, pieces=8, threads=2)  # never more pieces than items
+    assert sorted(done) == [(0, 1), (1, 2), (2, 3)]
+
+
+@pytest.mark.parametrize("bands", [2, 6, 9])
+def test_bands_taken_in_turn_by_two_threads_draw_the_serial_grid(bands):
+    rng = np.random.default_rng(10 + bands)
+    px = rng.uniform(-0.3, 6.3, 5000)
+    py = rng.uniform(-0.3, 4.3, 5000)
+    sigma = rng.uniform(0.005, 0.1, px.size)
+    serial = np.zeros((400, 600), np.uint8)
+    banded = serial.copy()
+    smear_in_row_order(serial, 0.0, 0.0, 0.01, px, py, sigma, False)
+    smear_in_row_bands(banded, 0.0, 0.0, 0.01, px, py, sigma, False, bands, 2)
+    assert serial.max() == 255
+    assert np.array_equal(banded, serial)

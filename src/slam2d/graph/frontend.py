@@ -489,11 +489,41 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     """Half-open index ranges ``[a, b)`` of the runs of True in ``mask``."""
     if mask.size == 0:
         return []
-    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
-    d = np.diff(m)
-    starts = np.flatnonzero(d == 1)
-    ends = np.flatnonzero(d == -1)
-    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+    return _run_bounds(np.ascontiguousarray(mask, dtype=np.bool_)).tolist()
+
+
+@njit(cache=True)
+def _run_bounds(mask):
+    """(runs, 2): start and end (half-open) of each run of True in ``mask``, in order."""
+    n = mask.shape[0]
+    out = np.empty((n // 2 + 1, 2), np.int64)
+    m = 0
+    k = 0
+    while k < n:
+        if mask[k]:
+            a = k
+            while k < n and mask[k]:
+                k += 1
+            out[m, 0] = a
+            out[m, 1] = k
+            m += 1
+        else:
+            k += 1
+    return out[:m]
+
+
+@njit(cache=True)
+def _within(ref_xy, node, limit2):
+    """Per node, whether its squared distance to ``node``'s (numpy's ``((d) ** 2).sum(axis=1)``) is below ``limit2``."""
+    n = ref_xy.shape[0]
+    out = np.empty(n, np.bool_)
+    x0 = ref_xy[node, 0]
+    y0 = ref_xy[node, 1]
+    for i in range(n):
+        dx = ref_xy[i, 0] - x0
+        dy = ref_xy[i, 1] - y0
+        out[i] = dx * dx + dy * dy < limit2
+    return out
 
 
 class GraphFrontend:
@@ -685,11 +715,14 @@ class GraphFrontend:
 
     def _near_linked(self, node: int, ref_xy: NDArray[np.float64], max_distance: float) -> NDArray[np.bool_]:
         """Karto's FindNearLinkedScans: nodes reachable from ``node`` through nodes within the distance."""
+        return self._near_and_linked(node, ref_xy, max_distance)[1]
+
+    def _near_and_linked(self, node: int, ref_xy: NDArray[np.float64], max_distance: float):
+        """(nodes within ``max_distance`` of ``node``'s reference position, :meth:`_near_linked`)."""
         n = self.graph.num_nodes
-        d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
-        near = d2 < max_distance**2 + 1e-9
-        return _reachable(node, near, np.asarray(self.graph.edge_i, dtype=np.int64),
-                          np.asarray(self.graph.edge_j, dtype=np.int64), n)
+        near = _within(np.ascontiguousarray(ref_xy, dtype=np.float64), node, max_distance**2 + 1e-9)
+        return near, _reachable(node, near, np.asarray(self.graph.edge_i, dtype=np.int64),
+                                np.asarray(self.graph.edge_j, dtype=np.int64), n)
 
     def _moved_enough(self, odom: NDArray[np.float64], t: float) -> bool:
         if not self._odom:
@@ -1109,13 +1142,11 @@ class GraphFrontend:
         """Karto's LinkNearChains: match older passes already connected in the graph; link the good ones."""
         p = self.params
         ref_xy = self.reference_positions()
-        linked = self._near_linked(node, ref_xy, p.link_scan_maximum_distance)
+        near, linked = self._near_and_linked(node, ref_xy, p.link_scan_maximum_distance)
         linked[node] = False
         hot, self._near_hot = self._near_hot, []
         if not linked.any():
             return 0
-        d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
-        near = d2 < p.link_scan_maximum_distance**2 + 1e-9
         link = p.link_match_minimum_response_fine
         fail = 0.5 * link
         lo, hi = self.sequential.search_box(points, pose)  # the same query box for every chain
@@ -1219,9 +1250,8 @@ class GraphFrontend:
         while True:
             if candidate is None:  # the graph changes only when a closure is accepted
                 ref_xy = self.reference_positions()
-                linked = self._near_linked(node, ref_xy, p.loop_search_maximum_distance)
-                d2 = ((ref_xy - ref_xy[node]) ** 2).sum(axis=1)
-                candidate = (d2 < p.loop_search_maximum_distance**2 + 1e-9) & ~linked
+                near, linked = self._near_and_linked(node, ref_xy, p.loop_search_maximum_distance)
+                candidate = near & ~linked
             chains = [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
             if not chains:
                 return closed

@@ -77,6 +77,11 @@ _PARALLEL_LOOKUPS = 1_000_000
 _PRUNE_CHUNK = 32
 # Smears of at least this many points are drawn in row bands, one per thread.
 _PARALLEL_POINTS = 4000
+# Pieces per thread a threaded smear or search is cut into; the threads take them in turn as they
+# come free (see _split), so a worker that starts late (a busy machine) leaves its piece to this
+# thread instead of keeping it waiting. More pieces (3 per thread) balance better but cost more than
+# they save: each band re-reads the points near its edges (fr079: the banded smears 1.2 -> 1.8 s).
+_PIECES_PER_THREAD = 1
 # Threads the big searches and smears are shared among (SLAM2D_THREADS; 1 turns threading off).
 _THREADS = max(1, int(os.environ.get(
     "SLAM2D_THREADS", min(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 4))))
@@ -305,35 +310,47 @@ def _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, 
         _smear_band(grid, origin_x, origin_y, resolution, sx[a:z], sy[a:z], ss[a:z], skip_drawn, lo, hi)
 
 
-def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2):
+def smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn=False, bands=2,
+                       threads=None):
     """:func:`smear_in_row_order` with the grid cut into ``bands`` bands of rows, shared among threads.
 
     A band gets every point whose kernel reaches it and writes only its own rows, so no
     two threads write one cell; max-combining is order-free, so the grid is the serial
-    one bit for bit. Bands hold about equal numbers of points.
+    one bit for bit, whichever thread draws which band. Bands hold about equal numbers of
+    points; ``threads`` (default: as many as bands) take them in turn (see :func:`_split`).
     """
     if px.shape[0] == 0:
         return
     sx, sy, ss, start = _row_sort(grid, origin_x, origin_y, resolution, px, py, sigma)
     edge = _band_edges(start, sx.shape[0], grid.shape[0], bands)
     _split(lambda b0, b1: _smear_bands(grid, origin_x, origin_y, resolution, sx, sy, ss, start, edge, b0, b1,
-                                       skip_drawn), bands)
+                                       skip_drawn), bands, pieces=bands, threads=threads)
 
 
-def _split(work, n) -> None:
-    """Run ``work(i0, i1)`` over [0, n) cut into one piece per worker, this thread doing the first.
+def _split(work, n, pieces=None, threads=None) -> None:
+    """Run ``work(i0, i1)`` over [0, n) cut into ``pieces`` (default: one per thread), shared among threads.
 
     The pieces are compiled ``nogil`` kernels writing disjoint outputs, so Python threads run
     them side by side; they wait passively (no OpenMP spinning that would steal a busy
-    machine's cores).
+    machine's cores). Each thread, this one included, takes the next piece not yet taken
+    until none is left, so a worker that wakes late (a busy machine) or a slower piece does
+    not leave the others waiting; which thread runs which piece never changes the result.
     """
-    parts = min(_THREADS, n)
+    parts = min(_THREADS if threads is None else threads, n)
     if parts <= 1:
         work(0, n)
         return
-    cuts = [(k * n) // parts for k in range(parts + 1)]
-    futures = [_pool().submit(work, cuts[k], cuts[k + 1]) for k in range(1, parts)]
-    work(cuts[0], cuts[1])
+    pieces = min(max(parts, pieces or parts), n)
+    cuts = [(k * n) // pieces for k in range(pieces + 1)]
+    # next() on a shared range iterator hands each index out once (it runs under the GIL).
+    todo = iter(range(pieces))
+
+    def run():
+        for k in todo:
+            work(cuts[k], cuts[k + 1])
+
+    futures = [_pool().submit(run) for _ in range(1, parts)]
+    run()
     for f in futures:
         f.result()
 
@@ -352,7 +369,8 @@ def _pool() -> ThreadPoolExecutor:
 def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> None:
     """:func:`smear_in_row_order`, in row bands on every thread when there are points enough to pay."""
     if _THREADS > 1 and px.shape[0] >= _PARALLEL_POINTS:
-        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn, _THREADS)
+        smear_in_row_bands(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn,
+                           _THREADS * _PIECES_PER_THREAD, _THREADS)
     else:
         smear_in_row_order(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn)
 
@@ -1320,6 +1338,22 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
 
 
 @njit(cache=True)
+def _band_on_part_edge(resp, threshold, a_lo, n_a, i_lo, j_lo, n_xy):
+    """Whether a response of the part ``resp[a_lo:a_lo + n_a, i_lo:i_lo + n_xy, j_lo:j_lo + n_xy]`` at or
+    above ``threshold`` lies on a face of the part that is not a face of the whole window."""
+    na, ny, nx = resp.shape
+    for a in range(a_lo, a_lo + n_a):
+        for i in range(i_lo, i_lo + n_xy):
+            for j in range(j_lo, j_lo + n_xy):
+                if resp[a, i, j] >= threshold:
+                    if ((a == a_lo and a_lo > 0) or (a == a_lo + n_a - 1 and a < na - 1)
+                            or (i == i_lo and i_lo > 0) or (i == i_lo + n_xy - 1 and i < ny - 1)
+                            or (j == j_lo and j_lo > 0) or (j == j_lo + n_xy - 1 and j < nx - 1)):
+                        return True
+    return False
+
+
+@njit(cache=True)
 def _along_extent(resp, offs, cx, cy, px, py, threshold, vx, vy):
     """Least and largest ``dx vx + dy vy`` over the (y, x) cells whose best response over angles reaches
     ``threshold`` (dx, dy from (px, py)): the mask's extent along a direction, numpy's arithmetic."""
@@ -1781,7 +1815,7 @@ class CorrelativeMatcher:
         # Among threads when it pays: a part that reaches ``stop`` stops the others, and the
         # result (``stop``, or the best over every heading) does not depend on which did.
         if q.shape[0] * angles.shape[0] >= _PARALLEL_BOUND:
-            _split(over, angles.shape[0])
+            _split(over, angles.shape[0], pieces=_THREADS * _PIECES_PER_THREAD)
         else:
             over(0, angles.shape[0])
         return float(max(parts.values())) / n
@@ -1824,7 +1858,8 @@ class CorrelativeMatcher:
                 sums = np.empty((angles.shape[0], n_steps, n_steps))
                 cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
                 _split(lambda a0, a1: _score_poses(grid, origin[0], origin[1], res, q, cx, cy, ct, angles, half, step,
-                                                   a0, a1, sums), angles.shape[0])
+                                                   a0, a1, sums), angles.shape[0],
+                       pieces=_THREADS * _PIECES_PER_THREAD)
                 offs = (np.arange(n_steps) - half) * (step * res)
                 pose, best, raw_best, resp = _finish_search(
                     sums, n_points, offs, angles, cx, cy, ct, float(prior[0]), float(prior[1]), float(prior[2]),
@@ -2026,7 +2061,9 @@ class CorrelativeMatcher:
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         seed = np.asarray(seed, dtype=np.float64).reshape(3)
         q = np.ascontiguousarray(np.asarray(query_points, dtype=np.float64).reshape(-1, 2))
-        if q.shape[0] == 0 or not (np.all(np.isfinite(prior)) and np.all(np.isfinite(seed))):
+        p0, p1, p2 = prior.tolist()
+        s0, s1, s2 = seed.tolist()
+        if q.shape[0] == 0 or not all(map(math.isfinite, (p0, p1, p2, s0, s1, s2))):
             return None
         g, ox, oy = grid
         res = self.resolution
@@ -2035,35 +2072,35 @@ class CorrelativeMatcher:
         n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
         h, k = min(int(half_steps), big), min(int(angle_steps), n_half)
         # The part's lowest lattice indices (x, y, angle), kept inside the window.
-        j_lo = min(max(int(round((seed[0] - prior[0]) / step_m)), h - big), big - h) + big - h
-        i_lo = min(max(int(round((seed[1] - prior[1]) / step_m)), h - big), big - h) + big - h
-        d_theta = math.remainder(float(seed[2]) - float(prior[2]), 2.0 * math.pi)
+        j_lo = min(max(int(round((s0 - p0) / step_m)), h - big), big - h) + big - h
+        i_lo = min(max(int(round((s1 - p1) / step_m)), h - big), big - h) + big - h
+        d_theta = math.remainder(s2 - p2, 2.0 * math.pi)
         a_seed = min(max(int(round(d_theta / self.coarse_angle_resolution)), -n_half), n_half) + n_half
         a_lo = min(max(a_seed - n_half, k - n_half), n_half - k) + n_half - k
         angles, _ = _coarse_angles(self.coarse_angle_offset, self.coarse_angle_resolution)
         n_steps = 2 * big + 1
         sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
-        # The part's angles nearest the seed's first: the best found early prunes the others.
-        part = np.arange(a_lo, a_lo + 2 * k + 1)
-        order = part[np.argsort(np.abs(part - a_seed), kind="stable")]
+        # The part's angles nearest the seed's first: the best found early prunes the others (kept per part).
+        key = ("part", a_lo, k, a_seed, big, step_m)
+        got = _ANGLES.get(key)
+        if got is None:
+            part = np.arange(a_lo, a_lo + 2 * k + 1)
+            got = _ANGLES[key] = (part[np.argsort(np.abs(part - a_seed), kind="stable")],
+                                  (np.arange(n_steps) - big) * step_m)
+        order, offs = got
         qc = self.coarse_points(q)
-        lookups = _score_poses_pruned(g, ox, oy, res, _interleaved(qc), float(prior[0]), float(prior[1]), float(prior[2]), angles,
-                                      order, big, 2, i_lo, j_lo, 2 * h + 1, float(prior[0]), float(prior[1]),
-                                      float(prior[2]), penalize, self.distance_variance_penalty,
+        lookups = _score_poses_pruned(g, ox, oy, res, _interleaved(qc), p0, p1, p2, angles,
+                                      order, big, 2, i_lo, j_lo, 2 * h + 1, p0, p1,
+                                      p2, penalize, self.distance_variance_penalty,
                                       self.angle_variance_penalty, self.minimum_distance_penalty,
                                       self.minimum_angle_penalty, -1.0, _PRUNE_CHUNK, sums)
-        offs = (np.arange(n_steps) - big) * step_m
         pose, best, raw, resp = _finish_search(
-            sums, qc.shape[0], offs, angles, float(prior[0]), float(prior[1]), float(prior[2]), float(prior[0]),
-            float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty, self.angle_variance_penalty,
-            self.minimum_distance_penalty, self.minimum_angle_penalty)
+            sums, qc.shape[0], offs, angles, p0, p1, p2, p0, p1, p2, penalize, self.distance_variance_penalty,
+            self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
         if not best > 0.0:
             return None
-        band = resp[a_lo:a_lo + 2 * k + 1, i_lo:i_lo + 2 * h + 1, j_lo:j_lo + 2 * h + 1] >= best - _COVARIANCE_BAND
         # Edges of the part that are the window's own edges hide nothing.
-        if ((a_lo > 0 and band[0].any()) or (a_lo + 2 * k < 2 * n_half and band[-1].any())
-                or (i_lo > 0 and band[:, 0].any()) or (i_lo + 2 * h < 2 * big and band[:, -1].any())
-                or (j_lo > 0 and band[:, :, 0].any()) or (j_lo + 2 * h < 2 * big and band[:, :, -1].any())):
+        if _band_on_part_edge(resp, best - _COVARIANCE_BAND, a_lo, 2 * k + 1, i_lo, j_lo, 2 * h + 1):
             return None
         cov = np.zeros((3, 3))
         cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, step_m)
@@ -2252,6 +2289,12 @@ class GridCache:
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
+        if len(nodes) == 1 and isinstance(nodes, list):
+            # One node (a kept scan joining an entry): its own box, without the reductions below.
+            n = int(nodes[0])
+            if n < self._known.size and self._known[n]:
+                b = self._box[n]
+                return b[:2].copy(), b[2:4].copy(), float(b[4]) + 2.0 * self.matcher.resolution
         idx = np.asarray(nodes, dtype=np.int64)
         if idx.size == 0:
             return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
@@ -2389,15 +2432,22 @@ class GridCache:
         c0, r0 = max(c0, 0), max(r0, 0)
         drawn = set(d["order"][: d["n_drawn"]])
         parts = self._parts(e)
-        pts, sig = _concat(parts)
-        kept = np.repeat(np.array([n in drawn for n in e["order"]], dtype=np.bool_),
-                         np.array([p[0].shape[0] for p in parts], dtype=np.int64))
-        gone = [p for n, p in zip(d["order"][: d["n_drawn"]], d["parts"]) if n not in e["nodes"]]
-        xpts, xsig = _concat(gone)
-        px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        px, py, sig = self._columns(e, 0, len(parts))
+        kept = np.repeat(np.array([n in drawn for n in e["order"]], dtype=np.bool_), np.diff(e["starts"]))
+        # The donor's drawn scans the new entry does not hold, from the donor's columns.
+        dx, dy, ds = self._columns(d, 0, d["n_drawn"])
+        dst = d["starts"]
+        gone = [(dst[k], dst[k + 1]) for k, n in enumerate(d["order"][: d["n_drawn"]]) if n not in e["nodes"]]
+        if len(gone) == 1:
+            xpx, xpy, xsig = dx[gone[0][0]:gone[0][1]], dy[gone[0][0]:gone[0][1]], ds[gone[0][0]:gone[0][1]]
+        elif gone:
+            xpx = np.concatenate([dx[a:b] for a, b in gone])
+            xpy = np.concatenate([dy[a:b] for a, b in gone])
+            xsig = np.concatenate([ds[a:b] for a, b in gone])
+        else:
+            xpx, xpy, xsig = np.zeros(0), np.zeros(0), np.zeros(0)
         ok, todo = _derive_grid(g, ox, oy, sg, sox, soy, res, oc, orow, r0, r1, c0, c1, px, py, sig, kept,
-                                np.ascontiguousarray(xpts[:, 0]), np.ascontiguousarray(xpts[:, 1]), xsig,
-                                new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
+                                xpx, xpy, xsig, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
         if not ok:
             return False
         if todo.size:
@@ -2430,7 +2480,9 @@ class GridCache:
             self.draws += 1
         old = e["drawn"]
         parts = self._parts(e)
-        inside = old is not None and bool(np.all(lo >= old[0]) and np.all(hi <= old[1]))
+        # (Python floats: the same comparisons as np.all on the 2-vectors, without its per-call cost.)
+        inside = old is not None and (float(lo[0]) >= float(old[0][0]) and float(lo[1]) >= float(old[0][1])
+                                      and float(hi[0]) <= float(old[1][0]) and float(hi[1]) <= float(old[1][1]))
         if inside and e["n_drawn"] == len(parts):
             return grid
         new = old if inside else (lo - self.draw_margin, hi + self.draw_margin)
@@ -2447,8 +2499,7 @@ class GridCache:
             return grid
         e.pop("donor", None)  # drawn without it: let its grid go
         if old is not None and not inside and e["n_drawn"]:
-            pts, sig = _concat(parts[: e["n_drawn"]])
-            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            px, py, sig = self._columns(e, 0, e["n_drawn"])
             # The points drawn before are those within the old box plus the reach of then (scans
             # added since can have widened it): the rest of the old scans' points near the new box.
             m_old = e["drawn_reach"]
@@ -2458,8 +2509,7 @@ class GridCache:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
                 self.smeared += int(keep.size)
         if e["n_drawn"] < len(parts):
-            pts, sig = _concat(parts[e["n_drawn"]:])
-            px, py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+            px, py, sig = self._columns(e, e["n_drawn"], len(parts))
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
                 _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
@@ -2521,6 +2571,37 @@ class GridCache:
         if len(parts) < len(order):
             parts.extend(self.points_of(n) for n in order[len(parts):])
         return parts
+
+    def _columns(self, e: dict, k0: int, k1: int):
+        """x, y and sigma (contiguous, read-only use) of the points of the entry's nodes ``order[k0:k1]``.
+
+        The entry keeps its nodes' points as three growing columns (``starts``: where each node's
+        begin), filled as :meth:`_parts` fetches them, so a range of nodes is a slice, not a copy.
+        """
+        parts = e["parts"] if len(e["parts"]) >= k1 else self._parts(e)
+        cols = e.get("cols")
+        if cols is None:
+            cols = e["cols"] = [np.empty(0), np.empty(0), np.empty(0)]
+            e["starts"] = [0]
+        starts = e["starts"]
+        done = len(starts) - 1
+        if done < len(parts):
+            size = starts[-1] + sum(p[0].shape[0] for p in parts[done:])
+            if size > cols[0].shape[0]:
+                cap = max(size, 2 * cols[0].shape[0])
+                for k in range(3):
+                    grown = np.empty(cap)
+                    grown[: starts[-1]] = cols[k][: starts[-1]]
+                    cols[k] = grown
+            for pts, sig in parts[done:]:
+                a = starts[-1]
+                b = a + pts.shape[0]
+                cols[0][a:b] = pts[:, 0]
+                cols[1][a:b] = pts[:, 1]
+                cols[2][a:b] = sig
+                starts.append(b)
+        a, b = starts[k0], starts[k1]
+        return cols[0][a:b], cols[1][a:b], cols[2][a:b]
 
     def entry_points(self, e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Every reference point (world) and sigma the entry's grid holds or will hold."""

@@ -1,0 +1,69 @@
+"""Speed paths of the karto front end and the grid cache give the plain numpy results bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slam2d.graph.frontend import _runs, _within
+from slam2d.matching.correlative import _COVARIANCE_BAND, CorrelativeMatcher, GridCache, _band_on_part_edge, _concat
+
+
+def _runs_numpy(mask):
+    m = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    d = np.diff(m)
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_runs_are_numpys(seed):
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 2, 7, 300):
+        mask = rng.random(n) < (0.2 + 0.15 * seed)
+        assert [tuple(r) for r in _runs(mask)] == _runs_numpy(mask)
+    assert _runs(np.ones(5, bool)) == [[0, 5]]
+
+
+def test_within_is_numpys_squared_distance_test():
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-20.0, 20.0, (1500, 2))
+    xy[7] = xy[3] + [3.0, 4.0]  # exactly on the limit (5 m): excluded by both
+    for node in (0, 3, 1499):
+        limit2 = 5.0**2 + 1e-9
+        expect = ((xy - xy[node]) ** 2).sum(axis=1) < limit2
+        assert np.array_equal(_within(xy, node, limit2), expect)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_part_edge_test_is_the_numpy_one(seed):
+    rng = np.random.default_rng(seed)
+    na, n = 21, 17
+    resp = rng.random((na, n, n)) * rng.random()
+    k, h = int(rng.integers(0, 4)), int(rng.integers(1, 6))
+    a_lo = int(rng.integers(0, na - 2 * k))
+    i_lo, j_lo = (int(v) for v in rng.integers(0, n - 2 * h, 2))
+    best = float(resp[a_lo:a_lo + 2 * k + 1, i_lo:i_lo + 2 * h + 1, j_lo:j_lo + 2 * h + 1].max())
+    band = resp[a_lo:a_lo + 2 * k + 1, i_lo:i_lo + 2 * h + 1, j_lo:j_lo + 2 * h + 1] >= best - _COVARIANCE_BAND
+    expect = bool((a_lo > 0 and band[0].any()) or (a_lo + 2 * k < na - 1 and band[-1].any())
+                  or (i_lo > 0 and band[:, 0].any()) or (i_lo + 2 * h < n - 1 and band[:, -1].any())
+                  or (j_lo > 0 and band[:, :, 0].any()) or (j_lo + 2 * h < n - 1 and band[:, :, -1].any()))
+    got = _band_on_part_edge(resp, best - _COVARIANCE_BAND, a_lo, 2 * k + 1, i_lo, j_lo, 2 * h + 1)
+    assert got == expect
+
+
+def test_entry_columns_are_the_concatenated_points_of_its_nodes():
+    rng = np.random.default_rng(5)
+    parts = [rng.uniform(-3.0, 3.0, (int(rng.integers(0, 50)), 2)) for _ in range(12)]
+    sig = [rng.uniform(0.01, 0.05, p.shape[0]) for p in parts]
+    m = CorrelativeMatcher(search_size=0.3, resolution=0.01)
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+    lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    e = cache.reserve([0, 1, 2], lo, hi)
+    for nodes in ([0, 1, 2, 3, 4], list(range(12))):  # the entry grows: its columns grow with it
+        e = cache.reserve(nodes, lo, hi, max_extra=20)
+        cache._parts(e)
+        n = len(e["order"])
+        for k0, k1 in ((0, n), (0, 1), (2, n), (n, n)):
+            px, py, s = cache._columns(e, k0, k1)
+            pts, ss = _concat([(parts[i], sig[i]) for i in e["order"][k0:k1]])
+            assert np.array_equal(px, pts[:, 0]) and np.array_equal(py, pts[:, 1]) and np.array_equal(s, ss)
