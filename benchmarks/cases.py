@@ -1086,12 +1086,14 @@ def karto_sim_wall_end_revisits(workdir: Path) -> tuple[None, str]:
                             + "; ".join(row) for world, row in cells.items())
 
 
-def karto_sim_wall_refinement(workdir: Path) -> tuple[None, str]:
+def karto_sim_wall_refinement(workdir: Path, settings: dict[str, str] | None = None,
+                              label: str = "wall-refinement") -> tuple[None, str]:
     """karto with ``wall_refinement=true`` on the URG-04LX recordings: office 120 s seeds 0-8, corridor-loop 0-5.
 
     The refinement's settings were chosen on seeds 0-2 of both worlds (docs/methods/karto.md, *URG-04LX: a
     wall bundle adjustment of the finished run*); office 3-8 and corridor-loop 3-5 are held out. Per run
-    the cell of `karto-sim-lasers` and the refinement's CPU.
+    the cell of `karto-sim-lasers` and the refinement's CPU (both stages when ``settings`` turn on the dense
+    one, with its pairs).
     """
     from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
     from slam2d.methods.runner import build_method, run_method
@@ -1104,12 +1106,13 @@ def karto_sim_wall_refinement(workdir: Path) -> tuple[None, str]:
             if not (sim_dir / "recording.log.gz").exists():
                 write_outputs(simulate(world, SimulationParams(duration=duration, seed=seed, laser="urg-04lx")),
                               sim_dir)
-            run_dir = workdir / f"karto-wall-refinement-{world}-{seed}"
-            slam = build_method("karto", settings={"wall_refinement": "true"})
+            run_dir = workdir / f"karto-{label}-{world}-{seed}"
+            slam = build_method("karto", settings={"wall_refinement": "true", **(settings or {})})
             run_method(slam, sim_dir / "recording.log.gz", run_dir)
             e = evaluate_run(load_run(run_dir), load_truth(sim_dir))
-            cpu = slam.diagnostics.summary["wall_refinement"]["cpu_s"]
-            cells.setdefault(world, []).append(_sim_laser_cell(e) + f" (refinement {cpu:.1f} s)")
+            refinement = slam.diagnostics.summary["wall_refinement"]
+            pairs = f", {refinement['dense_pairs']:.0f} dense pairs" if "dense_pairs" in refinement else ""
+            cells.setdefault(world, []).append(_sim_laser_cell(e) + f" (refinement {refinement['cpu_s']:.1f} s{pairs})")
     return None, " | ".join(f"{world} urg-04lx (ATE / rot / RPE rot per frame / map error, seeds 0-{len(row) - 1}): "
                             + "; ".join(row) for world, row in cells.items())
 
@@ -1301,6 +1304,15 @@ CASES: list[Case] = [
          "straight walls and wall ends over every frame) on office 120 s seeds 0-8 and corridor-loop seeds 0-5 "
          "(3 and up held out), URG-04LX: ATE, heading, per-frame rotation, map error vs the truth",
          karto_sim_wall_refinement, target="ATE < 0.05 m, map error < 0.03 m (issue 7)", warmup=False, repeat=1),
+    Case("karto-sim-dense-refinement", "`karto-sim-wall-refinement` plus `dense_refinement=true` (every return "
+         "aligned point-to-line against other frames' returns after the wall refinement) on the same runs",
+         lambda workdir: karto_sim_wall_refinement(workdir, {"dense_refinement": "true"}, "dense-refinement"),
+         target="ATE < 0.05 m, map error < 0.03 m (issue 7)", warmup=False, repeat=1),
+    Case("gmapping-aces-dense-loop-correction", "`gmapping` on aces with the dense-log set plus `loop_correction=true` "
+         "(the best path corrected after the run by a pose graph with karto's loop search; not in GMapping), "
+         "seeds 0-4 (the scales were chosen on them); docs: \"Loop correction of the best path\"",
+         _gmapping("aces/aces.clf.gz", settings={**GMAPPING_DENSE, "loop_correction": True}, more_seeds=(1, 2, 3, 4)),
+         target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
 ] + [
     Case(f"memory-{Path(rel).name.split('.')[0]}",
          f"peak memory reading `{rel}`", _reader_case(rel), target="< 200 MB", max_peak_mb=200.0,
