@@ -67,3 +67,31 @@ def test_entry_columns_are_the_concatenated_points_of_its_nodes():
             px, py, s = cache._columns(e, k0, k1)
             pts, ss = _concat([(parts[i], sig[i]) for i in e["order"][k0:k1]])
             assert np.array_equal(px, pts[:, 0]) and np.array_equal(py, pts[:, 1]) and np.array_equal(s, ss)
+
+
+def test_compiled_box_reductions_equal_the_numpy_ones():
+    """_boxes_extent and _boxes_sigma (GridCache._extent, _sigma_of) against the numpy reductions they replace."""
+    from slam2d.matching.correlative import _boxes_extent, _boxes_sigma
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        n = int(rng.integers(1, 12))
+        box = np.empty((20, 6))
+        box[:, :2] = rng.normal(0.0, 5.0, (20, 2))
+        box[:, 2:4] = box[:, :2] + rng.uniform(0.0, 3.0, (20, 2))
+        box[:, 4] = rng.uniform(0.0, 0.2, 20)
+        # The one sigma: shared, mixed, NaN (not one), or inf (a node without points).
+        box[:, 5] = rng.choice([0.02, 0.03, np.nan, np.inf], 20, p=[0.7, 0.1, 0.1, 0.1]) if trial % 2 else 0.02
+        empty = rng.random(20) < 0.1
+        box[empty, :2], box[empty, 2:4], box[empty, 4], box[empty, 5] = np.inf, -np.inf, 0.0, np.inf
+        idx = rng.choice(20, n, replace=False).astype(np.int64)
+        b = box[idx]
+        out = _boxes_extent(box, idx)
+        assert np.array_equal(out[0:2], b[:, :2].min(axis=0))
+        assert np.array_equal(out[2:4], b[:, 2:4].max(axis=0))
+        assert out[4] == b[:, 4].max()
+        u = box[idx, 5]
+        u = u[u != np.inf]
+        want = None if (u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0])) else float(u[0])
+        ok, got = _boxes_sigma(box, idx)
+        assert (float(got) if ok else None) == want
