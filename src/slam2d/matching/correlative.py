@@ -2630,13 +2630,19 @@ class GridCache:
                     grown = np.empty(cap)
                     grown[: starts[-1]] = cols[k][: starts[-1]]
                     cols[k] = grown
-            for pts, sig in parts[done:]:
-                a = starts[-1]
-                b = a + pts.shape[0]
-                cols[0][a:b] = pts[:, 0]
-                cols[1][a:b] = pts[:, 1]
-                cols[2][a:b] = sig
-                starts.append(b)
+            new = parts[done:]
+            a = starts[-1]
+            if len(new) == 1:
+                pts, sig = new[0]
+            else:  # one copy of the new nodes' points, then three column writes (not three per node)
+                pts = np.concatenate([q[0] for q in new])
+                sig = np.concatenate([q[1] for q in new])
+            cols[0][a:size] = pts[:, 0]
+            cols[1][a:size] = pts[:, 1]
+            cols[2][a:size] = sig
+            for q in new:
+                a += q[0].shape[0]
+                starts.append(a)
         a, b = starts[k0], starts[k1]
         return cols[0][a:b], cols[1][a:b], cols[2][a:b]
 
