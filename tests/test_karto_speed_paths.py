@@ -95,3 +95,26 @@ def test_compiled_box_reductions_equal_the_numpy_ones():
         want = None if (u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0])) else float(u[0])
         ok, got = _boxes_sigma(box, idx)
         assert (float(got) if ok else None) == want
+
+
+def test_compiled_point_transforms_equal_transform_points():
+    """frontend's _transform_xy and _beam_points against se2.transform_points (bit for bit)."""
+    import math
+
+    from slam2d.core import se2
+    from slam2d.graph.frontend import _beam_points, _transform_xy
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        pose = np.array([rng.normal(0, 50), rng.normal(0, 50), rng.uniform(-4, 4)])
+        pts = rng.normal(0, 20, (int(rng.integers(0, 700)), 2))
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        assert np.array_equal(_transform_xy(pose[0], pose[1], c, s, pts), se2.transform_points(pose, pts))
+        n = int(rng.integers(1, 1100))
+        ranges = rng.uniform(0.0, 80.0, n)
+        a = rng.uniform(-math.pi, math.pi, n)
+        cos, sin = np.cos(a), np.sin(a)
+        use = rng.random(n) < 0.8
+        r = ranges[use]
+        want = se2.transform_points(pose, np.stack([r * cos[use], r * sin[use]], axis=-1))
+        assert np.array_equal(_beam_points(pose[0], pose[1], c, s, ranges, cos, sin, use), want)
