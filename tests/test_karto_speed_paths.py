@@ -118,3 +118,28 @@ def test_compiled_point_transforms_equal_transform_points():
         r = ranges[use]
         want = se2.transform_points(pose, np.stack([r * cos[use], r * sin[use]], axis=-1))
         assert np.array_equal(_beam_points(pose[0], pose[1], c, s, ranges, cos, sin, use), want)
+
+
+def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
+    """frontend's _smear_sigmas against CorrelativeMatcher.sigmas_for plus _scan_points' numpy gap share."""
+    from slam2d.graph.frontend import _smear_sigmas
+
+    rng = np.random.default_rng(13)
+    for trial in range(200):
+        res = float(rng.choice([0.01, 0.05]))
+        m = CorrelativeMatcher(search_size=0.3, resolution=res, smear_deviation=float(rng.uniform(0.005, 0.08)))
+        n = int(rng.integers(1, 800))
+        sig = rng.uniform(0.0, 0.1, n)
+        sig[rng.random(n) < 0.1] = np.nan
+        if trial % 10 == 0:
+            sig[0] = np.inf
+        ranges = rng.uniform(0.0, 80.0, n)
+        use = rng.random(n) < 0.8
+        spacing = float(rng.choice([0.0, 0.5, 1.0]))
+        inc = float(rng.uniform(0.001, 0.02))
+        want = m.sigmas_for(sig[use], int(use.sum()))
+        if spacing > 0:
+            gap = spacing * ranges[use] * abs(inc)
+            want = np.minimum(np.sqrt(want * want + gap * gap), 10.0 * res)
+        got = _smear_sigmas(float(m.smear_deviation), sig, use, ranges, spacing, abs(inc), 0.5 * res, 10.0 * res)
+        assert np.array_equal(got, want)

@@ -665,6 +665,14 @@ class GraphFrontend:
             points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
             return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
+        m = self.sequential
+        if type(m).sigmas_for is CorrelativeMatcher.sigmas_for and sig.dtype == scan.ranges.dtype == np.float64:
+            # sigmas_for and the beam-gap share below in one compiled pass (the same arithmetic).
+            sigmas = _smear_sigmas(float(m.smear_deviation), sig, use, scan.ranges, float(p.smear_beam_spacing),
+                                   abs(float(scan.angle_increment)), 0.5 * m.resolution, 10.0 * m.resolution)
+            if p.point_spacing > 0:
+                points, sigmas = _thin(points, sigmas, p.point_spacing)
+            return points, sigmas
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
         if p.smear_beam_spacing > 0:
             # A reference point stands for the stretch of wall between it and its neighbours'
@@ -1708,6 +1716,37 @@ def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: flo
     """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
     keep = _thin_keep(points, spacing)
     return points[keep], sigmas[keep]
+
+
+@njit(cache=True)
+def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
+    """CorrelativeMatcher.sigmas_for(sig[use]) then, with ``spacing`` > 0, the beam-gap share of
+    GraphFrontend._scan_points, per beam in ``use``: the same operations in the same order."""
+    n = 0
+    for k in range(use.shape[0]):
+        if use[k]:
+            n += 1
+    out = np.empty(n)
+    m = 0
+    big = 1.7976931348623157e308  # np.nan_to_num's stand-in for an infinite sigma
+    for k in range(use.shape[0]):
+        if not use[k]:
+            continue
+        b = sig[k]
+        if np.isnan(b):
+            b = 0.0
+        elif b == np.inf:
+            b = big
+        elif b == -np.inf:
+            b = -big
+        v = math.sqrt(smear * smear + b * b)
+        v = min(max(v, lo), hi)
+        if spacing > 0:
+            gap = spacing * ranges[k] * increment
+            v = min(math.sqrt(v * v + gap * gap), hi)
+        out[m] = v
+        m += 1
+    return out
 
 
 @njit(cache=True)
