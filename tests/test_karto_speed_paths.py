@@ -67,3 +67,79 @@ def test_entry_columns_are_the_concatenated_points_of_its_nodes():
             px, py, s = cache._columns(e, k0, k1)
             pts, ss = _concat([(parts[i], sig[i]) for i in e["order"][k0:k1]])
             assert np.array_equal(px, pts[:, 0]) and np.array_equal(py, pts[:, 1]) and np.array_equal(s, ss)
+
+
+def test_compiled_box_reductions_equal_the_numpy_ones():
+    """_boxes_extent and _boxes_sigma (GridCache._extent, _sigma_of) against the numpy reductions they replace."""
+    from slam2d.matching.correlative import _boxes_extent, _boxes_sigma
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        n = int(rng.integers(1, 12))
+        box = np.empty((20, 6))
+        box[:, :2] = rng.normal(0.0, 5.0, (20, 2))
+        box[:, 2:4] = box[:, :2] + rng.uniform(0.0, 3.0, (20, 2))
+        box[:, 4] = rng.uniform(0.0, 0.2, 20)
+        # The one sigma: shared, mixed, NaN (not one), or inf (a node without points).
+        box[:, 5] = rng.choice([0.02, 0.03, np.nan, np.inf], 20, p=[0.7, 0.1, 0.1, 0.1]) if trial % 2 else 0.02
+        empty = rng.random(20) < 0.1
+        box[empty, :2], box[empty, 2:4], box[empty, 4], box[empty, 5] = np.inf, -np.inf, 0.0, np.inf
+        idx = rng.choice(20, n, replace=False).astype(np.int64)
+        b = box[idx]
+        out = _boxes_extent(box, idx)
+        assert np.array_equal(out[0:2], b[:, :2].min(axis=0))
+        assert np.array_equal(out[2:4], b[:, 2:4].max(axis=0))
+        assert out[4] == b[:, 4].max()
+        u = box[idx, 5]
+        u = u[u != np.inf]
+        want = None if (u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0])) else float(u[0])
+        ok, got = _boxes_sigma(box, idx)
+        assert (float(got) if ok else None) == want
+
+
+def test_compiled_point_transforms_equal_transform_points():
+    """frontend's _transform_xy and _beam_points against se2.transform_points (bit for bit)."""
+    import math
+
+    from slam2d.core import se2
+    from slam2d.graph.frontend import _beam_points, _transform_xy
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        pose = np.array([rng.normal(0, 50), rng.normal(0, 50), rng.uniform(-4, 4)])
+        pts = rng.normal(0, 20, (int(rng.integers(0, 700)), 2))
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        assert np.array_equal(_transform_xy(pose[0], pose[1], c, s, pts), se2.transform_points(pose, pts))
+        n = int(rng.integers(1, 1100))
+        ranges = rng.uniform(0.0, 80.0, n)
+        a = rng.uniform(-math.pi, math.pi, n)
+        cos, sin = np.cos(a), np.sin(a)
+        use = rng.random(n) < 0.8
+        r = ranges[use]
+        want = se2.transform_points(pose, np.stack([r * cos[use], r * sin[use]], axis=-1))
+        assert np.array_equal(_beam_points(pose[0], pose[1], c, s, ranges, cos, sin, use), want)
+
+
+def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
+    """frontend's _smear_sigmas against CorrelativeMatcher.sigmas_for plus _scan_points' numpy gap share."""
+    from slam2d.graph.frontend import _smear_sigmas
+
+    rng = np.random.default_rng(13)
+    for trial in range(200):
+        res = float(rng.choice([0.01, 0.05]))
+        m = CorrelativeMatcher(search_size=0.3, resolution=res, smear_deviation=float(rng.uniform(0.005, 0.08)))
+        n = int(rng.integers(1, 800))
+        sig = rng.uniform(0.0, 0.1, n)
+        sig[rng.random(n) < 0.1] = np.nan
+        if trial % 10 == 0:
+            sig[0] = np.inf
+        ranges = rng.uniform(0.0, 80.0, n)
+        use = rng.random(n) < 0.8
+        spacing = float(rng.choice([0.0, 0.5, 1.0]))
+        inc = float(rng.uniform(0.001, 0.02))
+        want = m.sigmas_for(sig[use], int(use.sum()))
+        if spacing > 0:
+            gap = spacing * ranges[use] * abs(inc)
+            want = np.minimum(np.sqrt(want * want + gap * gap), 10.0 * res)
+        got = _smear_sigmas(float(m.smear_deviation), sig, use, ranges, spacing, abs(inc), 0.5 * res, 10.0 * res)
+        assert np.array_equal(got, want)

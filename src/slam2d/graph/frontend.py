@@ -655,11 +655,24 @@ class GraphFrontend:
         """
         p = self.params
         cos, sin = self._beam_directions(scan)
-        r = scan.ranges[use]
         # Scan.points()' arithmetic, with the beam directions' cos and sin computed once per layout.
-        points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
+        mount = se2._one(scan.mount)
+        if mount is not None:
+            # In one compiled pass: the same products and sums in the same order as transform_points'.
+            points = _beam_points(mount[0], mount[1], math.cos(mount[2]), math.sin(mount[2]), scan.ranges, cos, sin, use)
+        else:
+            r = scan.ranges[use]
+            points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
             return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
+        m = self.sequential
+        if type(m).sigmas_for is CorrelativeMatcher.sigmas_for and sig.dtype == scan.ranges.dtype == np.float64:
+            # sigmas_for and the beam-gap share below in one compiled pass (the same arithmetic).
+            sigmas = _smear_sigmas(float(m.smear_deviation), sig, use, scan.ranges, float(p.smear_beam_spacing),
+                                   abs(float(scan.angle_increment)), 0.5 * m.resolution, 10.0 * m.resolution)
+            if p.point_spacing > 0:
+                points, sigmas = _thin(points, sigmas, p.point_spacing)
+            return points, sigmas
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
         if p.smear_beam_spacing > 0:
             # A reference point stands for the stretch of wall between it and its neighbours'
@@ -681,7 +694,9 @@ class GraphFrontend:
     def _world_points(self, i: int) -> NDArray[np.float64]:
         w = self._world[i]
         if w is None:
-            w = se2.transform_points(self.graph.poses[i], self._ref[i][0])
+            x0, y0, t = self.graph.poses[i].tolist()
+            # transform_points' arithmetic in one compiled pass (no numpy temporaries per node).
+            w = _transform_xy(x0, y0, math.cos(t), math.sin(t), self._ref[i][0])
             self._world[i] = w
         return w
 
@@ -1701,6 +1716,68 @@ def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: flo
     """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
     keep = _thin_keep(points, spacing)
     return points[keep], sigmas[keep]
+
+
+@njit(cache=True)
+def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
+    """CorrelativeMatcher.sigmas_for(sig[use]) then, with ``spacing`` > 0, the beam-gap share of
+    GraphFrontend._scan_points, per beam in ``use``: the same operations in the same order."""
+    n = 0
+    for k in range(use.shape[0]):
+        if use[k]:
+            n += 1
+    out = np.empty(n)
+    m = 0
+    big = 1.7976931348623157e308  # np.nan_to_num's stand-in for an infinite sigma
+    for k in range(use.shape[0]):
+        if not use[k]:
+            continue
+        b = sig[k]
+        if np.isnan(b):
+            b = 0.0
+        elif b == np.inf:
+            b = big
+        elif b == -np.inf:
+            b = -big
+        v = math.sqrt(smear * smear + b * b)
+        v = min(max(v, lo), hi)
+        if spacing > 0:
+            gap = spacing * ranges[k] * increment
+            v = min(math.sqrt(v * v + gap * gap), hi)
+        out[m] = v
+        m += 1
+    return out
+
+
+@njit(cache=True)
+def _transform_xy(x0, y0, c, s, pts):
+    """se2.transform_points of (N, 2) points by the pose (x0, y0) with heading cos c, sin s (same arithmetic)."""
+    out = np.empty((pts.shape[0], 2))
+    for k in range(pts.shape[0]):
+        px = pts[k, 0]
+        py = pts[k, 1]
+        out[k, 0] = x0 + c * px - s * py
+        out[k, 1] = y0 + s * px + c * py
+    return out
+
+
+@njit(cache=True)
+def _beam_points(x0, y0, c, s, ranges, cos, sin, use):
+    """The points (mount pose x0, y0, cos c, sin s) of the beams in ``use``: Scan.points()' arithmetic."""
+    n = 0
+    for k in range(use.shape[0]):
+        if use[k]:
+            n += 1
+    out = np.empty((n, 2))
+    m = 0
+    for k in range(use.shape[0]):
+        if use[k]:
+            px = ranges[k] * cos[k]
+            py = ranges[k] * sin[k]
+            out[m, 0] = x0 + c * px - s * py
+            out[m, 1] = y0 + s * px + c * py
+            m += 1
+    return out
 
 
 @njit(cache=True)

@@ -835,6 +835,45 @@ def _node_blocks(px, py, sigma_max, resolution, block):
 
 
 @njit(cache=True)
+def _boxes_extent(box, idx):
+    """(min x, min y, max x, max y, max reach) over the rows ``idx`` of :func:`_node_stats` boxes (idx not empty)."""
+    out = np.empty(5)
+    k = idx[0]
+    out[0] = box[k, 0]
+    out[1] = box[k, 1]
+    out[2] = box[k, 2]
+    out[3] = box[k, 3]
+    out[4] = box[k, 4]
+    for t in range(1, idx.shape[0]):
+        k = idx[t]
+        out[0] = min(out[0], box[k, 0])
+        out[1] = min(out[1], box[k, 1])
+        out[2] = max(out[2], box[k, 2])
+        out[3] = max(out[3], box[k, 3])
+        out[4] = max(out[4], box[k, 4])
+    return out
+
+
+@njit(cache=True)
+def _boxes_sigma(box, idx):
+    """(True, the one sigma) when every node of ``idx`` with points has the same one sigma (column 5), else (False, 0)."""
+    first = np.inf
+    for t in range(idx.shape[0]):
+        u = box[idx[t], 5]
+        if u == np.inf:
+            continue  # a node without points adds no sigma
+        if first == np.inf:
+            if np.isnan(u):
+                return False, 0.0
+            first = u
+        elif u != first:
+            return False, 0.0
+    if first == np.inf:
+        return False, 0.0
+    return True, first
+
+
+@njit(cache=True)
 def _node_stats(pts, sig, out):
     """out = (min x, min y, max x, max y, 2 max sigma, the one sigma or NaN); a scan without points:
     (inf, inf, -inf, -inf, 0, inf)."""
@@ -2308,16 +2347,14 @@ class GridCache:
             pts, sig = self.points_of(n)
             _node_stats(pts, sig, self._box[n])
             self._known[n] = True
-        b = self._box[idx]
-        return b[:, :2].min(axis=0), b[:, 2:4].max(axis=0), float(b[:, 4].max()) + 2.0 * self.matcher.resolution
+        # One compiled pass over the nodes' boxes (min and max are exact in any order).
+        out = _boxes_extent(self._box, idx)
+        return out[0:2], out[2:4], float(out[4]) + 2.0 * self.matcher.resolution
 
     def _sigma_of(self, nodes) -> float | None:
         """The one sigma of every point of these nodes (as :func:`_uniform` of their sigmas; after :meth:`_extent`)."""
-        u = self._box[np.asarray(nodes, dtype=np.int64), 5]
-        u = u[u != np.inf]  # nodes without points add no sigma
-        if u.size == 0 or np.isnan(u[0]) or not np.all(u == u[0]):
-            return None
-        return float(u[0])
+        ok, u = _boxes_sigma(self._box, np.asarray(nodes, dtype=np.int64))
+        return float(u) if ok else None
 
     def get(self, nodes, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         """The grid of (a superset of) ``nodes`` holding every point a query inside (lo, hi) can reach."""
@@ -2593,13 +2630,19 @@ class GridCache:
                     grown = np.empty(cap)
                     grown[: starts[-1]] = cols[k][: starts[-1]]
                     cols[k] = grown
-            for pts, sig in parts[done:]:
-                a = starts[-1]
-                b = a + pts.shape[0]
-                cols[0][a:b] = pts[:, 0]
-                cols[1][a:b] = pts[:, 1]
-                cols[2][a:b] = sig
-                starts.append(b)
+            new = parts[done:]
+            a = starts[-1]
+            if len(new) == 1:
+                pts, sig = new[0]
+            else:  # one copy of the new nodes' points, then three column writes (not three per node)
+                pts = np.concatenate([q[0] for q in new])
+                sig = np.concatenate([q[1] for q in new])
+            cols[0][a:size] = pts[:, 0]
+            cols[1][a:size] = pts[:, 1]
+            cols[2][a:size] = sig
+            for q in new:
+                a += q[0].shape[0]
+                starts.append(a)
         a, b = starts[k0], starts[k1]
         return cols[0][a:b], cols[1][a:b], cols[2][a:b]
 
