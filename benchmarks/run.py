@@ -94,10 +94,20 @@ def _row_line(r: dict) -> str:
             f"{c.target or '-'} | {r['verdict']} | {r['extra']} |")
 
 
+def _restamp(line: str, measured_now: dict) -> str | None:
+    """An older "Rows ... re-measured" line without the rows measured now (None when none is left)."""
+    if not (line.startswith("Rows `") and " re-measured " in line):
+        return line
+    names, rest = line[len("Rows "):].split(" re-measured ", 1)
+    keep = [n for n in names.split(", ") if n.strip("`") not in measured_now]
+    return f"Rows {', '.join(keep)} re-measured {rest}" if keep else None
+
+
 def _update_rows(path: Path, rows: list[dict]) -> None:
     """Replace the rows of ``rows``' cases in the case table of ``path`` (a new case goes where CASES puts it).
 
-    A line under the header says which rows were re-measured when; the file is written to a temporary
+    A line under the header says which rows were re-measured when (a row re-measured again leaves the
+    older line, which is dropped once it names no row); the file is written to a temporary
     name and renamed, so an interrupted update leaves the old file.
     """
     lines = path.read_text().splitlines()
@@ -117,7 +127,8 @@ def _update_rows(path: Path, rows: list[dict]) -> None:
     stamp = (f"Rows {', '.join(f'`{n}`' for n in new)} re-measured "
              f"{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')} (`benchmarks/run.py --update`); "
              "the others as measured above.")
-    head = lines[:first]
+    head = [_restamp(line, new) for line in lines[:first]]
+    head = [line for line in head if line is not None]
     at = next((i for i, line in enumerate(head) if line.startswith("Measured ")), 0) + 1
     head = head[:at] + [stamp] + head[at:]
     text = "\n".join(head + body + lines[last + 1:]) + "\n"
@@ -130,7 +141,8 @@ def _update_rows(path: Path, rows: list[dict]) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", help="run only cases whose name contains this text (no rewrite)")
-    parser.add_argument("--repeat", type=int, default=3, help="runs per case; the median is reported")
+    parser.add_argument("--repeat", type=int, default=None,
+                        help="runs per case, the median reported (default: the case's own count, else 3)")
     parser.add_argument("--output", type=Path, default=ROOT / "BENCHMARKS.md")
     parser.add_argument("--no-methods", action="store_true",
                         help="skip the methods x datasets table (no rewrite)")
@@ -158,7 +170,7 @@ def main() -> int:
                 continue
             if case.warmup:
                 _run_child(case.name, workdir)
-            results = [_run_child(case.name, workdir) for _ in range(case.repeat or args.repeat)]
+            results = [_run_child(case.name, workdir) for _ in range(args.repeat or case.repeat or 3)]
             seconds = statistics.median(r["seconds"] for r in results)
             peak = max(r["peak_mb"] for r in results)
             extra = results[-1].get("extra", "")

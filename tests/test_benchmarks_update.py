@@ -41,6 +41,29 @@ def test_update_replaces_only_the_measured_rows_and_adds_new_ones_in_case_order(
     assert "kept table" in lines and "Measured 2026-01-01 00:00 UTC on: a machine." in lines
 
 
+def test_update_keeps_one_stamp_per_row(tmp_path):
+    """A row re-measured again leaves its older stamp line; a stamp line naming no row any more goes."""
+    run = _run_module()
+    names = [c.name for c in run.cases.CASES]
+    a, b = names[0], names[1]
+    by_name = {x.name: x for x in run.cases.CASES}
+    path = tmp_path / "BENCHMARKS.md"
+    path.write_text("\n".join([
+        "# Benchmarks", "", "Measured 2026-01-01 00:00 UTC on: a machine.",
+        f"Rows `{a}`, `{b}` re-measured 2026-01-02 00:00 UTC (`benchmarks/run.py --update`); the others as measured above.",
+        f"Rows `{b}` re-measured 2026-01-03 00:00 UTC (`benchmarks/run.py --update`); the others as measured above.",
+        "",
+        "| case | what is measured | runs | time (s) | peak memory (MB) | target | met | notes |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| `{a}` | old a | 1 | 1.00 | 10 | - | - | a notes |",
+        f"| `{b}` | old b | 1 | 2.00 | 20 | - | - | b notes |", ""]))
+    run._update_rows(path, [dict(case=by_name[b], seconds=0.05, peak=5.0, extra="new b", verdict="-", runs=1)])
+    stamps = [line for line in path.read_text().splitlines() if line.startswith("Rows ")]
+    assert len(stamps) == 2
+    assert stamps[0].startswith(f"Rows `{b}` re-measured ") and "2026-01-0" not in stamps[0]
+    assert stamps[1].startswith(f"Rows `{a}` re-measured 2026-01-02 00:00 UTC")
+
+
 def test_update_refuses_an_unknown_case(tmp_path, monkeypatch, capsys):
     run = _run_module()
     (tmp_path / "B.md").write_text("# Benchmarks\n")
