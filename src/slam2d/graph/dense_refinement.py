@@ -34,8 +34,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from slam2d.backends.spa import robust_objective, robust_weights
-from slam2d.core import se2
-from slam2d.graph.wall_refinement import tls_line
+from slam2d.graph.wall_refinement import floored_sigmas, place_points, tls_line, usable_returns
 from slam2d.params import param
 
 __all__ = ["DenseRefinementParams", "DenseTerm", "scan_normals"]
@@ -146,22 +145,16 @@ class DenseTerm:
         frame_l, q_l, n_l, ok_l, s_l = [], [], [], [], []
         step = int(p.dense_refinement_beam_step)
         for i, scan in enumerate(scans):
-            r = scan.ranges
-            with np.errstate(invalid="ignore"):
-                use = scan.valid & (r < scan.range_max) & (r >= scan.range_min) & (r <= range_limit)
-            beams = np.flatnonzero(use)
+            beams, _, pts = usable_returns(scan, range_limit)
             if beams.size < 3:
                 continue
-            a = scan.angles[beams]
-            pts = se2.transform_points(scan.mount, np.stack([np.cos(a), np.sin(a)], -1) * r[beams, None])
             normal, rms = scan_normals(pts, p.dense_refinement_normal_beams, p.dense_refinement_break_distance)
             keep = slice(None, None, step)
-            sig = sigmas[i][beams] if sigmas[i] is not None else np.full(beams.size, np.nan)
             frame_l.append(np.full(pts[keep].shape[0], i, np.int64))
             q_l.append(pts[keep])
             n_l.append(normal[keep])
             ok_l.append(rms[keep] <= p.dense_refinement_normal_rms)
-            s_l.append(np.fmax(np.where(np.isfinite(sig[keep]), sig[keep], 0.0), p.dense_refinement_sigma))
+            s_l.append(floored_sigmas(sigmas[i], beams, p.dense_refinement_sigma)[keep])
         if frame_l:
             self.frame, self.q, self.normal = np.concatenate(frame_l), np.concatenate(q_l), np.concatenate(n_l)
             self.usable, self.sigma = np.concatenate(ok_l), np.concatenate(s_l)
@@ -182,7 +175,7 @@ class DenseTerm:
         self.n = np.zeros((0, 2))
         if m < 2:
             return 0
-        world = se2.transform_points(x[self.frame], self.q[:, None, :])[:, 0, :]
+        world = place_points(x[self.frame], self.q)
         k = min(int(p.dense_refinement_neighbours) + 1, m)
         _, idx = cKDTree(world).query(world, k=k, distance_upper_bound=p.dense_refinement_max_distance)
         idx = idx.reshape(m, k)
@@ -201,8 +194,8 @@ class DenseTerm:
 
     def _residuals(self, x: NDArray[np.float64]):
         fa, fb = self.frame[self.a], self.frame[self.b]
-        pa = se2.transform_points(x[fa], self.q[self.a][:, None, :])[:, 0, :]
-        pb = se2.transform_points(x[fb], self.q[self.b][:, None, :])[:, 0, :]
+        pa = place_points(x[fa], self.q[self.a])
+        pb = place_points(x[fb], self.q[self.b])
         sig = np.hypot(self.sigma[self.a], self.sigma[self.b]) / math.sqrt(2.0)
         return fa, fb, ((self.n * (pa - pb)).sum(1)) / sig, sig
 

@@ -728,12 +728,9 @@ class GraphFrontend:
             return poses[:, :2].copy()
         return se2.transform_points(poses, self._bary_base[:, None, :])[:, 0, :]
 
-    def _near_linked(self, node: int, ref_xy: NDArray[np.float64], max_distance: float) -> NDArray[np.bool_]:
-        """Karto's FindNearLinkedScans: nodes reachable from ``node`` through nodes within the distance."""
-        return self._near_and_linked(node, ref_xy, max_distance)[1]
-
     def _near_and_linked(self, node: int, ref_xy: NDArray[np.float64], max_distance: float):
-        """(nodes within ``max_distance`` of ``node``'s reference position, :meth:`_near_linked`)."""
+        """(nodes within ``max_distance`` of ``node``'s reference position, Karto's FindNearLinkedScans: the
+        nodes reachable from ``node`` through nodes within that distance)."""
         n = self.graph.num_nodes
         near = _within(np.ascontiguousarray(ref_xy, dtype=np.float64), node, max_distance**2 + 1e-9)
         return near, _reachable(node, near, np.asarray(self.graph.edge_i, dtype=np.int64),

@@ -299,6 +299,26 @@ class Segments:
     seg_count: NDArray[np.int64]
 
 
+def usable_returns(scan: Any, range_limit: float = math.inf):
+    """(beams, their unit directions in the laser frame (K, 2), their points in the base frame (K, 2)) of the
+    returns within the laser's limits and ``range_limit``."""
+    r = scan.ranges
+    with np.errstate(invalid="ignore"):
+        use = scan.valid & (r < scan.range_max) & (r >= scan.range_min) & (r <= range_limit)
+    beams = np.flatnonzero(use)
+    a = scan.angles[beams]
+    local = np.stack([np.cos(a), np.sin(a)], -1)
+    return beams, local, se2.transform_points(scan.mount, local * r[beams, None])
+
+
+def floored_sigmas(sigma: NDArray[np.float64] | None, beams: NDArray[np.int64], floor: float) -> NDArray[np.float64]:
+    """Per beam of ``beams`` its range sigma (None, NaN or infinite: none), but at least ``floor``."""
+    if sigma is None:
+        return np.full(beams.size, float(floor))
+    s = sigma[beams]
+    return np.fmax(np.where(np.isfinite(s), s, 0.0), floor)
+
+
 def scan_segments(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p: Any,
                   range_threshold: float = math.inf) -> Segments:
     """The segments of every node's scan (``sigmas``: per node the per-beam range sigma, NaN or None = none)."""
@@ -306,15 +326,9 @@ def scan_segments(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p:
     sn, sa, sd, se, sc = [], [], [], [], []
     nseg = 0
     for i, scan in enumerate(scans):
-        r = scan.ranges
-        with np.errstate(invalid="ignore"):
-            use = scan.valid & (r < scan.range_max) & (r >= scan.range_min) & (r <= range_threshold)
-        beams = np.flatnonzero(use)
+        beams, local, pts = usable_returns(scan, range_threshold)
         if beams.size < p.wall_refinement_minimum_points:
             continue
-        a = scan.angles[beams]
-        local = np.stack([np.cos(a), np.sin(a)], -1)
-        pts = se2.transform_points(scan.mount, local * r[beams, None])
         starts, ends, alpha, d, _ = extract_segments(
             pts, beams, break_distance=p.wall_refinement_break_distance,
             split_distance=p.wall_refinement_split_distance, min_points=p.wall_refinement_minimum_points,
@@ -323,8 +337,7 @@ def scan_segments(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p:
             continue
         cm, sm = math.cos(scan.mount[2]), math.sin(scan.mount[2])
         u = np.stack([cm * local[:, 0] - sm * local[:, 1], sm * local[:, 0] + cm * local[:, 1]], -1)
-        sig_all = sigmas[i] if sigmas[i] is not None else np.full(r.shape[0], np.nan)
-        sig = np.fmax(np.where(np.isfinite(sig_all[beams]), sig_all[beams], 0.0), p.wall_refinement_range_sigma)
+        sig = floored_sigmas(sigmas[i], beams, p.wall_refinement_range_sigma)
         # A split point is the end of both its pieces: it goes to the first.
         label = np.full(beams.size, -1, np.int64)
         for k in range(starts.size - 1, -1, -1):
@@ -359,7 +372,7 @@ def associate_segments(segs: Segments, poses: NDArray[np.float64], p: Any) -> ND
     if ns == 0:
         return wall
     pose = poses[segs.seg_node]
-    ends = np.stack([_place(pose, segs.seg_ends[:, 0, :]), _place(pose, segs.seg_ends[:, 1, :])], 1)
+    ends = np.stack([place_points(pose, segs.seg_ends[:, 0, :]), place_points(pose, segs.seg_ends[:, 1, :])], 1)
     alpha = segs.seg_alpha + pose[:, 2]
     # Walls: (alpha, d) of their first (longest) segment, and their extent along the line.
     wa = np.zeros(ns)
@@ -407,7 +420,7 @@ def associate_segments(segs: Segments, poses: NDArray[np.float64], p: Any) -> ND
     return np.where(ok, index[np.maximum(wall, 0)], -1)
 
 
-def _place(pose: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
+def place_points(pose: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Point ``q[k]`` (base frame) placed by pose ``pose[k]``: (K, 2)."""
     return se2.transform_points(pose, q[:, None, :])[:, 0, :]
 
@@ -445,8 +458,7 @@ def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p
 
     node, z, info = [], [], []
     for i, scan in enumerate(scans):
-        sig = sigmas[i] if sigmas[i] is not None else np.full(scan.num_beams, np.nan)
-        sig = np.fmax(np.where(np.isfinite(sig), sig, 0.0), p.wall_end_range_sigma)
+        sig = floored_sigmas(sigmas[i], np.arange(scan.num_beams), p.wall_end_range_sigma)
         ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
                                 max_incidence=p.wall_refinement_end_incidence,
                                 open_incidence=p.wall_refinement_end_open_incidence,
@@ -468,7 +480,7 @@ def associate_ends(ends: EndSightings, poses: NDArray[np.float64], gate: float, 
     lm = np.full(k, -1, np.int64)
     if k == 0:
         return lm
-    world = _place(poses[ends.node], ends.z)
+    world = place_points(poses[ends.node], ends.z)
     total = np.zeros((k, 2))
     count = np.zeros(k)
     last = np.full(k, -1, np.int64)
@@ -638,7 +650,7 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
             break
         bw = seg_wall[segs.segment]
         on0 = bw >= 0
-        alpha, d = _fit_lines(_place(x[segs.node[on0]], segs.q[on0]), bw[on0], nw)
+        alpha, d = _fit_lines(place_points(x[segs.node[on0]], segs.q[on0]), bw[on0], nw)
         nvar = 3 * n + 2 * nw + 2 * nl
         free = np.ones(nvar, bool)
         free[3 * fixed: 3 * fixed + 3] = False

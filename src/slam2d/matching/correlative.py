@@ -2632,11 +2632,7 @@ class GridCache:
                     cols[k] = grown
             new = parts[done:]
             a = starts[-1]
-            if len(new) == 1:
-                pts, sig = new[0]
-            else:  # one copy of the new nodes' points, then three column writes (not three per node)
-                pts = np.concatenate([q[0] for q in new])
-                sig = np.concatenate([q[1] for q in new])
+            pts, sig = _concat(new)  # one copy of the new nodes' points, then three column writes (not three per node)
             cols[0][a:size] = pts[:, 0]
             cols[1][a:size] = pts[:, 1]
             cols[2][a:size] = sig
@@ -2646,14 +2642,12 @@ class GridCache:
         a, b = starts[k0], starts[k1]
         return cols[0][a:b], cols[1][a:b], cols[2][a:b]
 
-    def entry_points(self, e: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Every reference point (world) and sigma the entry's grid holds or will hold."""
-        return _concat(self._parts(e))
-
 
 
 def _concat(parts) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(points, sigmas) of a list of per-node (points, sigmas)."""
+    """(points, sigmas) of a list of per-node (points, sigmas); a lone part's own arrays (read them only)."""
     if not parts:
         return np.zeros((0, 2)), np.zeros(0)
+    if len(parts) == 1:
+        return parts[0]
     return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
