@@ -92,6 +92,11 @@ def test_motion_model_is_gmappings_draw_from_motion():
     assert sx == pytest.approx(0.1 * 0.4 + 0.1 * 0.3 + 0.03 * 0.1)
     assert sy == pytest.approx(0.1 * 0.1 + 0.1 * 0.3 + 0.03 * 0.4)
     assert st == pytest.approx(0.2 * 0.3 + 0.2 * math.hypot(0.4, 0.1))
+    # the array form (one row per increment) gives each row's one-increment answer
+    deltas = np.random.default_rng(1).normal(0.0, 0.5, (50, 3))
+    rows = gmapping_motion_std(deltas, 0.1, 0.2, 0.1, 0.2)
+    assert rows.shape == (50, 3)
+    np.testing.assert_allclose(rows, [gmapping_motion_std(d, 0.1, 0.2, 0.1, 0.2) for d in deltas], rtol=1e-15)
     start = np.array([[1.0, 2.0, 0.5], [-3.0, 0.0, -2.0]])
     poses = start.copy()
     draw_from_motion(poses, delta, np.zeros((2, 3)), 0.1, 0.2, 0.1, 0.2)

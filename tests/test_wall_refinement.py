@@ -145,3 +145,61 @@ def test_off_leaves_karto_bit_for_bit_and_on_changes_it():
     assert not np.array_equal(p0, p2)
     s = on.diagnostics.summary["wall_refinement"]
     assert s["walls"] > 0 and s["objective_after"] <= s["objective_before"]
+
+
+def _greedy_walls_numpy(segs, poses, p):
+    """The association's former numpy form (one wall scan per segment in Python): the compiled pass must match it."""
+    from slam2d.graph.wall_refinement import place_points
+
+    ns = segs.seg_node.size
+    wall = np.full(ns, -1, np.int64)
+    pose = poses[segs.seg_node]
+    ends = np.stack([place_points(pose, segs.seg_ends[:, 0, :]), place_points(pose, segs.seg_ends[:, 1, :])], 1)
+    alpha = segs.seg_alpha + pose[:, 2]
+    wa, wd, lo, hi = np.zeros(ns), np.zeros(ns), np.zeros(ns), np.zeros(ns)
+    nw = 0
+    gate_a, gate_d, gap = p.wall_refinement_angle_gate, p.wall_refinement_offset_gate, p.wall_refinement_overlap_gap
+    for s in np.argsort(-segs.seg_count, kind="stable"):
+        e = ends[s]
+        if nw:
+            a = wa[:nw]
+            da = np.abs(se2.wrap_angle(alpha[s] - a))
+            da = np.where(da > 0.5 * math.pi, math.pi - da, da)
+            n = np.stack([np.cos(a), np.sin(a)], -1)
+            off = np.maximum(np.abs(e[0] @ n.T - wd[:nw]), np.abs(e[1] @ n.T - wd[:nw]))
+            t = np.stack([-n[:, 1], n[:, 0]], -1)
+            along = np.stack([e[0] @ t.T, e[1] @ t.T], 0)
+            g = np.maximum(along.min(0) - hi[:nw], lo[:nw] - along.max(0))
+            ok = (da < gate_a) & (off < gate_d) & (g < gap)
+            if ok.any():
+                cand = np.flatnonzero(ok)
+                k = int(cand[np.argmin(off[cand] / gate_d + da[cand] / gate_a)])
+                wall[s] = k
+                lo[k] = min(lo[k], float(along[:, k].min()))
+                hi[k] = max(hi[k], float(along[:, k].max()))
+                continue
+        a = float(alpha[s])
+        n = np.array([math.cos(a), math.sin(a)])
+        wa[nw] = a
+        wd[nw] = float(e[0] @ n + e[1] @ n) * 0.5
+        t = np.array([-n[1], n[0]])
+        lo[nw], hi[nw] = min(float(e[0] @ t), float(e[1] @ t)), max(float(e[0] @ t), float(e[1] @ t))
+        wall[s] = nw
+        nw += 1
+    ok = wall >= 0
+    pairs = np.unique(np.stack([wall[ok], segs.seg_node[ok]], 1), axis=0)
+    keep = np.bincount(pairs[:, 0], minlength=nw) >= p.wall_refinement_minimum_nodes
+    index = np.full(nw, -1, np.int64)
+    index[keep] = np.arange(int(keep.sum()))
+    return np.where(ok, index[np.maximum(wall, 0)], -1)
+
+
+def test_compiled_association_matches_the_numpy_loop():
+    truth, scans, graph = _room_problem(nodes=12)
+    p = GraphSlamParams(wall_refinement=True)
+    segs = scan_segments(scans, [None] * len(scans), p)
+    rng = np.random.default_rng(5)
+    for poses in (truth, graph.poses, truth + rng.normal(0, [0.05, 0.05, 0.03], truth.shape)):
+        walls = associate_segments(segs, poses, p)
+        np.testing.assert_array_equal(walls, _greedy_walls_numpy(segs, poses, p))
+        assert walls.max() >= 3  # walls were found, so the comparison is not of two empty answers

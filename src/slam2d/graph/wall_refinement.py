@@ -374,42 +374,9 @@ def associate_segments(segs: Segments, poses: NDArray[np.float64], p: Any) -> ND
     pose = poses[segs.seg_node]
     ends = np.stack([place_points(pose, segs.seg_ends[:, 0, :]), place_points(pose, segs.seg_ends[:, 1, :])], 1)
     alpha = segs.seg_alpha + pose[:, 2]
-    # Walls: (alpha, d) of their first (longest) segment, and their extent along the line.
-    wa = np.zeros(ns)
-    wd = np.zeros(ns)
-    lo = np.zeros(ns)
-    hi = np.zeros(ns)
-    nw = 0
-    gate_a, gate_d, gap = p.wall_refinement_angle_gate, p.wall_refinement_offset_gate, p.wall_refinement_overlap_gap
-    for s in np.argsort(-segs.seg_count, kind="stable"):
-        e = ends[s]
-        if nw:
-            a = wa[:nw]
-            da = np.abs(se2.wrap_angle(alpha[s] - a))
-            flip = da > 0.5 * math.pi
-            da = np.where(flip, math.pi - da, da)
-            n = np.stack([np.cos(a), np.sin(a)], -1)
-            off = np.maximum(np.abs(e[0] @ n.T - wd[:nw]), np.abs(e[1] @ n.T - wd[:nw]))
-            t = np.stack([-n[:, 1], n[:, 0]], -1)
-            along = np.stack([e[0] @ t.T, e[1] @ t.T], 0)
-            g = np.maximum(along.min(0) - hi[:nw], lo[:nw] - along.max(0))
-            ok = (da < gate_a) & (off < gate_d) & (g < gap)
-            if ok.any():
-                cand = np.flatnonzero(ok)
-                k = int(cand[np.argmin(off[cand] / gate_d + da[cand] / gate_a)])
-                wall[s] = k
-                lo[k] = min(lo[k], float(along[:, k].min()))
-                hi[k] = max(hi[k], float(along[:, k].max()))
-                continue
-        a = float(alpha[s])
-        n = np.array([math.cos(a), math.sin(a)])
-        wa[nw] = a
-        wd[nw] = float(e[0] @ n + e[1] @ n) * 0.5
-        t = np.array([-n[1], n[0]])
-        lo[nw] = min(float(e[0] @ t), float(e[1] @ t))
-        hi[nw] = max(float(e[0] @ t), float(e[1] @ t))
-        wall[s] = nw
-        nw += 1
+    order = np.argsort(-segs.seg_count, kind="stable")
+    nw = _greedy_walls(ends, alpha, order, wall, p.wall_refinement_angle_gate, p.wall_refinement_offset_gate,
+                       p.wall_refinement_overlap_gap)
     # Walls seen from too few nodes are dropped; the rest renumbered.
     ok = wall >= 0
     pairs = np.unique(np.stack([wall[ok], segs.seg_node[ok]], 1), axis=0)
@@ -418,6 +385,59 @@ def associate_segments(segs: Segments, poses: NDArray[np.float64], p: Any) -> ND
     index = np.full(nw, -1, np.int64)
     index[keep] = np.arange(int(keep.sum()))
     return np.where(ok, index[np.maximum(wall, 0)], -1)
+
+
+@njit(cache=True)
+def _greedy_walls(ends, alpha, order, wall, gate_a, gate_d, gap):
+    """Segments, longest first, each joined to the existing wall that fits it best (angle, offset and overlap
+    gates; the wall keeps its first segment's line and grows its extent along it) or starting a new one:
+    fills ``wall`` and returns the number of walls. One compiled pass: the scan of the walls so far runs once
+    per segment."""
+    ns = order.size
+    wa = np.zeros(ns)
+    wn = np.zeros((ns, 2))
+    wd = np.zeros(ns)
+    lo = np.zeros(ns)
+    hi = np.zeros(ns)
+    nw = 0
+    half_turn = 0.5 * math.pi
+    for s in order:
+        e0x, e0y, e1x, e1y = ends[s, 0, 0], ends[s, 0, 1], ends[s, 1, 0], ends[s, 1, 1]
+        best = -1
+        best_cost = math.inf
+        best_lo = 0.0
+        best_hi = 0.0
+        for k in range(nw):
+            da = abs((alpha[s] - wa[k] + math.pi) % (2.0 * math.pi) - math.pi)
+            if da > half_turn:
+                da = math.pi - da
+            nx, ny = wn[k, 0], wn[k, 1]
+            off = max(abs(e0x * nx + e0y * ny - wd[k]), abs(e1x * nx + e1y * ny - wd[k]))
+            a0 = e0x * -ny + e0y * nx
+            a1 = e1x * -ny + e1y * nx
+            amin, amax = min(a0, a1), max(a0, a1)
+            g = max(amin - hi[k], lo[k] - amax)
+            if da < gate_a and off < gate_d and g < gap:
+                cost = off / gate_d + da / gate_a
+                if cost < best_cost:
+                    best, best_cost, best_lo, best_hi = k, cost, amin, amax
+        if best >= 0:
+            wall[s] = best
+            lo[best] = min(lo[best], best_lo)
+            hi[best] = max(hi[best], best_hi)
+            continue
+        a = alpha[s]
+        nx, ny = math.cos(a), math.sin(a)
+        wa[nw] = a
+        wn[nw, 0], wn[nw, 1] = nx, ny
+        wd[nw] = ((e0x * nx + e0y * ny) + (e1x * nx + e1y * ny)) * 0.5
+        a0 = e0x * -ny + e0y * nx
+        a1 = e1x * -ny + e1y * nx
+        lo[nw] = min(a0, a1)
+        hi[nw] = max(a0, a1)
+        wall[s] = nw
+        nw += 1
+    return nw
 
 
 def place_points(pose: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:

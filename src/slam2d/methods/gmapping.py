@@ -670,11 +670,10 @@ class GMapping(SlamMethod):
         inverse of the motion model's (``srr``...``stt``) variances for that step, the spread the filter drew its
         particles with, times ``loop_correction_step_scale`` and floored at 1 cm and 0.005 rad."""
         p = self.params
+        std = gmapping_motion_std(steps.reshape(-1, 3), p.srr, p.srt, p.str, p.stt) * p.loop_correction_step_scale
+        std = np.maximum(std, _STEP_FLOOR)
         info = np.zeros((steps.shape[0], 3, 3))
-        for k, step in enumerate(steps):  # post-processing, once per update
-            std = gmapping_motion_std(step, p.srr, p.srt, p.str, p.stt) * p.loop_correction_step_scale
-            std = np.maximum(std, _STEP_FLOOR)
-            info[k] = np.diag(1.0 / std**2)
+        info[:, [0, 1, 2], [0, 1, 2]] = 1.0 / std**2
         return info
 
     def correct_loops(self) -> dict:

@@ -217,10 +217,16 @@ def gmapping_motion_std(delta: ArrayLike, srr: float, srt: float, str_: float, s
 
     ``delta`` is ``(dx, dy, dtheta)`` in the frame of the earlier pose (``motionmodel.cpp``,
     ``drawFromMotion``; ``str`` turns rotation into translation noise, ``srt`` translation
-    into rotation noise, as the code uses them).
+    into rotation noise, as the code uses them). ``delta`` of shape (N, 3) gives (N, 3), one row per increment.
     """
-    dx, dy, dth = (abs(float(v)) for v in np.asarray(delta, dtype=np.float64).reshape(3))
+    d = np.asarray(delta, dtype=np.float64)
     sxy = LATERAL_COUPLING * srr
+    if d.ndim == 2:
+        dx, dy, dth = np.abs(d).T
+        return np.stack([srr * dx + str_ * dth + sxy * dy, srr * dy + str_ * dth + sxy * dx,
+                         stt * dth + srt * np.hypot(dx, dy)], -1)
+    # One increment (the filter's per-update call): Python floats, cheaper than numpy on three numbers.
+    dx, dy, dth = (abs(float(v)) for v in d.reshape(3))
     return np.array([
         srr * dx + str_ * dth + sxy * dy,
         srr * dy + str_ * dth + sxy * dx,
