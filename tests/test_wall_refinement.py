@@ -9,8 +9,8 @@ import numpy as np
 from slam2d.backends import PoseGraph
 from slam2d.core import se2
 from slam2d.graph.frontend import GraphSlamParams
-from slam2d.graph.wall_refinement import (associate_segments, extract_segments, refine_walls, scan_segments,
-                                          scan_wall_ends)
+from slam2d.graph.wall_refinement import (EndSightings, associate_ends, associate_segments, extract_segments,
+                                          place_points, refine_walls, scan_segments, scan_wall_ends)
 from slam2d.methods import get_method
 from slam2d.params import from_mapping
 from slam2d.sim.simulate import SimulationParams, simulate
@@ -203,3 +203,56 @@ def test_compiled_association_matches_the_numpy_loop():
         walls = associate_segments(segs, poses, p)
         np.testing.assert_array_equal(walls, _greedy_walls_numpy(segs, poses, p))
         assert walls.max() >= 3  # walls were found, so the comparison is not of two empty answers
+
+
+def _associate_ends_numpy(ends, poses, gate, min_nodes):
+    """The end association's former numpy form (a Python loop over the nodes): the compiled pass must match it."""
+    k = len(ends)
+    lm = np.full(k, -1, np.int64)
+    world = place_points(poses[ends.node], ends.z)
+    total, count, last = np.zeros((k, 2)), np.zeros(k), np.full(k, -1, np.int64)
+    nl = 0
+    for idx in np.split(np.arange(k), np.flatnonzero(np.diff(ends.node)) + 1):
+        node = int(ends.node[idx[0]])
+        if nl:
+            mean = total[:nl] / count[:nl, None]
+            d = np.hypot(world[idx, None, 0] - mean[None, :, 0], world[idx, None, 1] - mean[None, :, 1])
+            d[:, last[:nl] == node] = np.inf
+            for _ in range(idx.size):
+                a, b = np.unravel_index(np.argmin(d), d.shape)
+                if not d[a, b] < gate:
+                    break
+                lm[idx[a]] = b
+                d[a, :] = np.inf
+                d[:, b] = np.inf
+        for j in idx:
+            if lm[j] < 0:
+                lm[j] = nl
+                nl += 1
+            total[lm[j]] += world[j]
+            count[lm[j]] += 1
+            last[lm[j]] = node
+    keep = np.bincount(lm, minlength=nl) >= min_nodes
+    index = np.full(nl, -1, np.int64)
+    index[keep] = np.arange(int(keep.sum()))
+    return index[lm]
+
+
+def test_compiled_end_association_matches_the_numpy_loop():
+    truth, scans, graph = _room_problem(nodes=12)
+    p = GraphSlamParams(wall_refinement=True)
+    ends = scan_wall_ends(scans, [None] * len(scans), p)
+    assert len(ends) > 10  # the pillar's corners, seen from many nodes
+    rng = np.random.default_rng(7)
+    for poses in (truth, graph.poses, truth + rng.normal(0, [0.05, 0.05, 0.03], truth.shape)):
+        for gate in (0.05, 0.15, 1.0):
+            got = associate_ends(ends, poses, gate, 3)
+            np.testing.assert_array_equal(got, _associate_ends_numpy(ends, poses, gate, 3))
+    # crowded sightings (many per node, landmarks close together): the nearest pair is taken first
+    node = np.repeat(np.arange(30), 6)
+    z = rng.uniform(-1.0, 1.0, (node.size, 2))
+    crowd = EndSightings(node, z, np.tile(np.eye(2), (node.size, 1, 1)))
+    poses = rng.normal(0.0, 0.05, (30, 3))
+    got = associate_ends(crowd, poses, 0.3, 2)
+    assert got.max() >= 1
+    np.testing.assert_array_equal(got, _associate_ends_numpy(crowd, poses, 0.3, 2))

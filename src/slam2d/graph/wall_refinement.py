@@ -492,6 +492,57 @@ def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p
     return EndSightings(np.concatenate(node), np.concatenate(z), np.concatenate(info))
 
 
+@njit(cache=True)
+def _greedy_end_landmarks(node, world, gate, lm):
+    """Sightings in node order; each node's sightings take the nearest landmark means within ``gate`` (the
+    nearest pair first, one landmark per sighting and per node), the rest start new landmarks: fills ``lm``
+    and returns the number of landmarks. One compiled pass over the nodes."""
+    k = node.size
+    total = np.zeros((k, 2))
+    count = np.zeros(k)
+    last = np.full(k, -1, np.int64)
+    nl = 0
+    i0 = 0
+    while i0 < k:
+        i1 = i0 + 1
+        while i1 < k and node[i1] == node[i0]:
+            i1 += 1
+        m = i1 - i0
+        this = node[i0]
+        if nl:
+            d = np.empty((m, nl))
+            for a in range(m):
+                for b in range(nl):
+                    if last[b] == this:
+                        d[a, b] = math.inf
+                    else:
+                        d[a, b] = math.hypot(world[i0 + a, 0] - total[b, 0] / count[b],
+                                             world[i0 + a, 1] - total[b, 1] / count[b])
+            for _ in range(m):
+                best, ba, bb = math.inf, -1, -1
+                for a in range(m):
+                    for b in range(nl):
+                        if d[a, b] < best:
+                            best, ba, bb = d[a, b], a, b
+                if not best < gate:
+                    break
+                lm[i0 + ba] = bb
+                for b in range(nl):
+                    d[ba, b] = math.inf
+                for a in range(m):
+                    d[a, bb] = math.inf
+        for j in range(i0, i1):
+            if lm[j] < 0:
+                lm[j] = nl
+                nl += 1
+            total[lm[j], 0] += world[j, 0]
+            total[lm[j], 1] += world[j, 1]
+            count[lm[j]] += 1.0
+            last[lm[j]] = this
+        i0 = i1
+    return nl
+
+
 def associate_ends(ends: EndSightings, poses: NDArray[np.float64], gate: float, min_nodes: int) -> NDArray[np.int64]:
     """The landmark of every sighting (-1: none) at ``poses``: in node order, the nearest landmark whose mean is
     within ``gate`` and not seen from that node yet, else a new one; landmarks seen from fewer than
@@ -501,31 +552,7 @@ def associate_ends(ends: EndSightings, poses: NDArray[np.float64], gate: float, 
     if k == 0:
         return lm
     world = place_points(poses[ends.node], ends.z)
-    total = np.zeros((k, 2))
-    count = np.zeros(k)
-    last = np.full(k, -1, np.int64)
-    nl = 0
-    bounds = np.flatnonzero(np.diff(ends.node)) + 1
-    for idx in np.split(np.arange(k), bounds):
-        node = int(ends.node[idx[0]])
-        if nl:
-            mean = total[:nl] / count[:nl, None]
-            d = np.hypot(world[idx, None, 0] - mean[None, :, 0], world[idx, None, 1] - mean[None, :, 1])
-            d[:, last[:nl] == node] = np.inf
-            for _ in range(idx.size):  # each sighting of this scan takes its nearest, one landmark each
-                a, b = np.unravel_index(np.argmin(d), d.shape)
-                if not d[a, b] < gate:
-                    break
-                lm[idx[a]] = b
-                d[a, :] = np.inf
-                d[:, b] = np.inf
-        for j in idx:
-            if lm[j] < 0:
-                lm[j] = nl
-                nl += 1
-            total[lm[j]] += world[j]
-            count[lm[j]] += 1
-            last[lm[j]] = node
+    nl = _greedy_end_landmarks(np.asarray(ends.node, np.int64), world, float(gate), lm)
     seen = np.bincount(lm, minlength=nl)  # one sighting per node and landmark, so sightings = nodes
     keep = seen >= min_nodes
     index = np.full(nl, -1, np.int64)
