@@ -181,12 +181,15 @@ def _time_kernels() -> dict:
 
     import slam2d.graph.frontend as frontend
     import slam2d.matching.correlative as correlative
+    import slam2d.matching.correlative_grid as correlative_grid
+    import slam2d.matching.correlative_search as correlative_search
+    import slam2d.matching.grid_cache as grid_cache
 
     main = threading.get_ident()
     times = {"main": 0.0, "workers": 0.0, "frames": collections.defaultdict(lambda: [0, 0.0, 0.0]),
              "by_name": collections.defaultdict(float), "starts": []}
     current = [0.0]
-    for module in (correlative, frontend):
+    for module in (correlative, correlative_grid, correlative_search, grid_cache, frontend):
         for name, obj in list(vars(module).items()):
             if not isinstance(obj, CPUDispatcher):
                 continue
@@ -219,7 +222,7 @@ def _time_kernels() -> dict:
         split(marked, n, *a, **k)
         times["starts"].append(first[0] if first else math.nan)  # NaN: this thread ran every piece
 
-    correlative._split = timed_split
+    correlative._split = correlative_grid._split = timed_split  # the matcher's calls and the smear's
     process = frontend.GraphFrontend.process
 
     def timed_process(self, frame):

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from slam2d.graph.frontend import _runs, _within
-from slam2d.matching.correlative import _COVARIANCE_BAND, CorrelativeMatcher, GridCache, _band_on_part_edge, _concat
+from slam2d.matching.correlative import CorrelativeMatcher, GridCache
+from slam2d.matching.correlative_search import _COVARIANCE_BAND, _band_on_part_edge
+from slam2d.matching.grid_cache import _concat
 
 
 def _runs_numpy(mask):
@@ -71,7 +73,7 @@ def test_entry_columns_are_the_concatenated_points_of_its_nodes():
 
 def test_compiled_box_reductions_equal_the_numpy_ones():
     """_boxes_extent and _boxes_sigma (GridCache._extent, _sigma_of) against the numpy reductions they replace."""
-    from slam2d.matching.correlative import _boxes_extent, _boxes_sigma
+    from slam2d.matching.correlative_search import _boxes_extent, _boxes_sigma
 
     rng = np.random.default_rng(3)
     for trial in range(300):

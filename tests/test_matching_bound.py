@@ -8,15 +8,8 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.matching.correlative import (
-    _BOUND_BLOCK,
-    CorrelativeMatcher,
-    GridCache,
-    _range_max,
-    _range_max_levels,
-    _responses,
-    smear_points,
-)
+from slam2d.matching.correlative import CorrelativeMatcher, GridCache, smear_points
+from slam2d.matching.correlative_search import _BOUND_BLOCK, _range_max, _range_max_levels, _responses
 
 
 def _walls(rng, n_walls=8, extent=6.0, step=0.015):
@@ -273,7 +266,7 @@ def test_compiled_positional_covariance_is_the_numpy_one_bit_for_bit(seed):
 
 
 def test_compiled_pairwise_sum_is_numpys():
-    from slam2d.matching.correlative import _pairwise_sum
+    from slam2d.matching.correlative_search import _pairwise_sum
 
     rng = np.random.default_rng(1)
     for n in (1, 5, 8, 9, 17, 128, 129, 289, 441, 1000, 5000, 100000):

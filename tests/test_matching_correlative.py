@@ -172,7 +172,7 @@ def test_empty_and_bad_input():
 
 
 def test_score_kernel_equals_a_plain_sum_for_every_step_and_at_the_grid_edges():
-    from slam2d.matching.correlative import _score_all
+    from slam2d.matching.correlative_search import _score_all
 
     rng = np.random.default_rng(3)
     grid = rng.integers(0, 256, (60, 70)).astype(np.uint8)
@@ -242,7 +242,7 @@ def test_coarse_heading_variance_is_wide_only_when_the_heading_is_ambiguous():
 
 @pytest.mark.parametrize("width", [1, 2, 3, 7, 8, 15, 40])
 def test_max_pool_equals_the_windowed_maximum(width):
-    from slam2d.matching.correlative import _max_pool
+    from slam2d.matching.correlative_search import _max_pool
 
     rng = np.random.default_rng(width)
     grid = rng.integers(0, 256, (23, 31)).astype(np.uint8)
@@ -270,7 +270,8 @@ def test_a_wider_kernel_covers_a_narrower_one_at_the_same_centre():
 @pytest.mark.parametrize("bands", [1, 3])
 def test_points_sharing_a_cell_are_drawn_once_to_the_same_grid(bands):
     """The row sort merges the points of one cell (widest sigma kept); the grid is each point drawn alone, max-combined."""
-    from slam2d.matching.correlative import _row_sort, smear_in_row_bands, smear_in_row_order, smear_points
+    from slam2d.matching.correlative import smear_points
+    from slam2d.matching.correlative_grid import _row_sort, smear_in_row_bands, smear_in_row_order
 
     rng = np.random.default_rng(7)
     px = rng.uniform(-0.2, 1.2, 400)  # some beyond the grid, whose kernels still reach it
@@ -364,7 +365,7 @@ def test_grid_cache_reserve_looser_superset_on_request():
 def test_coarse_search_point_order_does_not_change_the_match():
     """The coarse search's integer sums do not depend on the points' order (its chunks are interleaved
     for pruning): any order of the query gives the same match bit for bit."""
-    from slam2d.matching.correlative import _interleaved
+    from slam2d.matching.correlative_search import _interleaved
 
     rng = np.random.default_rng(4)
     truth = np.array([0.3, -0.2, 0.15])
@@ -383,7 +384,7 @@ def test_coarse_search_point_order_does_not_change_the_match():
 
 
 def test_coarse_point_spacing_thins_the_coarse_search_only():
-    from slam2d.matching.correlative import _spaced
+    from slam2d.matching.correlative_search import _spaced
 
     rng = np.random.default_rng(5)
     truth = np.array([0.3, -0.2, 0.15])
@@ -411,7 +412,8 @@ def test_smear_kernel_equals_the_per_cell_exponential():
     """The kernel's recurrence gives the values exp() per cell would, rounded to 0..255 (many sigmas)."""
     import math
 
-    from slam2d.matching.correlative import _SCALE, smear_points
+    from slam2d.matching.correlative import smear_points
+    from slam2d.matching.correlative_grid import _SCALE
 
     res = 0.01
     for s in np.random.default_rng(3).uniform(0.004, 0.1, 400):

@@ -13,13 +13,8 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.matching.correlative import (
-    _COVARIANCE_BAND,
-    MAX_VARIANCE,
-    CorrelativeMatcher,
-    _heading_spread,
-    _tie_mean,
-)
+from slam2d.matching.correlative import MAX_VARIANCE, CorrelativeMatcher
+from slam2d.matching.correlative_search import _COVARIANCE_BAND, _heading_spread, _tie_mean
 from tests.test_matching_bound import _walls
 
 
@@ -170,7 +165,7 @@ def test_corridor_covariance_widening_is_the_general_one(seed):
 @pytest.mark.parametrize("seed", range(6))
 def test_one_call_search_is_cells_scores_and_responses(seed):
     """The compiled search phase equals the lookup table, scores and response pass run one by one."""
-    from slam2d.matching.correlative import _query_cells, _responses, _score_all
+    from slam2d.matching.correlative_search import _query_cells, _responses, _score_all
 
     world, q, prior = _scene(seed)
     m = CorrelativeMatcher()

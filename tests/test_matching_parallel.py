@@ -5,12 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam2d.matching.correlative import (
-    _score_poses,
-    _split,
-    smear_in_row_bands,
-    smear_in_row_order,
-)
+from slam2d.matching.correlative_grid import _split, smear_in_row_bands, smear_in_row_order
+from slam2d.matching.correlative_search import _score_poses
 
 
 def _search_sums(threaded, grid, q, half, step):
@@ -67,14 +63,14 @@ def test_threads_work_in_a_forked_child():
     """A process forked after the worker threads started gets its own (a stale pool would hang)."""
     import multiprocessing
 
-    from slam2d.matching import correlative
+    from slam2d.matching import correlative_grid
 
     rng = np.random.default_rng(0)
     grid = rng.integers(0, 256, (200, 200)).astype(np.uint8)
     q = rng.uniform(-0.5, 1.5, (100, 2))
     serial = _search_sums(False, grid, q, 8, 2)
     assert serial.max() > 0
-    if correlative._THREADS < 2:
+    if correlative_grid._THREADS < 2:
         pytest.skip("threads are off (SLAM2D_THREADS=1 or one CPU)")
     # The parent's worker thread runs before the fork.
     assert np.array_equal(_search_sums(True, grid, q, 8, 2), serial)

@@ -61,7 +61,8 @@ from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
-from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher, GridCache
+from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher
+from slam2d.matching.grid_cache import GridCache
 from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks, WallEndParams

@@ -9,7 +9,7 @@ no such bias; it is noisier per scan, but its errors do not build into the
 map when it only serves as a prediction the map match is tested against.
 
 How: the previous scan's endpoints are smeared into a coarse field
-(:func:`slam2d.matching.correlative.smear_points`, a Gaussian per point); a
+(:func:`slam2d.matching.correlative_grid.smear_points`, a Gaussian per point); a
 sweep over headings (with a few translations around the guess) on it picks
 the start. The sweep is what lets a 15 degree turn be found from a guess of
 none: far points move out of a Gaussian's reach after a few degrees. Then
@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from slam2d.matching.correlative import smear_points
+from slam2d.matching.correlative_grid import smear_points
 
 __all__ = ["consecutive_motion"]
 
