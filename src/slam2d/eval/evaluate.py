@@ -226,6 +226,8 @@ def load_run(path: str | Path) -> RunFiles:
             except (UnicodeDecodeError, json.JSONDecodeError) as exc:
                 where = getattr(exc, "lineno", None)
                 raise InputError(f"not valid JSON: {exc}", path=f, where=where) from None
+            if not isinstance(docs[name], dict):
+                raise InputError(f"expected a JSON object, got {type(docs[name]).__name__}", path=f)
         else:
             docs[name] = {}
     return RunFiles(path, times, poses, grid, docs["diagnostics"], docs["run"])
@@ -343,7 +345,11 @@ def evaluate_run(
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map)
     if run.diagnostics:
-        result["cost"] = cost_metrics(run.diagnostics, run.run)
+        try:
+            result["cost"] = cost_metrics(run.diagnostics, run.run)
+        except (TypeError, ValueError, AttributeError) as exc:  # a hand-edited or foreign file
+            raise InputError(f"unexpected content, not what 'slam2d run' writes ({exc})",
+                             path=run.folder / "diagnostics.json") from None
     return _plain(result)
 
 

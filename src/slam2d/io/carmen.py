@@ -224,7 +224,7 @@ def _finite_pose(values: NDArray[np.float64], fields: list[str]) -> NDArray[np.f
     bad = ~np.isfinite(values)
     if bad.any():
         i = int(np.argmax(bad))
-        raise _BadLine(fields[i], f"{values[i]!r} is not a finite number")
+        raise _BadLine(fields[i], f"{float(values[i])!r} is not a finite number")
     return values
 
 

@@ -133,6 +133,8 @@ def build_method(
                 f"this file is for method {extras['method']!r}, not {cls.name!r}", path=params_file, field="method"
             )
         file_seed = extras.get("seed")
+        if file_seed is not None and (not isinstance(file_seed, int) or isinstance(file_seed, bool) or file_seed < 0):
+            raise InputError(f"{file_seed!r} is not a whole number >= 0", path=params_file, field="seed")
         params = from_mapping(cls.Params, values, path=params_file)
         values = as_dict(params)
     if settings:
@@ -197,7 +199,13 @@ def run_method(
     frames = 0
     first_t = last_t = None
     for frame in recording.frames(progress):
-        slam.feed(frame)
+        try:
+            slam.feed(frame)
+        except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
+            if exc.path is not None:
+                raise
+            raise InputError(exc.message, path=data, where=f"scan {frames + 1} at t={frame.timestamp:.3f} s",
+                             field=exc.field) from None
         frames += 1
         if first_t is None:
             first_t = frame.timestamp
