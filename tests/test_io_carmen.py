@@ -773,3 +773,9 @@ def test_info_prints_what_was_inferred(tmp_path, capsys):
     assert "inferred by the reader" in out and "no-return code inferred: 50 m" in out
     assert main(["info", str(path), "--range-max", "60"]) == 0
     assert "inferred by the reader" not in capsys.readouterr().out
+
+
+def test_non_finite_pose_field_is_shown_as_a_plain_number(tmp_path):
+    path = _write_lines(tmp_path / "inf.log", [_flaser([1.0] * 5, 1.0), _flaser([1.0] * 5, 2.0, pose=(0, 0, "inf"))])
+    text = _error(path)
+    assert "inf.log:2: FLASER odom_theta: inf is not a finite number" in text and "np.float64" not in text
