@@ -388,3 +388,15 @@ def test_simulate_help_names_the_built_in_worlds():
     (world,) = [a for a in simulate._actions if a.dest == "world"]
     assert "--list-worlds" not in world.help  # an option that never existed
     assert all(name in world.help for name in builtin_world_names())
+
+
+def test_a_truth_map_without_obstacles_is_named(capsys, room, tmp_path):
+    log, truth, _ = room
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert code == 0, err
+    given = truth.parent / "truth-map.yaml"
+    empty = tmp_path / "empty-map.yaml"  # the same image, read with a threshold nothing exceeds
+    text = given.read_text().replace("occupied_thresh: 0.65", "occupied_thresh: 1.0")
+    empty.write_text(text.replace("image: truth-map.pgm", f"image: {truth.parent / 'truth-map.pgm'}"))
+    code, _, err = run(capsys, "evaluate", tmp_path / "r", "--truth-map", empty)
+    assert_one_line_error(code, err, f"{empty}: truth: the ground-truth map has no occupied cells")

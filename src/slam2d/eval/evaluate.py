@@ -332,16 +332,21 @@ def evaluate_run(
         result["relations"] = {"file": str(relations.path), **rel}
     if run.map is not None:
         if truth is not None and truth.map is not None:
-            if alignment is None:
-                transform, info = map_metrics.align_maps(run.map, truth.map)
-                alignment = [float(v) for v in transform]
-                result["alignment"] = alignment
-                result["alignment_source"] = "map"
-                result["map_alignment"] = info
-            result["map_truth"] = map_metrics.map_to_truth(
-                run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance,
-                truth_visible=truth.visible_walls(),
-            )
+            try:
+                if alignment is None:
+                    transform, info = map_metrics.align_maps(run.map, truth.map)
+                    alignment = [float(v) for v in transform]
+                    result["alignment"] = alignment
+                    result["alignment_source"] = "map"
+                    result["map_alignment"] = info
+                result["map_truth"] = map_metrics.map_to_truth(
+                    run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance,
+                    truth_visible=truth.visible_walls(),
+                )
+            except InputError as exc:  # e.g. a truth map with no occupied cell: name its file
+                if exc.path is not None or truth.map_path is None:
+                    raise
+                raise InputError(exc.message, path=truth.map_path, where=exc.where, field=exc.field) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map)
     if run.diagnostics:
