@@ -779,3 +779,11 @@ def test_non_finite_pose_field_is_shown_as_a_plain_number(tmp_path):
     path = _write_lines(tmp_path / "inf.log", [_flaser([1.0] * 5, 1.0), _flaser([1.0] * 5, 2.0, pose=(0, 0, "inf"))])
     text = _error(path)
     assert "inf.log:2: FLASER odom_theta: inf is not a finite number" in text and "np.float64" not in text
+
+
+def test_a_binary_file_is_described_without_control_characters(tmp_path):
+    path = tmp_path / "image.log"
+    path.write_bytes(b"\x00\x01\x02binary\n")
+    text = _error(path)
+    assert "no laser scans found" in text and r"'\x00\x01\x02binary' x1" in text
+    assert text.isprintable()  # nothing that would garble the terminal

@@ -438,7 +438,7 @@ class CarmenLog(Recording):
         if scans == 0:
             if lineno == 0:
                 raise InputError("file is empty", path=self.path)
-            seen = ", ".join(f"{k} x{n}" for k, n in counts.items()) or "nothing readable"
+            seen = ", ".join(f"{k if k.isprintable() else ascii(k)} x{n}" for k, n in counts.items()) or "nothing readable"
             raise InputError(
                 f"no laser scans found (FLASER, RLASER or ROBOTLASER1 lines); the log holds: {seen}",
                 path=self.path,
