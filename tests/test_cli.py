@@ -400,3 +400,11 @@ def test_a_truth_map_without_obstacles_is_named(capsys, room, tmp_path):
     empty.write_text(text.replace("image: truth-map.pgm", f"image: {truth.parent / 'truth-map.pgm'}"))
     code, _, err = run(capsys, "evaluate", tmp_path / "r", "--truth-map", empty)
     assert_one_line_error(code, err, f"{empty}: truth: the ground-truth map has no occupied cells")
+
+
+def test_a_run_json_whose_sensor_model_is_gone_is_named(capsys, room, tmp_path):
+    params = tmp_path / "run.json"
+    params.write_text('{"method": "odometry", "seed": 0, "params": {}, "sensor_model": {"spec": "gone.yaml"}}\n')
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", tmp_path / "r", "--params", params)
+    assert_one_line_error(code, err, f"{params}: sensor_model.spec: 'gone.yaml' is neither")
+    assert "--sensor-model" not in err  # the user gave none

@@ -141,14 +141,21 @@ def build_method(
         values.update(settings)
     params = from_mapping(cls.Params, values)
     chosen_seed = seed if seed is not None else (int(file_seed) if file_seed is not None else 0)
+    from_file = False
     if sensor_model is None and params_file is not None:
         recorded = extras.get("sensor_model")
         if isinstance(recorded, dict) and recorded.get("spec"):
-            sensor_model = recorded["spec"]
+            sensor_model, from_file = recorded["spec"], True
     if isinstance(sensor_model, str):
         from slam2d.sensors.calibration.model import sensor_model_from_spec
 
-        sensor_model = sensor_model_from_spec(sensor_model)
+        try:
+            sensor_model = sensor_model_from_spec(sensor_model)
+        except InputError as exc:  # the model a run.json recorded and that is gone: say which file named it
+            if not from_file or exc.path is not None:
+                raise
+            raise InputError(f"{exc.message} (the model this file recorded)", path=params_file,
+                             field="sensor_model.spec") from None
     return cls(params, seed=chosen_seed, sensor_model=sensor_model)
 
 
