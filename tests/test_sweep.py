@@ -444,3 +444,13 @@ def test_summary_names_the_best_setting_with_its_spread_and_the_metrics_a_datase
     assert best["per_dataset"]["b"].setting == {"resolution": 0.1}
     assert best["overall"] == ({"resolution": 0.1}, 1.0)
     assert _unmeasured(rows, spec) == {"map_error": ["b"]}
+
+
+def test_a_result_file_that_is_not_a_row_is_redone_not_a_crash(tmp_path):
+    from slam2d.sweep.execute import RESULT, read_result
+
+    for text in ("[1]\n", '"done"\n', "{bad\n"):
+        (tmp_path / RESULT).write_text(text)
+        assert read_result(tmp_path) is None
+    (tmp_path / RESULT).write_text('{"run_id": "x"}\n')
+    assert read_result(tmp_path) == {"run_id": "x"}
