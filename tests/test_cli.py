@@ -408,3 +408,13 @@ def test_a_run_json_whose_sensor_model_is_gone_is_named(capsys, room, tmp_path):
     code, _, err = run(capsys, "run", "odometry", room[0], "--out", tmp_path / "r", "--params", params)
     assert_one_line_error(code, err, f"{params}: sensor_model.spec: 'gone.yaml' is neither")
     assert "--sensor-model" not in err  # the user gave none
+
+
+def test_an_output_folder_that_is_a_file_is_said_plainly(capsys, room, tmp_path):
+    a_file = tmp_path / "results"
+    a_file.write_text("not a folder")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file)
+    assert_one_line_error(code, err, f"{a_file}: exists and is a file; a folder is needed here")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file / "sub")
+    assert_one_line_error(code, err, f"{a_file / 'sub'}: a part of this path is a file, not a folder")
+    assert a_file.read_text() == "not a folder"

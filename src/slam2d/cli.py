@@ -1171,6 +1171,19 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error_text(exc: OSError) -> str:
+    """The system's words, said for an output folder where they are cryptic ("File exists" for a file)."""
+    import errno
+
+    if isinstance(exc, FileExistsError) and exc.filename and Path(exc.filename).exists() and not Path(
+        exc.filename
+    ).is_dir():
+        return "exists and is a file; a folder is needed here"
+    if exc.errno == errno.ENOTDIR:
+        return "a part of this path is a file, not a folder"
+    return str(exc.strerror or exc)
+
+
 def main_args(args: argparse.Namespace) -> int:
     try:
         return int(args.handler(args) or 0)
@@ -1179,7 +1192,7 @@ def main_args(args: argparse.Namespace) -> int:
         return EXIT_USER_ERROR
     except OSError as exc:  # an output folder we cannot write, a disk that is full
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"slam2d: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"slam2d: error: {where}{_os_error_text(exc)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("slam2d: interrupted", file=sys.stderr)
