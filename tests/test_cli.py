@@ -418,3 +418,14 @@ def test_an_output_folder_that_is_a_file_is_said_plainly(capsys, room, tmp_path)
     code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file / "sub")
     assert_one_line_error(code, err, f"{a_file / 'sub'}: a part of this path is a file, not a folder")
     assert a_file.read_text() == "not a folder"
+
+
+def test_a_recording_without_returns_is_named_and_leaves_no_folder(capsys, tmp_path):
+    log = tmp_path / "dark.log"  # every beam a no-return (0)
+    zeros = " ".join(["0"] * 180)
+    log.write_text("".join(f"FLASER 180 {zeros} {0.1 * k} 0 0 {0.1 * k} 0 0 {k + 1.0} h {k + 1.0}\n" for k in range(5)))
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert_one_line_error(code, err, f"{log}: odometry mapped nothing: none of the 5 scans had a return")
+    code, _, err = run(capsys, "map", log, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, f"{log}: the map is empty")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "m").exists()  # not a trajectory without its map

@@ -259,6 +259,9 @@ def cmd_map(args: argparse.Namespace) -> int:
             f"no scan could be placed: none lies within {args.max_pose_gap} s of a pose from {source}",
             path=args.data,
         )
+    if not grid.observed.any():
+        raise InputError(f"the map is empty: no beam of the {stats.scans_used} scans placed has a return",
+                         path=args.data)
     agreement = scan_agreement(grid, cache.frames(), times, poses, max_pose_gap=args.max_pose_gap)
     from slam2d.report.map_outputs import write_map_outputs
 

@@ -253,14 +253,20 @@ def _write_run(
     from slam2d.io.tum import write_tum
     from slam2d.report.map_outputs import write_map_outputs
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     times, poses = slam.trajectory()
     if len(times) == 0:
         raise InputError(
             f"{slam.name} placed none of the {frames} scans (no odometry or no poses for them)", path=data
         )
+    grid = slam.map()
+    if not grid.observed.any():  # refused before anything is written: no run folder without its map
+        raise InputError(
+            f"{slam.name} mapped nothing: none of the {frames} scans had a return it could use "
+            "(every beam no-return, or too few beams)", path=data,
+        )
+    out_dir.mkdir(parents=True, exist_ok=True)
     written = [write_tum(out_dir / "trajectory.tum", times, poses)]
-    written += write_map_outputs(slam.map(), out_dir)
+    written += write_map_outputs(grid, out_dir)
     written += slam.extra_outputs(out_dir)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
     diag = {"method": slam.name, "descriptions": dict(slam.DIAGNOSTICS), **slam.diagnostics.as_dict()}
