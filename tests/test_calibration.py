@@ -463,3 +463,12 @@ def test_repetitions_beyond_memory_are_refused_before_allocating():
     with pytest.raises(InputError, match="more than") as info:
         repeated_measurements(["white-paper"], [1.0, 2.0], [90], 100_000_000_000)
     assert info.value.field == "repetitions"
+
+
+def test_a_csv_saved_with_a_byte_order_mark_reads_like_one_without(tmp_path):
+    rows = repeated_measurements(["white-paper"], [1.0, 2.0], [90], 20)
+    plain = write_repeatability_csv(tmp_path / "plain.csv", rows)
+    bom = tmp_path / "bom.csv"  # as a spreadsheet saves "CSV UTF-8"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = load_laser_data([plain]), load_laser_data([bom])
+    assert [(s.material, s.distance, s.sigma) for s in a.setups] == [(s.material, s.distance, s.sigma) for s in b.setups]

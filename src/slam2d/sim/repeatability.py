@@ -301,7 +301,7 @@ def read_repeatability_csv(path: str | Path, *, any_material: bool = False) -> R
     """
     path = Path(path)
     try:
-        f = open(path, encoding="utf-8", newline="")
+        f = open(path, encoding="utf-8-sig", newline="")  # a spreadsheet may save a BOM
     except OSError as exc:
         raise InputError(f"cannot be read: {exc.strerror}", path=path) from None
     material: list[str] = []
