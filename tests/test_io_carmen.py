@@ -787,3 +787,13 @@ def test_a_binary_file_is_described_without_control_characters(tmp_path):
     text = _error(path)
     assert "no laser scans found" in text and r"'\x00\x01\x02binary' x1" in text
     assert text.isprintable()  # nothing that would garble the terminal
+
+
+@pytest.mark.parametrize("gz", [False, True])
+def test_a_byte_order_mark_does_not_hide_the_first_line(tmp_path, gz):
+    text = "\ufeff" + _flaser([1.0] * 5, 1.0) + "\n" + _flaser([1.0] * 5, 2.0) + "\n"
+    path = tmp_path / ("bom.log.gz" if gz else "bom.log")
+    path.write_bytes(gzip.compress(text.encode()) if gz else text.encode())
+    log = CarmenLog(path)
+    scans = [m for m in log.messages() if isinstance(m, LaserScan)]
+    assert len(scans) == 2 and [s.name for s in log.streams()] == ["FLASER"]

@@ -178,6 +178,9 @@ def infer_no_return_code(counts: dict[float, int], keyword: str = "FLASER") -> N
     return NoReturnCode(keyword, value, count, band_count, readings)
 
 
+_BOM = b"\xef\xbb\xbf"  # UTF-8 byte-order mark, which some editors put first in a text file
+
+
 class _BadLine(Exception):
     """A line that cannot be read; becomes an InputError or a skipped-line count."""
 
@@ -528,12 +531,16 @@ class CarmenLog(Recording):
                         path=self.path,
                         where=lineno + 1,
                     )
+                if lineno == 0 and lines and lines[0].startswith(_BOM):
+                    lines[0] = lines[0][len(_BOM):]  # an editor's byte-order mark is not part of the keyword
                 for line in lines:
                     lineno += 1
                     yield lineno, line
                 if progress is not None:
                     progress(raw.tell(), size)
             if pending:
+                if lineno == 0 and pending.startswith(_BOM):
+                    pending = pending[len(_BOM):]
                 lineno += 1
                 yield lineno, pending
         if progress is not None:
