@@ -251,9 +251,7 @@ def cmd_map(args: argparse.Namespace) -> int:
                 max_pose_gap=args.max_pose_gap,
             )
         except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
-            if exc.path is not None:
-                raise
-            raise InputError(exc.message, path=args.poses or args.data, where=exc.where, field=exc.field) from None
+            raise exc.in_file(args.poses or args.data) from None
     if stats.scans_used == 0:
         raise InputError(
             f"no scan could be placed: none lies within {args.max_pose_gap} s of a pose from {source}",
@@ -1011,9 +1009,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
     try:
         est = odometry_lag(frames, max_lag=args.max_lag, step=args.step)
     except InputError as exc:
-        if exc.path is None:
-            raise InputError(exc.message, path=args.data, where=exc.where, field=exc.field) from None
-        raise
+        raise exc.in_file(args.data) from None
     out = _console()
     setting = est.setting()
     if args.json:

@@ -344,9 +344,9 @@ def evaluate_run(
                     truth_visible=truth.visible_walls(),
                 )
             except InputError as exc:  # e.g. a truth map with no occupied cell: name its file
-                if exc.path is not None or truth.map_path is None:
+                if truth.map_path is None:
                     raise
-                raise InputError(exc.message, path=truth.map_path, where=exc.where, field=exc.field) from None
+                raise exc.in_file(truth.map_path) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map)
     if run.diagnostics:

@@ -209,10 +209,7 @@ def run_method(
         try:
             slam.feed(frame)
         except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
-            if exc.path is not None:
-                raise
-            raise InputError(exc.message, path=data, where=f"scan {frames + 1} at t={frame.timestamp:.3f} s",
-                             field=exc.field) from None
+            raise exc.in_file(data, f"scan {frames + 1} at t={frame.timestamp:.3f} s") from None
         frames += 1
         if first_t is None:
             first_t = frame.timestamp

@@ -171,9 +171,7 @@ def simulate(
         try:
             times, truth = scripted(robot, start, [tuple(c) for c in plan["commands"]], rate=rate)
         except InputError as exc:  # a command the robot cannot follow: name the path file
-            if exc.path is not None:
-                raise
-            raise InputError(exc.message, path=path, where=exc.where, field=exc.field) from None
+            raise exc.in_file(path) from None
     else:
         waypoints = plan["waypoints"]
         if waypoints is None or len(waypoints) == 0:
