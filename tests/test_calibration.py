@@ -438,3 +438,37 @@ def test_target_sigma_within_5_percent_from_half_a_metre_to_four_for_every_surfa
             err = np.abs(model.sigma(d, inc, i) / truth.sigma(d, np.full(d.size, inc), np.full(d.size, i)) - 1)
             worst = max(worst, float(err.max()))
     assert worst < 0.05, worst
+
+
+def test_one_distance_is_refused_naming_the_csv_not_the_model(tmp_path):
+    rows = repeated_measurements(["white-paper", "cardboard"], [2.0], [90, 45], 50)
+    csv = write_repeatability_csv(tmp_path / "one-distance.csv", rows)
+    with pytest.raises(InputError, match="every set-up is at 2 m") as info:
+        calibrate_laser(load_laser_data([csv]))
+    assert info.value.path == str(csv) and info.value.field == "distance_m"
+
+
+def test_bad_csv_values_are_shown_as_plain_numbers(tmp_path):
+    rows = repeated_measurements(["white-paper"], [1.0, 2.0], [90], 5)
+    csv = write_repeatability_csv(tmp_path / "r.csv", rows)
+    lines = csv.read_text().splitlines()
+    lines[3] = lines[3].replace(",90.0,", ",200.0,")
+    csv.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as info:
+        load_laser_data([csv])
+    assert "200.0 is not an angle" in str(info.value) and "np.float64" not in str(info.value)
+
+
+def test_repetitions_beyond_memory_are_refused_before_allocating():
+    with pytest.raises(InputError, match="more than") as info:
+        repeated_measurements(["white-paper"], [1.0, 2.0], [90], 100_000_000_000)
+    assert info.value.field == "repetitions"
+
+
+def test_a_csv_saved_with_a_byte_order_mark_reads_like_one_without(tmp_path):
+    rows = repeated_measurements(["white-paper"], [1.0, 2.0], [90], 20)
+    plain = write_repeatability_csv(tmp_path / "plain.csv", rows)
+    bom = tmp_path / "bom.csv"  # as a spreadsheet saves "CSV UTF-8"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    a, b = load_laser_data([plain]), load_laser_data([bom])
+    assert [(s.material, s.distance, s.sigma) for s in a.setups] == [(s.material, s.distance, s.sigma) for s in b.setups]

@@ -171,3 +171,14 @@ def test_cli_end_to_end_writes_what_gmapping_reads(capsys, tmp_path):
     code, _, err = run(capsys, "calibrate", "odometry", odo, "--reference", odo, "--out", tmp_path / "c4",
                        "--max-gap", "0")
     assert code == 2 and "--max-gap" in err
+
+
+@pytest.mark.parametrize("kwargs, field", [({"reference_distance": 0.0}, "--linear-update"),
+                                           ({"reference_rotation": -1.0}, "--angular-update"),
+                                           ({"reference_rotation": float("nan")}, "--angular-update")])
+def test_each_reference_increment_is_named_when_it_is_bad(kwargs, field):
+    t = np.arange(20.0)
+    poses = np.stack([0.5 * t, np.zeros_like(t), 0.1 * t], axis=1)
+    with pytest.raises(InputError) as info:
+        calibrate_odometry(pairs_from_poses(t, poses, poses), **kwargs)
+    assert info.value.field == field

@@ -119,3 +119,11 @@ def test_the_mines_logs_odometry_leads_by_0_15_s(log):
     est = odometry_lag(frames)
     assert est.confident and abs(est.lag - 0.15) < 0.03, est
     assert est.rms_at_lag < 0.6 * est.rms_at_zero, est  # 1.53 -> 0.78 and 1.85 -> 0.83 deg
+
+
+def test_a_step_far_finer_than_the_lag_range_is_refused_before_allocating():
+    t = 0.1 * np.arange(200)
+    heading = np.sin(t)
+    with pytest.raises(InputError, match="lags to try") as info:
+        estimate_odometry_lag(t, heading, np.diff(heading), max_lag=0.5, step=1e-12)
+    assert info.value.field == "--step"

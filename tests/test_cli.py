@@ -268,3 +268,164 @@ def test_map_in_scale_mode_reads_back(capsys, room, tmp_path):
     assert np.array_equal(trinary.occupancy == 0, (s >= 0) & (s <= 25))
     assert np.array_equal(trinary.occupancy == -1, (s < 0) | ((s > 25) & (s < 65)))
     assert (s > 25).any() and (s < 0).any()
+
+
+# ---------------------------------------------------------------- bad input found by the input sweep
+
+
+def _flaser_log(path: Path, xs) -> Path:
+    """A tiny CARMEN log: one FLASER line (180 beams at 2 m) per odometry x in ``xs``, a second apart."""
+    ranges = " ".join(["2.0"] * 180)
+    path.write_text("".join(
+        f"FLASER 180 {ranges} {x} 0 0 {x} 0 0 {k + 1.0} host {k + 1.0}\n" for k, x in enumerate(xs)
+    ))
+    return path
+
+
+@pytest.mark.parametrize("value", ["nan", "NaN"])
+def test_nan_parameter_is_refused_by_name(capsys, room, tmp_path, value):
+    log, truth, _ = room
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r", "--set", f"resolution={value}")
+    assert_one_line_error(code, err, "resolution", "is not a number")
+    code, _, err = run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "m", "--resolution", value)
+    assert_one_line_error(code, err, "resolution", "is not a number")
+    code, _, err = run(capsys, "info", log, "--range-max", value)  # used to be ignored silently
+    assert_one_line_error(code, err, "range_max", "is not a number")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize("command", [["run", "coreslam", "DATA", "--out", "OUT"], ["demo", "--out", "OUT"],
+                                     ["repeatability", "--out", "OUT"]])
+def test_negative_seed_is_a_usage_error(capsys, room, tmp_path, command):
+    argv = [str(room[0]) if a == "DATA" else str(tmp_path / "o") if a == "OUT" else a for a in command]
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--seed", "-1"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--seed: -1 is negative" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_simulate_negative_seed(capsys, tmp_path):
+    code, _, err = run(capsys, "simulate", "paper-arena", "--out", tmp_path / "s", "--seed", "-1", "--duration", "2")
+    assert_one_line_error(code, err, "seed", "below the minimum 0")
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("seed", ["abc", "1.5", "[1]", "true"])
+def test_params_file_seed_must_be_a_whole_number(capsys, room, tmp_path, seed):
+    params = tmp_path / "run.yaml"
+    params.write_text(f"method: odometry\nseed: {seed}\nparams: {{}}\n")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", tmp_path / "r", "--params", params)
+    assert_one_line_error(code, err, f"{params}: seed:", "is not a whole number >= 0")
+
+
+@pytest.mark.parametrize("gap", ["-1", "nan"])
+def test_map_max_pose_gap_must_be_a_time(capsys, room, tmp_path, gap):
+    log, truth, _ = room
+    code, _, err = run(capsys, "map", log, "--poses", truth, "--out", tmp_path / "m", "--max-pose-gap", gap)
+    assert_one_line_error(code, err, "--max-pose-gap")
+    assert not (tmp_path / "m").exists()
+
+
+def test_a_corrupt_odometry_pose_names_the_recording(capsys, tmp_path):
+    log = _flaser_log(tmp_path / "far.log", [0.0, 0.5, 1e300, 1.5])
+    code, _, err = run(capsys, "map", log, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, f"{log}: max_extent: the map would grow to 1e+300 m")
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert_one_line_error(code, err, f"{log} (scan 3 at t=3.000 s): max_extent:")
+    assert not (tmp_path / "m").exists() and not (tmp_path / "r").exists()
+
+
+def test_evaluate_out_folder_is_refused_not_deleted(capsys, room, tmp_path):
+    log, truth, _ = room
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert code == 0, err
+    folder = tmp_path / "results"
+    folder.mkdir()
+    (folder / "keep.txt").write_text("mine")
+    code, _, err = run(capsys, "evaluate", tmp_path / "r", "--reference", truth, "--out", folder)
+    assert_one_line_error(code, err, str(folder), "--out: is a folder")
+    assert (folder / "keep.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("name, text", [("run.json", "[1, 2]\n"), ("diagnostics.json", '"text"\n'),
+                                        ("diagnostics.json", '{"series": [1]}\n'),
+                                        ("diagnostics.json", '{"series": {"wall_s": ["abc"]}}\n')])
+def test_evaluate_run_folder_with_foreign_json(capsys, room, tmp_path, name, text):
+    log, truth, _ = room
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert code == 0, err
+    (tmp_path / "r" / name).write_text(text)
+    code, _, err = run(capsys, "evaluate", tmp_path / "r", "--reference", truth)
+    assert_one_line_error(code, err, str(tmp_path / "r" / name))
+
+
+@pytest.mark.parametrize("section, words", [("{nosuch: 1}", "odometry.nosuch: unknown parameter 'nosuch'"),
+                                            ("{resolution: abc}", "odometry.resolution: 'abc' is not a valid float")])
+def test_compare_params_file_errors_name_the_file(capsys, room, tmp_path, section, words):
+    params = tmp_path / "per-method.yaml"
+    params.write_text(f"odometry: {section}\n")
+    code, _, err = run(capsys, "compare", room[0], "--methods", "odometry", "--out", tmp_path / "c",
+                       "--params", params)
+    assert_one_line_error(code, err, f"{params}: {words}")
+    assert not (tmp_path / "c").exists()
+
+
+def test_simulate_commands_file_errors_name_the_file(capsys, tmp_path):
+    path = tmp_path / "drive.yaml"
+    path.write_text("commands: [[5, 10, 0, 0]]\n")
+    code, _, err = run(capsys, "simulate", "paper-arena", "--out", tmp_path / "s", "--path", path)
+    assert_one_line_error(code, err, f"{path}: commands[0]: speed 10 m/s exceeds")
+    assert not (tmp_path / "s").exists()
+
+
+def test_simulate_help_names_the_built_in_worlds():
+    from slam2d.cli import build_parser
+    from slam2d.sim.world import builtin_world_names
+
+    simulate = build_parser("simulate")._subparsers._group_actions[0].choices["simulate"]
+    (world,) = [a for a in simulate._actions if a.dest == "world"]
+    assert "--list-worlds" not in world.help  # an option that never existed
+    assert all(name in world.help for name in builtin_world_names())
+
+
+def test_a_truth_map_without_obstacles_is_named(capsys, room, tmp_path):
+    log, truth, _ = room
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert code == 0, err
+    given = truth.parent / "truth-map.yaml"
+    empty = tmp_path / "empty-map.yaml"  # the same image, read with a threshold nothing exceeds
+    text = given.read_text().replace("occupied_thresh: 0.65", "occupied_thresh: 1.0")
+    empty.write_text(text.replace("image: truth-map.pgm", f"image: {truth.parent / 'truth-map.pgm'}"))
+    code, _, err = run(capsys, "evaluate", tmp_path / "r", "--truth-map", empty)
+    assert_one_line_error(code, err, f"{empty}: truth: the ground-truth map has no occupied cells")
+
+
+def test_a_run_json_whose_sensor_model_is_gone_is_named(capsys, room, tmp_path):
+    params = tmp_path / "run.json"
+    params.write_text('{"method": "odometry", "seed": 0, "params": {}, "sensor_model": {"spec": "gone.yaml"}}\n')
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", tmp_path / "r", "--params", params)
+    assert_one_line_error(code, err, f"{params}: sensor_model.spec: 'gone.yaml' is neither")
+    assert "--sensor-model" not in err  # the user gave none
+
+
+def test_an_output_folder_that_is_a_file_is_said_plainly(capsys, room, tmp_path):
+    a_file = tmp_path / "results"
+    a_file.write_text("not a folder")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file)
+    assert_one_line_error(code, err, f"{a_file}: exists and is a file; a folder is needed here")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file / "sub")
+    assert_one_line_error(code, err, f"{a_file / 'sub'}: a part of this path is a file, not a folder")
+    assert a_file.read_text() == "not a folder"
+
+
+def test_a_recording_without_returns_is_named_and_leaves_no_folder(capsys, tmp_path):
+    log = tmp_path / "dark.log"  # every beam a no-return (0)
+    zeros = " ".join(["0"] * 180)
+    log.write_text("".join(f"FLASER 180 {zeros} {0.1 * k} 0 0 {0.1 * k} 0 0 {k + 1.0} h {k + 1.0}\n" for k in range(5)))
+    code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
+    assert_one_line_error(code, err, f"{log}: odometry mapped nothing: none of the 5 scans had a return")
+    code, _, err = run(capsys, "map", log, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, f"{log}: the map is empty")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "m").exists()  # not a trajectory without its map

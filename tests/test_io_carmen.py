@@ -773,3 +773,27 @@ def test_info_prints_what_was_inferred(tmp_path, capsys):
     assert "inferred by the reader" in out and "no-return code inferred: 50 m" in out
     assert main(["info", str(path), "--range-max", "60"]) == 0
     assert "inferred by the reader" not in capsys.readouterr().out
+
+
+def test_non_finite_pose_field_is_shown_as_a_plain_number(tmp_path):
+    path = _write_lines(tmp_path / "inf.log", [_flaser([1.0] * 5, 1.0), _flaser([1.0] * 5, 2.0, pose=(0, 0, "inf"))])
+    text = _error(path)
+    assert "inf.log:2: FLASER odom_theta: inf is not a finite number" in text and "np.float64" not in text
+
+
+def test_a_binary_file_is_described_without_control_characters(tmp_path):
+    path = tmp_path / "image.log"
+    path.write_bytes(b"\x00\x01\x02binary\n")
+    text = _error(path)
+    assert "no laser scans found" in text and r"'\x00\x01\x02binary' x1" in text
+    assert text.isprintable()  # nothing that would garble the terminal
+
+
+@pytest.mark.parametrize("gz", [False, True])
+def test_a_byte_order_mark_does_not_hide_the_first_line(tmp_path, gz):
+    text = "\ufeff" + _flaser([1.0] * 5, 1.0) + "\n" + _flaser([1.0] * 5, 2.0) + "\n"
+    path = tmp_path / ("bom.log.gz" if gz else "bom.log")
+    path.write_bytes(gzip.compress(text.encode()) if gz else text.encode())
+    log = CarmenLog(path)
+    scans = [m for m in log.messages() if isinstance(m, LaserScan)]
+    assert len(scans) == 2 and [s.name for s in log.streams()] == ["FLASER"]

@@ -899,3 +899,13 @@ def test_range_min_option_raises_the_bag_minimum(tmp_path):
     (raised,) = [m for m in open_recording(path, ReadOptions(range_min=0.1)).messages() if isinstance(m, LaserScan)]
     assert raised.range_min == 0.1
     np.testing.assert_array_equal(np.isnan(raised.ranges), [True, False, True, False])
+
+
+def test_a_broken_ros2_metadata_file_is_one_line_naming_the_bag(tmp_path):
+    path = write_rosbag(tmp_path / "broken", sample_messages(2, 10), version="ros2")
+    (path / "metadata.yaml").write_text("rosbag2_bagfile_information: [1\n")
+    with pytest.raises(InputError) as info:
+        open_recording(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}: cannot be read as a ROS 2 bag") and "metadata.yaml" in text
+    assert "\n" not in text  # the YAML parser's message spans several lines

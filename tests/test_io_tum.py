@@ -196,3 +196,10 @@ def test_interpolate_many_queries():
     inside = (query >= 0) & (query <= t[-1])
     assert np.array_equal(valid, inside)
     assert np.allclose(out[valid, 0], query[valid])
+
+
+def test_a_byte_order_mark_is_not_part_of_the_first_timestamp(tmp_path):
+    path = tmp_path / "bom.tum"
+    path.write_text("\ufeff1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n", encoding="utf-8")
+    times, poses = read_tum(path)
+    assert times.tolist() == [1.0, 2.0] and poses[1].tolist() == [1.0, 0.0, 0.0]

@@ -165,6 +165,9 @@ GOOD = "image: m.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccu
         (GOOD.replace("negate: 0", "negate: 2"), "negate", 4, "must be 0 or 1"),
         (GOOD.replace("free_thresh: 0.196\n", ""), "free_thresh", None, "required key is missing"),
         (GOOD.replace("m.pgm", "missing.pgm"), "image", 1, "not found"),
+        (GOOD.replace("occupied_thresh: 0.65", "occupied_thresh: 65"), "occupied_thresh", 5,
+         r"65 is not a probability in \[0, 1\]"),
+        (GOOD.replace("free_thresh: 0.196", "free_thresh: -0.1"), "free_thresh", 6, "not a probability"),
     ],
 )
 def test_bad_yaml_names_file_line_and_key(tmp_path, text, field, line, needle):
@@ -188,6 +191,11 @@ def test_yaml_syntax_error_and_not_a_mapping(tmp_path):
         read_map(path)
     with pytest.raises(InputError, match="no such file"):
         read_map(tmp_path / "absent.yaml")
+    image = tmp_path / "m.pgm"  # the image given where its YAML goes
+    write_pgm(image, np.full((2, 2), 205, np.uint8))
+    with pytest.raises(InputError, match="is not text") as err:
+        read_map(image)
+    assert err.value.path == str(image) and "codec" not in str(err.value)
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ import pytest
 
 from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path, write_text_atomic
-from slam2d.params import add_arguments, describe, from_arguments, markdown_table, param
+from slam2d.params import add_arguments, describe, from_arguments, from_mapping, markdown_table, param
 
 
 @dataclass
@@ -49,6 +49,24 @@ def test_bad_values_name_the_parameter(argv, needle):
     assert needle in str(err.value)
 
 
+def test_nan_is_not_a_value_of_any_range():
+    # NaN compares false with both ends of a range, so it used to pass every check (and crash later).
+    for argv in (["--resolution", "nan"], ["--resolution", "NaN"]):
+        with pytest.raises(InputError, match="is not a number") as info:
+            parse(*argv)
+        assert info.value.field == "resolution"
+    with pytest.raises(InputError, match="resolution: nan m is not a number"):
+        from_mapping(Example, {"resolution": float("nan")}, path="p.yaml")
+
+
+def test_yaml_booleans_are_not_numbers():
+    for name in ("resolution", "particles"):
+        with pytest.raises(InputError, match="True is not a valid") as info:
+            from_mapping(Example, {name: True}, path="p.yaml")
+        assert info.value.field == name and info.value.path == "p.yaml"
+    assert from_mapping(Example, {"verbose": True}).verbose is True
+
+
 def test_help_carries_units_and_defaults():
     parser = argparse.ArgumentParser()
     add_arguments(parser, Example)
@@ -85,3 +103,14 @@ def test_atomic_write_replaces_file_and_folder(tmp_path):
             (tmp / "x").write_text(content)
     assert (folder / "x").read_text() == "second"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "bag"]
+
+
+def test_atomic_write_never_replaces_a_folder_with_a_file(tmp_path):
+    folder = tmp_path / "results"
+    folder.mkdir()
+    (folder / "precious.txt").write_text("keep me")
+    with pytest.raises(InputError, match="is a folder") as info:
+        write_text_atomic(folder, "{}")
+    assert info.value.path == str(folder)
+    assert (folder / "precious.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results"]  # no temporary file left

@@ -219,3 +219,32 @@ def test_the_last_beam_of_a_distorted_sweep_is_cast_from_the_pose_at_the_sweeps_
         assert sim.scans[k].ranges[-1] == pytest.approx(expected, abs=1e-9)
         checked += 1
     assert checked > 5
+
+
+def test_an_absurd_duration_is_refused_before_planning_its_laps():
+    with pytest.raises(InputError, match="samples, more than") as info:
+        simulate("paper-arena", SimulationParams(duration=1e12))
+    assert info.value.field == "duration"
+
+
+def test_a_negative_seed_is_refused_by_name():
+    with pytest.raises(InputError, match="below the minimum 0") as info:
+        simulate("paper-arena", SimulationParams(seed=-1, duration=1.0))
+    assert info.value.field == "seed"
+
+
+def test_command_file_errors_name_the_file(tmp_path):
+    path = tmp_path / "drive.yaml"
+    path.write_text("commands: [[-1, 0.1, 0, 0]]\n")
+    with pytest.raises(InputError) as info:
+        simulate("paper-arena", SimulationParams(duration=None), path=path)
+    assert info.value.path == str(path) and info.value.field == "commands[0].duration"
+
+
+def test_a_truth_map_too_large_writes_nothing(tmp_path):
+    from slam2d.sim.simulate import write_outputs
+
+    sim = simulate("paper-arena", SimulationParams(duration=2.0))
+    with pytest.raises(InputError, match="too large"):
+        write_outputs(sim, tmp_path / "out", map_resolution=1e-7)
+    assert not (tmp_path / "out").exists()  # not a recording without its truth map

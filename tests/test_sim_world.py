@@ -16,6 +16,7 @@ from slam2d.sim.world import (
     check_pose,
     first_blocked,
     load_world,
+    parse_world,
     rasterize,
     segment_distances,
 )
@@ -551,3 +552,12 @@ def test_rasterize_office_and_bad_resolution():
         rasterize(world, resolution=0.0)
     with pytest.raises(InputError):
         rasterize(world, resolution=-1.0)
+
+
+def test_rasterize_a_world_too_large_to_count_its_cells():
+    world = parse_world(
+        "walls:\n  - {from: [0, 0], to: [1e308, 1e308], material: cardboard}\n", source="huge.yaml"
+    )
+    with pytest.raises(InputError, match="too large to map") as info:
+        rasterize(world, resolution=0.02)
+    assert info.value.path == "huge.yaml"

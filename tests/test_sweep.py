@@ -85,6 +85,16 @@ def _comparable(table: dict[str, list]) -> dict[str, list]:
         ("methods: {odometry: {random: {samples: 0, params: {p_hit: {from: 0.6, to: 0.9}}}}}\n"
          "datasets: [{world: paper-arena}]\n", "methods.odometry.random.samples", "must be a whole number"),
         ("methods: [odometry\n", None, "not valid YAML"),
+        # sizes that are typos: refused before anything is allocated or expanded
+        ("methods: {odometry: }\ndatasets: [{world: paper-arena}]\nseeds: 100000000000\n", "seeds",
+         "is more than"),
+        ("methods: {odometry: {grid: {resolution: {from: 0.01, to: 0.1, num: 100000000}}}}\n"
+         "datasets: [{world: paper-arena}]\n", "methods.odometry.grid.resolution.num", "is more than"),
+        ("methods:\n  odometry:\n    grid:\n      resolution: {from: 0.01, to: 0.1, num: 2000}\n"
+         "      p_hit: {from: 0.6, to: 0.9, num: 2000}\ndatasets: [{world: paper-arena}]\n", "methods",
+         "4000000 runs, more than"),
+        ("methods: {odometry: }\ndatasets:\n  - world: paper-arena\n    simulation: {robot: tank}\n",
+         "datasets[0].simulation.robot", "unknown robot 'tank'"),
     ],
 )
 def test_spec_errors_name_the_file_the_line_and_the_key(tmp_path, text, where, words):
@@ -117,6 +127,8 @@ def test_method_names_and_parameters_are_checked_against_the_registry(tmp_path):
     msg = check("methods:\n  odometry:\n    random:\n      samples: 3\n      params:\n"
                 "        resolution: {from: 0.0, to: 0.1}\n")
     assert "methods.odometry.random.params.resolution" in msg and "below the minimum" in msg
+    msg = check("methods:\n  odometry:\n    grid:\n      resolution: [0.05, .nan]\n")
+    assert "s.yaml:4: methods.odometry.grid.resolution[1]" in msg and "is not a number" in msg
 
 
 def test_the_cli_reports_a_spec_error_in_one_line(tmp_path, capsys):
@@ -432,3 +444,13 @@ def test_summary_names_the_best_setting_with_its_spread_and_the_metrics_a_datase
     assert best["per_dataset"]["b"].setting == {"resolution": 0.1}
     assert best["overall"] == ({"resolution": 0.1}, 1.0)
     assert _unmeasured(rows, spec) == {"map_error": ["b"]}
+
+
+def test_a_result_file_that_is_not_a_row_is_redone_not_a_crash(tmp_path):
+    from slam2d.sweep.execute import RESULT, read_result
+
+    for text in ("[1]\n", '"done"\n', "{bad\n"):
+        (tmp_path / RESULT).write_text(text)
+        assert read_result(tmp_path) is None
+    (tmp_path / RESULT).write_text('{"run_id": "x"}\n')
+    assert read_result(tmp_path) == {"run_id": "x"}

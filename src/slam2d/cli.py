@@ -71,6 +71,17 @@ def _read_options(args: argparse.Namespace) -> ReadOptions:
     return from_arguments(ReadOptions, args)
 
 
+def _seed(text: str) -> int:
+    """``--seed``: a whole number >= 0 (numpy's generators refuse negative seeds)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative; a seed is a whole number >= 0")
+    return value
+
+
 # --------------------------------------------------------------------------- info
 
 
@@ -214,6 +225,8 @@ def cmd_map(args: argparse.Namespace) -> int:
     from slam2d.grids.occupancy import GridParams
     from slam2d.io import open_recording
 
+    if not args.max_pose_gap >= 0:
+        raise InputError(f"{args.max_pose_gap} s must be a time >= 0", field="--max-pose-gap")
     grid_params = from_arguments(GridParams, args)
     recording = open_recording(args.data, _read_options(args))
     cache = _FrameCache(recording)
@@ -232,15 +245,21 @@ def cmd_map(args: argparse.Namespace) -> int:
             source = f"odometry ({recording.odometry_source})"
         if len(times) == 0:
             raise InputError(f"no poses to place scans at: {source} is empty", path=args.poses or args.data)
-        grid, stats = map_from_poses(
-            cache.frames(progress), times, poses, params=grid_params,
-            max_pose_gap=args.max_pose_gap,
-        )
+        try:
+            grid, stats = map_from_poses(
+                cache.frames(progress), times, poses, params=grid_params,
+                max_pose_gap=args.max_pose_gap,
+            )
+        except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
+            raise exc.in_file(args.poses or args.data) from None
     if stats.scans_used == 0:
         raise InputError(
             f"no scan could be placed: none lies within {args.max_pose_gap} s of a pose from {source}",
             path=args.data,
         )
+    if not grid.observed.any():
+        raise InputError(f"the map is empty: no beam of the {stats.scans_used} scans placed has a return",
+                         path=args.data)
     agreement = scan_agreement(grid, cache.frames(), times, poses, max_pose_gap=args.max_pose_gap)
     from slam2d.report.map_outputs import write_map_outputs
 
@@ -339,7 +358,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable)")
     p.add_argument("--params", type=Path, metavar="FILE",
                    help="YAML file of parameters (name: value), or a run.json to repeat; --set wins")
-    p.add_argument("--seed", type=int, help="random seed (default: the --params file's, else 0)")
+    p.add_argument("--seed", type=_seed, help="random seed (default: the --params file's, else 0)")
     _add_sensor_model_option(p)
     add_arguments(p.add_argument_group("reading"), ReadOptions)
     p.set_defaults(handler=cmd_run)
@@ -441,6 +460,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from slam2d.eval.evaluate import METRIC_COLUMNS, evaluate_run, load_run
     from slam2d.io.atomic import write_text_atomic
 
+    if args.out is not None and args.out.is_dir():
+        raise InputError("is a folder; --out takes the name of the JSON file to write", path=args.out, field="--out")
     truth, relations = _load_truth_options(args)
     run = load_run(args.run)
     if run.map is None and (truth is None or not truth.has_trajectory) and relations is None:
@@ -492,7 +513,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
                    help="a parameter for every method that has it, or for one method (repeatable)")
     p.add_argument("--params", type=Path, metavar="FILE",
                    help="YAML file with one section per method: METHOD: {NAME: VALUE, ...}; --set wins")
-    p.add_argument("--seed", type=int, help="random seed for every method (default: 0)")
+    p.add_argument("--seed", type=_seed, help="random seed for every method (default: 0)")
     p.add_argument("--jobs", type=int, metavar="N",
                    help="methods run at once (default: one per core); --jobs 1 times each method alone")
     _add_sensor_model_option(p)
@@ -503,7 +524,9 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
 def _per_method_file(path: Path | None, methods: list[str]) -> dict[str, dict[str, Any]]:
     if path is None:
         return {}
+    from slam2d.methods import get_method
     from slam2d.methods.runner import read_params_file
+    from slam2d.params import from_mapping
 
     doc, _ = read_params_file(path)
     out = {}
@@ -513,6 +536,10 @@ def _per_method_file(path: Path | None, methods: list[str]) -> dict[str, dict[st
                              path=path, field=str(name))
         if not isinstance(section, dict):
             raise InputError("expected a mapping of parameter names to values", path=path, field=str(name))
+        try:  # a mistyped name or value is named in this file, not only by method
+            from_mapping(get_method(name).Params, section)
+        except InputError as exc:
+            raise InputError(exc.message, path=path, field=f"{name}.{exc.field}" if exc.field else str(name)) from None
         out[name] = section
     return out
 
@@ -565,7 +592,7 @@ def _add_demo(sub: argparse._SubParsersAction) -> None:
         "(OUT/compare/report.html).",
     )
     p.add_argument("--out", type=Path, default=Path("demo-out"), help="output folder (default: demo-out)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated noise (default: 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed of the simulated noise (default: 0)")
     p.set_defaults(handler=cmd_demo)
 
 
@@ -638,6 +665,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
     from slam2d.sensors.motion_noise import OdometryNoise
     from slam2d.sim.simulate import TRUTH_MAP_RESOLUTION, SimulationParams
+    from slam2d.sim.world import builtin_world_names
 
     p = sub.add_parser(
         "simulate",
@@ -648,7 +676,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
         "(truth.tum), the true occupancy map (truth-map.yaml + .pgm), the world (world.yaml) and every "
         "setting (simulation.json). The same settings and seed give the same bytes.",
     )
-    p.add_argument("world", help="a built-in world (see --list-worlds) or a world YAML file")
+    p.add_argument("world", help=f"a built-in world ({', '.join(builtin_world_names())}) or a world YAML file")
     p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     p.add_argument("--path", type=Path, help="YAML with 'waypoints: [[x, y], ...]' or "
                    "'commands: [[seconds, vx, vy, omega], ...]' (default: the world's own path)")
@@ -704,7 +732,7 @@ def _add_repeatability(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated angles between beam and target [deg]; 90 = perpendicular (default: 90,45)")
     p.add_argument("--repetitions", type=int, default=500, help="measurements per set-up (default: 500)")
     p.add_argument("--laser", default="urg-04lx", help="laser preset (default: urg-04lx)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
     p.add_argument("--scan-logs", action="store_true", help="also write one CARMEN log of full scans per set-up")
     p.set_defaults(handler=cmd_repeatability)
 
@@ -981,9 +1009,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
     try:
         est = odometry_lag(frames, max_lag=args.max_lag, step=args.step)
     except InputError as exc:
-        if exc.path is None:
-            raise InputError(exc.message, path=args.data, where=exc.where, field=exc.field) from None
-        raise
+        raise exc.in_file(args.data) from None
     out = _console()
     setting = est.setting()
     if args.json:
@@ -1144,6 +1170,19 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error_text(exc: OSError) -> str:
+    """The system's words, said for an output folder where they are cryptic ("File exists" for a file)."""
+    import errno
+
+    if isinstance(exc, FileExistsError) and exc.filename and Path(exc.filename).exists() and not Path(
+        exc.filename
+    ).is_dir():
+        return "exists and is a file; a folder is needed here"
+    if exc.errno == errno.ENOTDIR:
+        return "a part of this path is a file, not a folder"
+    return str(exc.strerror or exc)
+
+
 def main_args(args: argparse.Namespace) -> int:
     try:
         return int(args.handler(args) or 0)
@@ -1152,7 +1191,7 @@ def main_args(args: argparse.Namespace) -> int:
         return EXIT_USER_ERROR
     except OSError as exc:  # an output folder we cannot write, a disk that is full
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"slam2d: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        print(f"slam2d: error: {where}{_os_error_text(exc)}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("slam2d: interrupted", file=sys.stderr)

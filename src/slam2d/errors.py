@@ -42,6 +42,16 @@ class InputError(Slam2dError):
         self.field = field
         super().__init__(self.__str__())
 
+    def in_file(self, path: str | Path, where: int | str | None = None) -> InputError:
+        """This error, placed in ``path`` (and at ``where``) when it names no file of its own.
+
+        For a mistake a helper found without knowing where its input came from
+        (a command file's velocity, a pose that grows the map without bound).
+        """
+        if self.path is not None:
+            return self
+        return InputError(self.message, path=path, where=self.where if where is None else where, field=self.field)
+
     def __str__(self) -> str:
         location = ""
         if self.path is not None:

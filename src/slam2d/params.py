@@ -160,6 +160,8 @@ def coerce(p: ParamInfo, text: Any) -> Any:
         return None
     t = p.base_type
     try:
+        if isinstance(text, bool) and t in (int, float):
+            raise ValueError(text)  # YAML's true/false is not 1/0
         if t is bool:
             if isinstance(text, bool):
                 return text
@@ -214,6 +216,8 @@ def validate(instance: Any) -> None:
                 f"{value!r} is not one of: {', '.join(map(str, p.choices))}", field=p.name
             )
         unit = f" {p.unit}" if p.unit else ""
+        if isinstance(value, float) and math.isnan(value):
+            raise InputError(f"{value}{unit} is not a number", field=p.name)
         if p.low is not None and value < p.low:
             raise InputError(f"{value}{unit} is below the minimum {p.low}{unit}", field=p.name)
         if p.high is not None and value > p.high:

@@ -226,6 +226,8 @@ def load_run(path: str | Path) -> RunFiles:
             except (UnicodeDecodeError, json.JSONDecodeError) as exc:
                 where = getattr(exc, "lineno", None)
                 raise InputError(f"not valid JSON: {exc}", path=f, where=where) from None
+            if not isinstance(docs[name], dict):
+                raise InputError(f"expected a JSON object, got {type(docs[name]).__name__}", path=f)
         else:
             docs[name] = {}
     return RunFiles(path, times, poses, grid, docs["diagnostics"], docs["run"])
@@ -330,20 +332,29 @@ def evaluate_run(
         result["relations"] = {"file": str(relations.path), **rel}
     if run.map is not None:
         if truth is not None and truth.map is not None:
-            if alignment is None:
-                transform, info = map_metrics.align_maps(run.map, truth.map)
-                alignment = [float(v) for v in transform]
-                result["alignment"] = alignment
-                result["alignment_source"] = "map"
-                result["map_alignment"] = info
-            result["map_truth"] = map_metrics.map_to_truth(
-                run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance,
-                truth_visible=truth.visible_walls(),
-            )
+            try:
+                if alignment is None:
+                    transform, info = map_metrics.align_maps(run.map, truth.map)
+                    alignment = [float(v) for v in transform]
+                    result["alignment"] = alignment
+                    result["alignment_source"] = "map"
+                    result["map_alignment"] = info
+                result["map_truth"] = map_metrics.map_to_truth(
+                    run.map, truth.map, transform=np.asarray(alignment), tolerance=tolerance,
+                    truth_visible=truth.visible_walls(),
+                )
+            except InputError as exc:  # e.g. a truth map with no occupied cell: name its file
+                if truth.map_path is None:
+                    raise
+                raise exc.in_file(truth.map_path) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map)
     if run.diagnostics:
-        result["cost"] = cost_metrics(run.diagnostics, run.run)
+        try:
+            result["cost"] = cost_metrics(run.diagnostics, run.run)
+        except (TypeError, ValueError, AttributeError) as exc:  # a hand-edited or foreign file
+            raise InputError(f"unexpected content, not what 'slam2d run' writes ({exc})",
+                             path=run.folder / "diagnostics.json") from None
     return _plain(result)
 
 

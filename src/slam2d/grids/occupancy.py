@@ -317,8 +317,8 @@ class OccupancyGrid:
         limit = self.params.max_extent
         if max(new_rows, new_cols) * self.resolution > limit:
             raise InputError(
-                f"the map would grow to {new_cols * self.resolution:.1f} m x "
-                f"{new_rows * self.resolution:.1f} m, beyond the limit of {limit:g} m "
+                f"the map would grow to {new_cols * self.resolution:.6g} m x "
+                f"{new_rows * self.resolution:.6g} m, beyond the limit of {limit:g} m "
                 "(poses or ranges are probably corrupt; raise max_extent if they are not)",
                 field="max_extent",
             )

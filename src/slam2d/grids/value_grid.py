@@ -87,7 +87,7 @@ class ValueGrid:
         n_rows, n_cols = n_r1 - n_r0 + 1, n_c1 - n_c0 + 1
         if max(n_rows, n_cols) * res > self.max_extent:
             raise InputError(
-                f"the map would grow to {n_cols * res:.1f} m x {n_rows * res:.1f} m, beyond the limit of "
+                f"the map would grow to {n_cols * res:.6g} m x {n_rows * res:.6g} m, beyond the limit of "
                 f"{self.max_extent:g} m (poses or ranges are probably corrupt; raise max_extent if they are not)",
                 field="max_extent",
             )

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from slam2d.errors import InputError
+
 __all__ = ["atomic_path", "write_text_atomic", "write_bytes_atomic"]
 
 
@@ -23,8 +25,10 @@ def atomic_path(path: str | Path, *, suffix: str | None = None) -> Iterator[Path
 
     The temporary path does not exist yet, so the caller may create a file or
     a folder there (rosbag2 writes a folder). On an exception it is removed and
-    ``path`` is left untouched. ``suffix`` (default: that of ``path``) is kept
-    on the temporary name for writers that choose a format by extension.
+    ``path`` is left untouched. A folder at ``path`` is replaced only by a
+    folder: a file written where a folder stands is an :class:`InputError`.
+    ``suffix`` (default: that of ``path``) is kept on the temporary name for
+    writers that choose a format by extension.
     """
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
@@ -38,6 +42,9 @@ def atomic_path(path: str | Path, *, suffix: str | None = None) -> Iterator[Path
     try:
         yield tmp
         if path.is_dir() and not path.is_symlink():
+            if not tmp.is_dir():
+                # A folder given where a file goes (``--out some/folder``): never delete it for a file.
+                raise InputError("is a folder; a file was expected here (the folder is left as it is)", path=path)
             shutil.rmtree(path)
         os.replace(tmp, path)
     except BaseException:

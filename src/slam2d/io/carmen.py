@@ -178,6 +178,9 @@ def infer_no_return_code(counts: dict[float, int], keyword: str = "FLASER") -> N
     return NoReturnCode(keyword, value, count, band_count, readings)
 
 
+_BOM = b"\xef\xbb\xbf"  # UTF-8 byte-order mark, which some editors put first in a text file
+
+
 class _BadLine(Exception):
     """A line that cannot be read; becomes an InputError or a skipped-line count."""
 
@@ -224,7 +227,7 @@ def _finite_pose(values: NDArray[np.float64], fields: list[str]) -> NDArray[np.f
     bad = ~np.isfinite(values)
     if bad.any():
         i = int(np.argmax(bad))
-        raise _BadLine(fields[i], f"{values[i]!r} is not a finite number")
+        raise _BadLine(fields[i], f"{float(values[i])!r} is not a finite number")
     return values
 
 
@@ -438,7 +441,7 @@ class CarmenLog(Recording):
         if scans == 0:
             if lineno == 0:
                 raise InputError("file is empty", path=self.path)
-            seen = ", ".join(f"{k} x{n}" for k, n in counts.items()) or "nothing readable"
+            seen = ", ".join(f"{k if k.isprintable() else ascii(k)} x{n}" for k, n in counts.items()) or "nothing readable"
             raise InputError(
                 f"no laser scans found (FLASER, RLASER or ROBOTLASER1 lines); the log holds: {seen}",
                 path=self.path,
@@ -528,12 +531,16 @@ class CarmenLog(Recording):
                         path=self.path,
                         where=lineno + 1,
                     )
+                if lineno == 0 and lines and lines[0].startswith(_BOM):
+                    lines[0] = lines[0][len(_BOM):]  # an editor's byte-order mark is not part of the keyword
                 for line in lines:
                     lineno += 1
                     yield lineno, line
                 if progress is not None:
                     progress(raw.tell(), size)
             if pending:
+                if lineno == 0 and pending.startswith(_BOM):
+                    pending = pending[len(_BOM):]
                 lineno += 1
                 yield lineno, pending
         if progress is not None:

@@ -135,8 +135,11 @@ def _load_yaml(path: Path) -> tuple[dict[str, Any], dict[str, int]]:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError("no such file", path=path) from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot be read: {exc}", path=path) from None
+    except UnicodeDecodeError:
+        raise InputError("is not text (a map_server YAML file was expected; the image goes in its 'image' key)",
+                         path=path) from None
+    except OSError as exc:
+        raise InputError(f"cannot be read: {exc.strerror or exc}", path=path) from None
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -217,6 +220,9 @@ def read_map(yaml_path: str | Path, *, loader: str = "nav2") -> MapImage:
 
     occupied_thresh = _number(doc, "occupied_thresh", path, lines)
     free_thresh = _number(doc, "free_thresh", path, lines)
+    for key, value in (("occupied_thresh", occupied_thresh), ("free_thresh", free_thresh)):
+        if not 0.0 <= value <= 1.0:  # probabilities: 65 for 0.65 would mark nothing occupied
+            raise InputError(f"{value:g} is not a probability in [0, 1]", path=path, where=lines.get(key), field=key)
 
     mode = doc.get("mode", "trinary")
     if mode is None:

@@ -42,6 +42,8 @@ def token_lines(path: Path, what: str) -> Iterator[tuple[int, list[str]]]:
                     where=lineno,
                 ) from None
             text = line.strip()
+            if lineno == 1:
+                text = text.removeprefix("\ufeff").strip()  # an editor's byte-order mark
             if not text or text.startswith("#"):
                 continue
             yield lineno, text.split()

@@ -125,6 +125,11 @@ def _planar(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
 
 
+def _one_line(exc: BaseException) -> str:
+    """A library's error text on one line (YAML and sqlite errors span several)."""
+    return " ".join(str(exc).split())
+
+
 @dataclass
 class _TfTree:
     """Static transforms: child frame -> (parent frame, 4x4 transform parent <- child)."""
@@ -199,7 +204,7 @@ class _Ros1Sequential(_Backend):
         try:
             self.reader = Ros1SequentialReader(path, self._problem)
         except (BagDamaged, OSError) as exc:
-            raise InputError(f"cannot be read as a ROS 1 bag: {exc}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 1 bag: {_one_line(exc)}", path=path) from None
         # index_pos 0 is what a recorder killed before closing the bag leaves.
         reason = "no index" if self.reader.index_pos == 0 else "index damaged"
         self.format = f"ROS 1 bag v2.0 ({reason}: read sequentially)"
@@ -209,7 +214,7 @@ class _Ros1Sequential(_Backend):
         try:
             self.reader.read_metadata()
         except (BagDamaged, OSError) as exc:
-            raise InputError(f"cannot be read as a ROS 1 bag: {exc}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 1 bag: {_one_line(exc)}", path=path) from None
         self.topics = {}
         for conn in self.reader.connections.values():
             topic = self.topics.setdefault(conn.topic, _Topic(conn.topic, conn.msgtype, 0, conn.msgdef))
@@ -317,7 +322,7 @@ class _Ros2(_Backend):
         except InputError:
             raise
         except Exception as exc:  # noqa: BLE001 - sqlite/mcap/yaml errors of a corrupt file
-            raise InputError(f"cannot be read as a ROS 2 bag: {exc}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 2 bag: {_one_line(exc)}", path=path) from None
         self.format = f"ROS 2 bag ({storage})"
 
     @staticmethod

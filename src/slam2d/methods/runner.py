@@ -133,20 +133,29 @@ def build_method(
                 f"this file is for method {extras['method']!r}, not {cls.name!r}", path=params_file, field="method"
             )
         file_seed = extras.get("seed")
+        if file_seed is not None and (not isinstance(file_seed, int) or isinstance(file_seed, bool) or file_seed < 0):
+            raise InputError(f"{file_seed!r} is not a whole number >= 0", path=params_file, field="seed")
         params = from_mapping(cls.Params, values, path=params_file)
         values = as_dict(params)
     if settings:
         values.update(settings)
     params = from_mapping(cls.Params, values)
     chosen_seed = seed if seed is not None else (int(file_seed) if file_seed is not None else 0)
+    from_file = False
     if sensor_model is None and params_file is not None:
         recorded = extras.get("sensor_model")
         if isinstance(recorded, dict) and recorded.get("spec"):
-            sensor_model = recorded["spec"]
+            sensor_model, from_file = recorded["spec"], True
     if isinstance(sensor_model, str):
         from slam2d.sensors.calibration.model import sensor_model_from_spec
 
-        sensor_model = sensor_model_from_spec(sensor_model)
+        try:
+            sensor_model = sensor_model_from_spec(sensor_model)
+        except InputError as exc:  # the model a run.json recorded and that is gone: say which file named it
+            if not from_file or exc.path is not None:
+                raise
+            raise InputError(f"{exc.message} (the model this file recorded)", path=params_file,
+                             field="sensor_model.spec") from None
     return cls(params, seed=chosen_seed, sensor_model=sensor_model)
 
 
@@ -197,7 +206,10 @@ def run_method(
     frames = 0
     first_t = last_t = None
     for frame in recording.frames(progress):
-        slam.feed(frame)
+        try:
+            slam.feed(frame)
+        except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
+            raise exc.in_file(data, f"scan {frames + 1} at t={frame.timestamp:.3f} s") from None
         frames += 1
         if first_t is None:
             first_t = frame.timestamp
@@ -238,14 +250,20 @@ def _write_run(
     from slam2d.io.tum import write_tum
     from slam2d.report.map_outputs import write_map_outputs
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     times, poses = slam.trajectory()
     if len(times) == 0:
         raise InputError(
             f"{slam.name} placed none of the {frames} scans (no odometry or no poses for them)", path=data
         )
+    grid = slam.map()
+    if not grid.observed.any():  # refused before anything is written: no run folder without its map
+        raise InputError(
+            f"{slam.name} mapped nothing: none of the {frames} scans had a return it could use "
+            "(every beam no-return, or too few beams)", path=data,
+        )
+    out_dir.mkdir(parents=True, exist_ok=True)
     written = [write_tum(out_dir / "trajectory.tum", times, poses)]
-    written += write_map_outputs(slam.map(), out_dir)
+    written += write_map_outputs(grid, out_dir)
     written += slam.extra_outputs(out_dir)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
     diag = {"method": slam.name, "descriptions": dict(slam.DIAGNOSTICS), **slam.diagnostics.as_dict()}

@@ -218,6 +218,10 @@ def _sweeps(
         yield simulator.measure(pose, None, rng)
 
 
+# Refuse absurd reading counts before allocating them (the study took 50 x 500).
+_MAX_READINGS = 10_000_000
+
+
 def _check_repetitions(repetitions: int) -> int:
     if isinstance(repetitions, bool) or not isinstance(repetitions, (int, np.integer)) or repetitions < 1:
         raise InputError(f"{repetitions!r} must be a whole number >= 1", field="repetitions")
@@ -246,6 +250,9 @@ def repeated_measurements(
     laser = laser_preset("urg-04lx") if laser is None else laser
     noise = StudyModel() if noise is None else noise
     setups = study_setups(materials, distances, angles_deg)
+    if len(setups) * repetitions > _MAX_READINGS:
+        raise InputError(f"{repetitions} per set-up is {len(setups) * repetitions} readings for {len(setups)} "
+                         f"set-ups, more than {_MAX_READINGS}", field="repetitions")
     central = laser.central_beam
     ranges = np.empty((len(setups), repetitions))
     for s, setup in enumerate(setups):
@@ -294,7 +301,7 @@ def read_repeatability_csv(path: str | Path, *, any_material: bool = False) -> R
     """
     path = Path(path)
     try:
-        f = open(path, encoding="utf-8", newline="")
+        f = open(path, encoding="utf-8-sig", newline="")  # a spreadsheet may save a BOM
     except OSError as exc:
         raise InputError(f"cannot be read: {exc.strerror}", path=path) from None
     material: list[str] = []

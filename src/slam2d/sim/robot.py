@@ -596,6 +596,7 @@ def follow_waypoints(
             raise InputError(f"{duration!r} is not a number of seconds", field="duration") from None
         if not (math.isfinite(duration) and duration >= 0.0):
             raise InputError(f"must be a non-negative number of seconds, got {duration!r}", field="duration")
+        _sample_count(duration, rate, inclusive_ceil=False)  # refuse an absurd duration before planning its laps
     cruise = float(spec.max_speed)
     if speed is not None:
         cruise = _positive(speed, "speed", "m/s")

@@ -50,7 +50,7 @@ class SimulationParams:
     max_turn_rate: float | None = param(
         None, unit="rad/s", low=0.0, help="cap the robot's turn rate; default: the preset's",
     )
-    seed: int = param(0, help="random seed of odometry and range noise; the same seed gives the same bytes")
+    seed: int = param(0, low=0, help="random seed of odometry and range noise; the same seed gives the same bytes")
     odometry_rate: float = param(
         50.0, unit="Hz", low=0.1,
         help="odometry rate, rounded to a whole multiple of the laser rate (truth is sampled at it too)",
@@ -168,7 +168,10 @@ def simulate(
     rate = laser.rate * samples_per_scan
     plan = load_path(path) if path is not None else {"waypoints": world.waypoints}
     if "commands" in plan:
-        times, truth = scripted(robot, start, [tuple(c) for c in plan["commands"]], rate=rate)
+        try:
+            times, truth = scripted(robot, start, [tuple(c) for c in plan["commands"]], rate=rate)
+        except InputError as exc:  # a command the robot cannot follow: name the path file
+            raise exc.in_file(path) from None
     else:
         waypoints = plan["waypoints"]
         if waypoints is None or len(waypoints) == 0:
@@ -239,6 +242,7 @@ def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
     from slam2d.sim.world import rasterize
 
     out = Path(out_dir)
+    truth_map = rasterize(sim.world, resolution=map_resolution)  # a map too large fails before anything is written
     out.mkdir(parents=True, exist_ok=True)
     written = [write_carmen(out / "recording.log.gz", sim.messages())]
     if ros1:
@@ -246,7 +250,7 @@ def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
     else:
         written.append(write_rosbag(out / "recording", sim.messages(), version="ros2"))
     written.append(write_tum(out / "truth.tum", sim.scan_times, sim.scan_truth))
-    yaml_path, image_path = save_grid(rasterize(sim.world, resolution=map_resolution), out / "truth-map.yaml")
+    yaml_path, image_path = save_grid(truth_map, out / "truth-map.yaml")
     written += [yaml_path, image_path]
     world_path = out / "world.yaml"
     write_text_atomic(world_path, sim.world.to_yaml())

@@ -850,6 +850,12 @@ def rasterize(world: World, resolution: float = 0.05, margin: float = 0.5) -> An
     if not (math.isfinite(margin) and margin >= 0.0):
         raise InputError(f"{margin!r} is not a margin >= 0", field="margin")
     xmin, ymin, xmax, ymax = world.bounds()
+    cells = ((xmax - xmin + 2 * margin) / res + 1) * ((ymax - ymin + 2 * margin) / res + 1)
+    if not math.isfinite(cells):  # coordinates too large to count cells in
+        raise InputError(
+            f"the world spans {xmax - xmin:.4g} m x {ymax - ymin:.4g} m: too large to map at {res:g} m",
+            path=world.source, field="resolution",
+        )
     # Cell k spans [(k - 0.5) res, (k + 0.5) res).
     col_lo = math.floor(_snap(np.array((xmin - margin) / res + 0.5)))
     row_lo = math.floor(_snap(np.array((ymin - margin) / res + 0.5)))

@@ -105,9 +105,10 @@ def clear_attempts(run_dir: Path) -> None:
 def read_result(run_dir: Path) -> dict[str, Any] | None:
     """A finished run's row, or None (no result, or an unreadable one: then the run is redone)."""
     try:
-        return json.loads((run_dir / RESULT).read_text(encoding="utf-8"))
+        row = json.loads((run_dir / RESULT).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+    return row if isinstance(row, dict) else None  # valid JSON but not a row: unreadable too
 
 
 def write_result(run_dir: Path, row: dict[str, Any]) -> None:

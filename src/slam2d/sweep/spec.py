@@ -248,6 +248,7 @@ def parse_spec(text: str, path: str | Path) -> SweepSpec:
     seeds = p.seeds(doc.get("seeds", [0]), "seeds")
     metrics = p.metrics(doc.get("metrics", list(DEFAULT_METRICS)))
     objective = p.objective(doc.get("objective"), metrics)
+    p.count_runs(methods, datasets, seeds)
     name = doc.get("name", path.stem)
     if not isinstance(name, str) or not name.strip():
         raise p.err("must be a non-empty string", "name")
@@ -261,6 +262,20 @@ class _Parser:
 
     def err(self, message: str, where: str) -> InputError:
         return InputError(message, path=self.path, where=_line(self.lines, where), field=where or None)
+
+    def count(self, value: int, where: str) -> None:
+        """A count of values, samples or seeds; one this large is a typo, not a study."""
+        if value > _MAX_COUNT:
+            raise self.err(f"{value} is more than {_MAX_COUNT}", where)
+
+    def count_runs(self, methods: list[MethodSweep], datasets: list[DatasetSpec], seeds: tuple[int, ...]) -> None:
+        settings = sum(math.prod(len(a.values) for a in m.grid) * (m.samples if m.random else 1) for m in methods)
+        recordings = sum(math.prod(len(v) for sec in (d.simulation, d.odometry_noise) for v in sec.values()
+                                   if isinstance(v, tuple)) * len(d.seeds) for d in datasets)
+        runs = settings * recordings * len(seeds)
+        if runs > _MAX_RUNS:
+            raise self.err(f"{settings} settings x {recordings} recordings x {len(seeds)} seeds is {runs} runs, "
+                           f"more than {_MAX_RUNS}", "methods")
 
     def known(self, doc: dict[str, Any], where: str, keys: set[str]) -> None:
         for k in doc:
@@ -332,6 +347,7 @@ class _Parser:
             num = spec["num"]
             if not isinstance(num, int) or isinstance(num, bool) or num < 1:
                 raise self.err(f"{num!r} must be a whole number >= 1", f"{where}.num")
+            self.count(num, f"{where}.num")
             values = _spaced(low, high, num, log)
             if integer:
                 values = sorted({int(round(v)) for v in values})
@@ -365,6 +381,7 @@ class _Parser:
         samples = raw.get("samples")
         if not isinstance(samples, int) or isinstance(samples, bool) or samples < 1:
             raise self.err(f"{samples!r} must be a whole number >= 1", f"{where}.samples")
+        self.count(samples, f"{where}.samples")
         seed = raw.get("seed", 0)
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise self.err(f"{seed!r} must be a whole number >= 0", f"{where}.seed")
@@ -475,6 +492,11 @@ class _Parser:
                 for i, one in enumerate(values):  # every value must make a valid setting
                     try:
                         _build(cls, {k: one})
+                        if key == "simulation" and k in ("robot", "laser"):
+                            from slam2d.sim.laser import laser_preset
+                            from slam2d.sim.robot import robot_preset
+
+                            (robot_preset if k == "robot" else laser_preset)(one)
                     except InputError as exc:
                         raise self.err(exc.message, f"{at}.{k}" + (f"[{i}]" if isinstance(v, list) else "")) from None
                 section[k] = tuple(values) if isinstance(v, list) else v
@@ -485,6 +507,7 @@ class _Parser:
         if isinstance(raw, int) and not isinstance(raw, bool):
             if raw < 1:
                 raise self.err(f"{raw} must be >= 1 (a count) or a list of seeds", where)
+            self.count(raw, where)
             return tuple(range(raw))
         if not isinstance(raw, list) or not raw:
             raise self.err("expected a list of seeds or a count", where)
@@ -526,6 +549,11 @@ class _Parser:
         if m.better is None:
             raise self.err(f"{raw!r} has no direction (neither lower nor higher is clearly better)", "objective")
         return m
+
+
+# Limits on a spec's sizes: a count or a run total beyond them is a typo (a run takes seconds at least).
+_MAX_COUNT = 100_000
+_MAX_RUNS = 1_000_000
 
 
 def _spaced(low: float, high: float, num: int, log: bool) -> list[float]:

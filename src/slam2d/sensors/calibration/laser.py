@@ -144,7 +144,7 @@ def _csv_setups(path: Path) -> tuple[list[SetupStats], list[str]]:
         if bad.any():
             line = int(np.argmax(bad)) + 2  # rows start on line 2 (blank lines aside)
             raise InputError(
-                f"{values[bad][0]!r} is not " + ("an angle in (0, 90] deg" if name == "angle_deg" else "a distance > 0 m"),
+                f"{float(values[bad][0])!r} is not " + ("an angle in (0, 90] deg" if name == "angle_deg" else "a distance > 0 m"),
                 path=path, where=f"reading {line - 1}", field=name,
             )
     key = np.stack([np.unique(rows.material, return_inverse=True)[1], rows.angle_deg, rows.distance], axis=1)
@@ -440,6 +440,12 @@ def calibrate_laser(
         raise InputError(f"{degree} must be >= 0", field="--degree")
     if max_degree < 0:
         raise InputError(f"{max_degree} must be >= 0", field="--max-degree")
+    distances = sorted({s.distance for s in data.setups})
+    if len(distances) < 2:
+        raise InputError(
+            f"every set-up is at {distances[0]:g} m: a fit of sigma against distance needs set-ups at two "
+            "distances or more", path=", ".join(data.sources), field="distance_m" if data.kind == "csv" else "range",
+        )
     per_angle, per_material = {}, {}
     for a in data.angles:
         members = [s for s in data.setups if s.angle_deg == a]

@@ -245,8 +245,10 @@ def calibrate_odometry(
     """
     from scipy.optimize import minimize
 
-    if not (reference_distance > 0 and reference_rotation > 0):
-        raise InputError("the reference increments must be positive", field="--linear-update")
+    if not reference_distance > 0:
+        raise InputError(f"{reference_distance} m must be positive", field="--linear-update")
+    if not reference_rotation > 0:
+        raise InputError(f"{reference_rotation} rad must be positive", field="--angular-update")
     u, v = pairs.u, pairs.v
     n = len(u)
     if n < _MIN_INTERVALS:

@@ -180,6 +180,10 @@ def _best_delay(s, t0, t1, ts, th, delays, sigma):
             (float(within.min()), float(within.max())))
 
 
+# Lags tried on each side of zero at most (0.5 s in steps of 0.01 s is 50).
+_MAX_GRID = 100_000
+
+
 def estimate_odometry_lag(
     stamps: NDArray[np.float64], odometry_heading: NDArray[np.float64], scan_turn: NDArray[np.float64], *,
     max_lag: float = 0.5, step: float = 0.01,
@@ -188,6 +192,9 @@ def estimate_odometry_lag(
     if not (max_lag > 0 and 0 < step <= max_lag):
         raise InputError(f"max lag {max_lag} s and step {step} s: both must be positive, the step the smaller",
                          field="--max-lag")
+    if max_lag / step > _MAX_GRID:
+        raise InputError(f"{step} s over +-{max_lag} s is {2 * max_lag / step:.3g} lags to try, more than "
+                         f"{2 * _MAX_GRID}", field="--step")
     stamps = np.asarray(stamps, dtype=np.float64)
     heading = np.asarray(odometry_heading, dtype=np.float64)
     scan_turn = np.asarray(scan_turn, dtype=np.float64)
