@@ -114,7 +114,6 @@ def test_segments_of_one_wall_seen_from_many_nodes_share_it():
     faces = [(0.0, xmax), (0.0, xmin), (math.pi / 2, ymax), (math.pi / 2, ymin),
              (0.0, px0), (0.0, px1), (math.pi / 2, py0), (math.pi / 2, py1)]
     alpha = segs.seg_alpha + truth[segs.seg_node, 2]
-    c, s = np.cos(truth[segs.seg_node, 2]), np.sin(truth[segs.seg_node, 2])
     tx, ty = truth[segs.seg_node, 0], truth[segs.seg_node, 1]
     d = segs.seg_d + np.cos(alpha) * tx + np.sin(alpha) * ty  # the line in the world frame
     face = np.array([[_same((a, dd), f, math.radians(2), 0.03) for f in faces] for a, dd in zip(alpha, d)])

@@ -37,7 +37,7 @@ from slam2d.graph.wall_end_landmarks import WallEndParams
 from slam2d.graph.loop_correction import LoopCorrectionParams, correct_path, spread_node_corrections
 from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 from slam2d.grids.occupancy import OccupancyGrid
-from slam2d.grids.tiled import HITS, VISITS, TiledMaps
+from slam2d.grids.tiled import TiledMaps
 from slam2d.matching.hill_climb import (
     BeamSet,
     gaussian_proposal,
