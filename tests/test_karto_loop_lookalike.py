@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
 from slam2d.core import make_scan, se2
 from slam2d.graph.frontend import GraphFrontend, GraphSlamParams, _Hypothesis

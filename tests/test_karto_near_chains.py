@@ -62,7 +62,7 @@ def test_hot_near_chains_get_the_bound_first_outcome(monkeypatch, office_frames)
         return got
 
     monkeypatch.setattr(GraphFrontend, "_near_outcome", checked)
-    slam = _run(office_frames)
+    _run(office_frames)
     assert seen["hot"] > 20
     assert seen["hot"] > 10
 

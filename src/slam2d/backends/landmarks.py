@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.backends.base import Backend, OptimizationResult
+from slam2d.backends.base import Backend
 from slam2d.backends.graph import PoseGraph
 
 __all__ = ["PointObservations", "point_errors", "point_jacobians", "landmark_positions", "augmented_graph",

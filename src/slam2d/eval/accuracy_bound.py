@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.sensors.motion_noise import OdometryNoise, step_variances
-from slam2d.sensors.range_noise import ConstantSigma, RangeNoiseModel, dropout_probability
+from slam2d.sensors.range_noise import RangeNoiseModel, dropout_probability
 
 __all__ = [
     "BoundSetup",

@@ -1161,7 +1161,6 @@ class GraphFrontend:
         if not linked.any():
             return 0
         link = p.link_match_minimum_response_fine
-        fail = 0.5 * link
         lo, hi = self.sequential.search_box(points, pose)  # the same query box for every chain
         count = 0
         for a, b in _runs(near):

@@ -863,7 +863,6 @@ def _score_poses_pruned(grid, origin_x, origin_y, resolution, q, x0, y0, theta0,
     :func:`_responses`', so the running best is the same number.
     """
     n = q.shape[0]
-    na = angles.shape[0]
     n_steps = 2 * half + 1
     first = -half * step
     norm = float(n * _SCALE)
