@@ -110,3 +110,65 @@ def test_bands_taken_in_turn_by_two_threads_draw_the_serial_grid(bands):
     smear_in_row_bands(banded, 0.0, 0.0, 0.01, px, py, sigma, False, bands, 2)
     assert serial.max() == 255
     assert np.array_equal(banded, serial)
+
+
+def _serial_branch_and_bound(grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, norm, floor):
+    """The one-thread branch and bound, written plainly: blocks in order until one's bound falls below the best less the band."""
+    from slam2d.matching.correlative_search import _score_window
+
+    out = np.full((rows.shape[0], n_steps, n_steps), -1.0)
+    buf = np.zeros((block, block), np.int32)
+    best, lookups = floor, 0
+    for f in order:
+        if flat[f] / norm < best - band:
+            break
+        a, rem = divmod(int(f), n_blocks * n_blocks)
+        i0, j0 = (rem // n_blocks) * block, (rem % n_blocks) * block
+        ni, nj = min(block, n_steps - i0), min(block, n_steps - j0)
+        _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, buf)
+        out[a, i0:i0 + ni, j0:j0 + nj] = buf[:ni, :nj]
+        best = max(best, float(buf[:ni, :nj].max()) / norm)
+        lookups += ni * nj * rows.shape[1]
+    return out, lookups
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_branch_and_bound_in_strides_scores_the_serial_blocks(seed):
+    """Blocks scored in 1, 2 or 3 strides (threads), then trimmed: the serial search's sums and lookups exactly."""
+    from slam2d.matching.correlative_search import (_block_bounds, _max_pool, _query_cells, _score_blocks_stride,
+                                                    _serial_blocks)
+
+    rng = np.random.default_rng(seed)
+    half, step, block, res = 20, 2, 8, 0.05
+    # The query's points drawn into a noisy grid at one offset: one clear peak, so the bound prunes.
+    q = rng.uniform(-2.0, 2.0, (60, 2))
+    grid = rng.integers(0, 60, (260, 260)).astype(np.uint8)
+    true = np.array([6.5, 6.5]) + rng.integers(-half, half + 1, 2) * step * res
+    cells = np.floor((q + true) / res).astype(int)
+    grid[cells[:, 1], cells[:, 0]] = 255
+    angles = np.linspace(-0.2, 0.2, 5)
+    n_steps = 2 * half + 1
+    rows, cols = _query_cells(q[:, 0], q[:, 1], angles, 6.5, 6.5, 0.0, 0.0, 0.0, res, -half * step)
+    n_blocks = (n_steps + block - 1) // block
+    width = (block - 1) * step + 1
+    flat = _block_bounds(_max_pool(grid, width), rows, cols, n_blocks, block * step, width).reshape(-1)
+    order = np.argsort(-flat, kind="stable")
+    norm, band = 60 * 255.0, 0.1 + 1e-9
+    extras = []
+    for floor in (-1.0, 0.3):
+        want, want_lookups = _serial_branch_and_bound(grid, rows, cols, order, flat, n_blocks, block, n_steps, step,
+                                                      band, norm, floor)
+        scored = int((want >= 0).sum())
+        assert 0 < scored < want.size // 2, scored  # it pruned most poses, and scored some
+        for strides in (1, 2, 3):
+            sums = np.full_like(want, -1.0)
+            for s in range(strides):
+                _score_blocks_stride(grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, norm, floor,
+                                     s, strides, sums)
+            extra = int((sums >= 0).sum()) - scored  # blocks scored beyond the serial search's, trimmed below
+            assert extra >= 0
+            extras.append(extra)
+            lookups = _serial_blocks(sums, rows.shape[1], order, flat, n_blocks, block, n_steps, band, norm, floor)
+            np.testing.assert_array_equal(sums, want)
+            assert lookups == want_lookups
+    assert max(extras) > 0  # the trim had something to do

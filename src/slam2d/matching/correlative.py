@@ -63,7 +63,8 @@ from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edg
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
     _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND,
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
-    _rotated_extent, _score_blocks, _score_poses, _score_poses_pruned, _search_window, _spaced, _spread_sums)
+    _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
+    _spaced, _spread_sums)
 from slam2d.matching.grid_cache import GridCache
 
 
@@ -425,9 +426,13 @@ class CorrelativeMatcher:
         flat = bounds.reshape(-1)
         order = np.argsort(-flat, kind="stable")
         band = _COVARIANCE_BAND + 1e-9
-        sums, lookups = _score_blocks(
-            grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, float(n_points) * _SCALE, float(floor)
-        )
+        # Blocks scored in strides, one per thread; then exactly the serial search's blocks are kept.
+        sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
+        norm, least, strides = float(n_points) * _SCALE, float(floor), _THREADS
+        _split(lambda s0, s1: [_score_blocks_stride(grid, rows, cols, order, flat, n_blocks, block, n_steps, step,
+                                                    band, norm, least, s, strides, sums) for s in range(s0, s1)],
+               strides)
+        lookups = _serial_blocks(sums, rows.shape[1], order, flat, n_blocks, block, n_steps, band, norm, least)
         lookups += flat.size * n_points
         offs = (np.arange(n_steps) - half) * (step * res)
         pose, best, raw_best, resp = _finish_search(

@@ -257,42 +257,76 @@ def _block_bounds(pooled, rows, cols, n_blocks, block_cells, width):
     return out
 
 
-@njit(cache=True)
-def _score_blocks(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points, floor):
-    """Branch and bound: score whole blocks in ``order`` until the bound drops below max(best, floor) - band.
+@njit(cache=True, nogil=True)
+def _score_blocks_stride(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points, floor,
+                         first, stride, out):
+    """Branch and bound over the blocks ``order[first::stride]``: score whole blocks into ``out`` until the bound
+    drops below max(best of this stride, floor) - band.
 
-    ``floor`` is the least response the caller will accept: blocks that cannot come
-    within ``band`` of it are never needed, whatever the best turns out to be.
-
-    Unscored poses are left at -1. Returns the (angles, n, n) sums and the lookups done.
+    ``floor`` is the least response the caller will accept: blocks that cannot come within ``band`` of it are
+    never needed, whatever the best turns out to be. Strides run side by side on threads (disjoint blocks of
+    ``out``); each prunes with its own best, never above the best over all blocks before the same place in
+    ``order``, so together they score every block the one-stride search scores, and some more
+    (:func:`_serial_blocks` unscores those).
     """
-    na = rows.shape[0]
-    out = np.full((na, n_steps, n_steps), -1.0)
     buf = np.zeros((block, block), np.int32)
     best = floor
-    lookups = 0
     nbb = n_blocks * n_blocks
-    for idx in range(order.shape[0]):
+    for idx in range(first, order.shape[0], stride):
         flat = order[idx]
         if bounds_flat[flat] / n_points < best - band:
             break
         a = flat // nbb
         rem = flat % nbb
-        bi = rem // n_blocks
-        bj = rem % n_blocks
-        i0 = bi * block
-        j0 = bj * block
+        i0 = (rem // n_blocks) * block
+        j0 = (rem % n_blocks) * block
         ni = min(block, n_steps - i0)
         nj = min(block, n_steps - j0)
         _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, buf)
-        lookups += ni * nj * rows.shape[1]
         for i in range(ni):
             for j in range(nj):
                 v = buf[i, j]
                 out[a, i0 + i, j0 + j] = v
                 if v / n_points > best:
                     best = v / n_points
-    return out, lookups
+
+
+@njit(cache=True)
+def _serial_blocks(out, n_query, order, bounds_flat, n_blocks, block, n_steps, band, n_points, floor):
+    """Reset to -1 the blocks of ``out`` the one-stride branch and bound would not have scored (it stops at the
+    first block, in ``order``, whose bound is below the best so far less ``band``), so the result does not
+    depend on how the blocks were shared; returns that search's lookups (``n_query`` points a pose)."""
+    best = floor
+    nbb = n_blocks * n_blocks
+    lookups = 0
+    stop = order.shape[0]
+    for idx in range(order.shape[0]):
+        flat = order[idx]
+        if bounds_flat[flat] / n_points < best - band:
+            stop = idx
+            break
+        a = flat // nbb
+        rem = flat % nbb
+        i0 = (rem // n_blocks) * block
+        j0 = (rem % n_blocks) * block
+        ni = min(block, n_steps - i0)
+        nj = min(block, n_steps - j0)
+        lookups += ni * nj * n_query
+        for i in range(ni):
+            for j in range(nj):
+                v = out[a, i0 + i, j0 + j]
+                if v / n_points > best:
+                    best = v / n_points
+    for idx in range(stop, order.shape[0]):
+        flat = order[idx]
+        a = flat // nbb
+        rem = flat % nbb
+        i0 = (rem // n_blocks) * block
+        j0 = (rem % n_blocks) * block
+        for i in range(min(block, n_steps - i0)):
+            for j in range(min(block, n_steps - j0)):
+                out[a, i0 + i, j0 + j] = -1.0
+    return lookups
 
 
 @njit(cache=True)
