@@ -49,7 +49,7 @@ class DenseRefinementParams:
         help="after the wall refinement (wall_refinement), refine the poses again with every return of every scan "
         "against the nearest surface of another frame's scan (point to line), jointly with the same odometry / "
         "graph edges (and walls, dense_refinement_walls): uses the returns the line model drops, round posts and "
-        "short faces; only with wall_refinement (not in Karto; docs/methods/karto.md, URG-04LX: a dense alignment "
+        "short faces; only with wall_refinement (not in Karto; docs/methods/karto-measured.md, URG-04LX: a dense alignment "
         "after the wall refinement)",
     )
     dense_refinement_iterations: int = param(

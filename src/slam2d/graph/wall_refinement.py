@@ -1,7 +1,7 @@
 """Wall bundle adjustment: karto's finished trajectory refined against straight walls and wall ends (``wall_refinement``).
 
 Along a corridor longer than the laser's reach the correlative matches are flat along it and
-the odometry decides (docs/methods/karto.md, *Why the simulated worlds stay at 0.1 m*); the
+the odometry decides (docs/methods/karto-measured.md, *Why the simulated worlds stay at 0.1 m*); the
 accuracy bound (docs/accuracy_bound.md) reaches 1-3 cm by solving every range reading against
 the wall it hit and every wall end's bearing, jointly with the walls and the odometry. This is
 that estimator without the truth, run once on the finished run (``GraphSlam.refine_walls``), over
@@ -69,7 +69,7 @@ class WallRefinementParams:
         help="after the run, refine the poses (every placed frame, or the graph's nodes) jointly with straight "
         "walls fitted to their scans and the wall ends they see (every beam on a wall against its line, every "
         "end against its point, and the odometry or the pose graph's edges) by a batch least squares; the "
-        "trajectory and map follow (not in Karto; docs/methods/karto.md, URG-04LX: a wall bundle adjustment)",
+        "trajectory and map follow (not in Karto; docs/methods/karto-measured.md, URG-04LX: a wall bundle adjustment)",
     )
     wall_refinement_frames: bool = param(
         True,
