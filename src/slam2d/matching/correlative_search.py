@@ -257,6 +257,16 @@ def _block_bounds(pooled, rows, cols, n_blocks, block_cells, width):
     return out
 
 
+@njit(cache=True)
+def _block_at(flat, n_blocks, block, n_steps):
+    """Angle, first translation steps and size (a, i0, j0, ni, nj) of block ``flat`` (angle-major, then rows of blocks)."""
+    a = flat // (n_blocks * n_blocks)
+    rem = flat % (n_blocks * n_blocks)
+    i0 = (rem // n_blocks) * block
+    j0 = (rem % n_blocks) * block
+    return a, i0, j0, min(block, n_steps - i0), min(block, n_steps - j0)
+
+
 @njit(cache=True, nogil=True)
 def _score_blocks_stride(grid, rows, cols, order, bounds_flat, n_blocks, block, n_steps, step, band, n_points, floor,
                          first, stride, out):
@@ -271,17 +281,11 @@ def _score_blocks_stride(grid, rows, cols, order, bounds_flat, n_blocks, block, 
     """
     buf = np.zeros((block, block), np.int32)
     best = floor
-    nbb = n_blocks * n_blocks
     for idx in range(first, order.shape[0], stride):
         flat = order[idx]
         if bounds_flat[flat] / n_points < best - band:
             break
-        a = flat // nbb
-        rem = flat % nbb
-        i0 = (rem // n_blocks) * block
-        j0 = (rem % n_blocks) * block
-        ni = min(block, n_steps - i0)
-        nj = min(block, n_steps - j0)
+        a, i0, j0, ni, nj = _block_at(flat, n_blocks, block, n_steps)
         _score_window(grid, rows, cols, a, i0, j0, ni, nj, step, buf)
         for i in range(ni):
             for j in range(nj):
@@ -297,7 +301,6 @@ def _serial_blocks(out, n_query, order, bounds_flat, n_blocks, block, n_steps, b
     first block, in ``order``, whose bound is below the best so far less ``band``), so the result does not
     depend on how the blocks were shared; returns that search's lookups (``n_query`` points a pose)."""
     best = floor
-    nbb = n_blocks * n_blocks
     lookups = 0
     stop = order.shape[0]
     for idx in range(order.shape[0]):
@@ -305,12 +308,7 @@ def _serial_blocks(out, n_query, order, bounds_flat, n_blocks, block, n_steps, b
         if bounds_flat[flat] / n_points < best - band:
             stop = idx
             break
-        a = flat // nbb
-        rem = flat % nbb
-        i0 = (rem // n_blocks) * block
-        j0 = (rem % n_blocks) * block
-        ni = min(block, n_steps - i0)
-        nj = min(block, n_steps - j0)
+        a, i0, j0, ni, nj = _block_at(flat, n_blocks, block, n_steps)
         lookups += ni * nj * n_query
         for i in range(ni):
             for j in range(nj):
@@ -318,13 +316,9 @@ def _serial_blocks(out, n_query, order, bounds_flat, n_blocks, block, n_steps, b
                 if v / n_points > best:
                     best = v / n_points
     for idx in range(stop, order.shape[0]):
-        flat = order[idx]
-        a = flat // nbb
-        rem = flat % nbb
-        i0 = (rem // n_blocks) * block
-        j0 = (rem % n_blocks) * block
-        for i in range(min(block, n_steps - i0)):
-            for j in range(min(block, n_steps - j0)):
+        a, i0, j0, ni, nj = _block_at(order[idx], n_blocks, block, n_steps)
+        for i in range(ni):
+            for j in range(nj):
                 out[a, i0 + i, j0 + j] = -1.0
     return lookups
 
