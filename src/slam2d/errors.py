@@ -17,6 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
+def one_line(text: object) -> str:
+    """``text`` (an error message, a library's exception) on one line: a user error prints as one line."""
+    return " ".join(str(text).split())
+
+
 class Slam2dError(Exception):
     """Base of every error slam2d raises on purpose."""
 

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from slam2d.core import se2
 from slam2d.core.frames import Frame, OdometryReading
 from slam2d.core.scan import LaserScan, make_scan
-from slam2d.errors import InputError
+from slam2d.errors import InputError, one_line
 from slam2d.io.atomic import atomic_path
 from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo
 from slam2d.io.ros1_fallback import DATA_LOSS, BagDamaged, Ros1SequentialReader
@@ -125,11 +125,6 @@ def _planar(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
 
 
-def _one_line(exc: BaseException) -> str:
-    """A library's error text on one line (YAML and sqlite errors span several)."""
-    return " ".join(str(exc).split())
-
-
 @dataclass
 class _TfTree:
     """Static transforms: child frame -> (parent frame, 4x4 transform parent <- child)."""
@@ -204,7 +199,7 @@ class _Ros1Sequential(_Backend):
         try:
             self.reader = Ros1SequentialReader(path, self._problem)
         except (BagDamaged, OSError) as exc:
-            raise InputError(f"cannot be read as a ROS 1 bag: {_one_line(exc)}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 1 bag: {one_line(exc)}", path=path) from None
         # index_pos 0 is what a recorder killed before closing the bag leaves.
         reason = "no index" if self.reader.index_pos == 0 else "index damaged"
         self.format = f"ROS 1 bag v2.0 ({reason}: read sequentially)"
@@ -214,7 +209,7 @@ class _Ros1Sequential(_Backend):
         try:
             self.reader.read_metadata()
         except (BagDamaged, OSError) as exc:
-            raise InputError(f"cannot be read as a ROS 1 bag: {_one_line(exc)}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 1 bag: {one_line(exc)}", path=path) from None
         self.topics = {}
         for conn in self.reader.connections.values():
             topic = self.topics.setdefault(conn.topic, _Topic(conn.topic, conn.msgtype, 0, conn.msgdef))
@@ -322,7 +317,7 @@ class _Ros2(_Backend):
         except InputError:
             raise
         except Exception as exc:  # noqa: BLE001 - sqlite/mcap/yaml errors of a corrupt file
-            raise InputError(f"cannot be read as a ROS 2 bag: {_one_line(exc)}", path=path) from None
+            raise InputError(f"cannot be read as a ROS 2 bag: {one_line(exc)}", path=path) from None
         self.format = f"ROS 2 bag ({storage})"
 
     @staticmethod

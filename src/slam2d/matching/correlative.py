@@ -429,9 +429,13 @@ class CorrelativeMatcher:
         # Blocks scored in strides, one per thread; then exactly the serial search's blocks are kept.
         sums = np.full((angles.shape[0], n_steps, n_steps), -1.0)
         norm, least, strides = float(n_points) * _SCALE, float(floor), _THREADS
-        _split(lambda s0, s1: [_score_blocks_stride(grid, rows, cols, order, flat, n_blocks, block, n_steps, step,
-                                                    band, norm, least, s, strides, sums) for s in range(s0, s1)],
-               strides)
+
+        def score_strides(s0: int, s1: int) -> None:
+            for s in range(s0, s1):
+                _score_blocks_stride(grid, rows, cols, order, flat, n_blocks, block, n_steps, step, band, norm, least,
+                                     s, strides, sums)
+
+        _split(score_strides, strides)
         lookups = _serial_blocks(sums, rows.shape[1], order, flat, n_blocks, block, n_steps, band, norm, least)
         lookups += flat.size * n_points
         offs = (np.arange(n_steps) - half) * (step * res)

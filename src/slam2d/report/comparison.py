@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam2d.core import se2
-from slam2d.errors import InputError
+from slam2d.errors import InputError, one_line
 from slam2d.eval.compare import Comparison, MethodOutcome
 from slam2d.eval.evaluate import METRIC_COLUMNS, MetricColumn, RunFiles, load_run
 from slam2d.io.atomic import write_bytes_atomic, write_text_atomic
@@ -314,7 +314,7 @@ def _metric_rows(entries: list[_Entry]) -> tuple[list[MetricColumn], list[_Row]]
     for i, entry in enumerate(entries):
         row = _Row(entry)
         if not entry.outcome.ok:
-            row.failed = f"failed: {_one_line(entry.outcome.error or 'no error message')}"
+            row.failed = f"failed: {one_line(entry.outcome.error or 'no error message')}"
         else:
             for k, column in enumerate(columns):
                 v = shown[k][i]
@@ -324,10 +324,6 @@ def _metric_rows(entries: list[_Entry]) -> tuple[list[MetricColumn], list[_Row]]
                     row.cells.append(_Cell(f"{v:.{column.digits}f}", best[k] is not None and v == best[k]))
         rows.append(row)
     return columns, rows
-
-
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
 
 
 def _column_header(column: MetricColumn) -> str:
@@ -647,7 +643,7 @@ def _html(report: _Report) -> str:
         for entry in report.failures:
             o = entry.outcome
             out.append(f'<h3 id="failed-{_e(entry.slug)}">{_swatch(entry.colour)}{_e(entry.label)}</h3>')
-            out.append(f'<p class="failed-error"><strong>failed:</strong> {_e(_one_line(o.error or "no error message"))}</p>')
+            out.append(f'<p class="failed-error"><strong>failed:</strong> {_e(one_line(o.error or "no error message"))}</p>')
             if o.details:
                 out.append(f"<details><summary>details</summary><pre>{_e(o.details)}</pre></details>")
             if o.params:
@@ -681,7 +677,7 @@ def _section_html(section: _MethodSection) -> str:
 
 def _m(text: Any) -> str:
     """Text for a Markdown table cell: one line, pipes escaped."""
-    return _one_line(str(text)).replace("|", "\\|")
+    return one_line(str(text)).replace("|", "\\|")
 
 
 def _md_table(head: Sequence[str], rows: Sequence[Sequence[str]], align_right_from: int = 1) -> list[str]:
@@ -699,7 +695,7 @@ def _markdown(report: _Report) -> str:
     out = [f"# {report.title}", ""]
     for k, v in report.facts:
         out.append(f"- **{_m(k)}:** {_m(v)}")
-    out += ["", f"> {_one_line(report.judged)}", "", "## Metrics", ""]
+    out += ["", f"> {one_line(report.judged)}", "", "## Metrics", ""]
     if report.columns or report.rows:
         head = ["method"] + ([_column_header(c) for c in report.columns] or ["result"])
         rows = []
