@@ -363,3 +363,48 @@ def test_cache_bound_for_a_narrower_angle_window_bounds_its_match(seed):
     assert bound <= wide_bound + 1e-12
     r = narrow.match(None, None, q, prior, penalize=False, refine=True, grid=cache.materialize(e, lo, hi))
     assert r.response <= bound + 1e-12, (seed, r.response, bound)
+
+
+def test_bound_blocks_survive_a_partial_invalidate_as_computed():
+    """Each node's bound-grid blocks live in one compacted store: invalidate(moved) keeps the unmoved
+    nodes' blocks as they were computed (at their old poses, as their kept grids are) and computes the
+    moved ones' again, so a new entry's bound grid is the scatter of exactly those blocks."""
+    from slam2d.matching.correlative_search import _node_blocks
+
+    rng = np.random.default_rng(7)
+    parts = [_walls(rng, n_walls=2) for _ in range(5)]
+    sig = [np.full(p.shape[0], 0.03) for p in parts]
+    m = CorrelativeMatcher()
+    cache = GridCache(m, lambda i: (parts[i], sig[i]))
+
+    def blocks(p):
+        return _node_blocks(np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]), 0.03, m.resolution,
+                            _BOUND_BLOCK)
+
+    def pooled_of(nodes, want):
+        q = parts[nodes[0]][::5]
+        lo, hi = m.search_box(q, np.zeros(3))
+        e = cache.reserve(nodes, lo, hi, max_extra=0)
+        cache.bound(e, q, np.zeros(3))
+        pooled, row0, col0 = e["pooled"]
+        expect = np.zeros_like(pooled)
+        for r, c, v in want:
+            inside = (r - row0 >= 0) & (r - row0 < pooled.shape[0]) & (c - col0 >= 0) & (c - col0 < pooled.shape[1])
+            np.maximum.at(expect, (r[inside] - row0, c[inside] - col0), v[inside])
+        return pooled, expect
+
+    before = [blocks(p) for p in parts]
+    got, expect = pooled_of([0, 1, 2, 3, 4], before)
+    assert np.array_equal(got, expect) and got.any()
+    # Nodes 1 and 3 move; the mask covers four nodes, so node 4 counts as moved too.
+    moved = [p + np.array([0.7, -0.4]) for p in parts]
+    parts[1], parts[3], parts[4] = moved[1], moved[3], moved[4]
+    parts[0] = parts[0] + 0.002  # moved within tolerance: its old blocks stay
+    cache.invalidate(np.array([False, True, False, True]))
+    got, expect = pooled_of([0, 1, 2, 3, 4], [before[0], blocks(moved[1]), before[2], blocks(moved[3]),
+                                              blocks(moved[4])])
+    assert np.array_equal(got, expect)
+    # A full invalidate computes every node's blocks afresh.
+    cache.invalidate()
+    got, expect = pooled_of([0, 1, 2, 3, 4], [blocks(p) for p in parts])
+    assert np.array_equal(got, expect)

@@ -482,14 +482,19 @@ def _node_stats(pts, sig, out):
 
 
 @njit(cache=True)
-def _scatter_max(out, rows, cols, vals, row0, col0):
-    """out[rows - row0, cols - col0] = max(out there, vals), skipping what falls outside."""
+def _scatter_max_nodes(out, rows, cols, vals, span, nodes, row0, col0):
+    """out[rows[k] - row0, cols[k] - col0] = max(out there, vals[k]) for k in each of ``nodes``' ``span[node]``.
+
+    Blocks falling outside ``out`` are skipped.
+    """
     n_r, n_c = out.shape
-    for k in range(rows.shape[0]):
-        r = rows[k] - row0
-        c = cols[k] - col0
-        if r >= 0 and r < n_r and c >= 0 and c < n_c and vals[k] > out[r, c]:
-            out[r, c] = vals[k]
+    for t in range(nodes.shape[0]):
+        n = nodes[t]
+        for k in range(span[n, 0], span[n, 1]):
+            r = rows[k] - row0
+            c = cols[k] - col0
+            if r >= 0 and r < n_r and c >= 0 and c < n_c and vals[k] > out[r, c]:
+                out[r, c] = vals[k]
 
 
 @njit(cache=True)

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from slam2d.matching.correlative_grid import _derive_grid, _inside, _inside_not, _smear
 from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks,
-    _node_stats, _scatter_max)
+    _node_stats, _scatter_max_nodes)
 
 if TYPE_CHECKING:
     from slam2d.matching.correlative import CorrelativeMatcher
@@ -53,7 +53,11 @@ class GridCache:
         # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
         self._box = np.zeros((0, 6))
         self._known = np.zeros(0, dtype=bool)
-        self._blocks: dict = {}  # node -> its share of a bound grid (see bound())
+        # Each node's share of a bound grid (see bound()), its blocks' rows, columns and values in
+        # three growing columns; a node's [start, end) in them, or -1 until computed.
+        self._block_store = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8))
+        self._block_used = 0
+        self._block_span = np.full((0, 2), -1, np.int64)
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)
         self.extensions = 0
         self.draws = 0  # grids actually drawn
@@ -76,7 +80,8 @@ class GridCache:
         if moved is None:
             self._entries.clear()
             self._known[:] = False
-            self._blocks.clear()
+            self._block_span[:] = -1
+            self._block_used = 0
             return
         moved = np.asarray(moved, dtype=bool)
 
@@ -89,8 +94,7 @@ class GridCache:
         k = min(moved.size, self._known.size)
         self._known[:k] &= ~moved[:k]
         self._known[k:] = False
-        for n in [n for n in self._blocks if stale(n)]:
-            del self._blocks[n]
+        self._keep_blocks(~moved)
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
@@ -350,23 +354,51 @@ class GridCache:
         pooled, row0, col0 = e["pooled"]
         order = e["order"]
         if e["pooled_nodes"] < len(order):
-            parts = [self._node_blocks(n) for n in order[e["pooled_nodes"]:]]
-            _scatter_max(pooled, np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts]),
-                         np.concatenate([q[2] for q in parts]), row0, col0)
+            nodes = np.asarray(order[e["pooled_nodes"]:], dtype=np.int64)
+            self._ensure_blocks(nodes)
+            _scatter_max_nodes(pooled, *self._block_store, self._block_span, nodes, row0, col0)
             e["pooled_nodes"] = len(order)
             e["pooled_tables"] = {}  # the bound grid changed: its sparse table is built again
         return searcher.pooled_bound(pooled, col0 * b * res, row0 * b * res, query_points, prior, stop=stop,
                                      tables=e.setdefault("pooled_tables", {}), mark=mark)
 
-    def _node_blocks(self, n: int):
-        got = self._blocks.get(n)
-        if got is None:
+    def _ensure_blocks(self, nodes: NDArray[np.int64]) -> None:
+        """Compute the bound-grid blocks of those ``nodes`` that have none yet (once per node until invalidated)."""
+        top = int(nodes.max()) + 1
+        if top > self._block_span.shape[0]:
+            grow = max(top, 2 * self._block_span.shape[0])
+            self._block_span = np.concatenate([self._block_span, np.full((grow - self._block_span.shape[0], 2), -1,
+                                                                         np.int64)])
+        for n in nodes[self._block_span[nodes, 0] < 0].tolist():
             pts, sig = self.points_of(n)
             sigma_max = float(sig.max()) if sig.size else self.matcher.smear_deviation
             got = _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sigma_max,
                                self.matcher.resolution, _BOUND_BLOCK)
-            self._blocks[n] = got
-        return got
+            a = self._block_used
+            b = a + got[0].shape[0]
+            if b > self._block_store[0].shape[0]:
+                cap = max(b, 2 * self._block_store[0].shape[0])
+                self._block_store = tuple(np.concatenate([col[:a], np.zeros(cap - a, col.dtype)])
+                                          for col in self._block_store)
+            for col, part in zip(self._block_store, got):
+                col[a:b] = part
+            self._block_span[n] = (a, b)
+            self._block_used = b
+
+    def _keep_blocks(self, keep: NDArray[np.bool_]) -> None:
+        """Keep the bound-grid blocks of the nodes in ``keep`` only (nodes past its end are dropped); compact the store."""
+        span = self._block_span
+        live = np.flatnonzero(span[: keep.size, 0] >= 0)
+        live = live[keep[live]]
+        starts, lengths = span[live, 0], span[live, 1] - span[live, 0]
+        offsets = np.cumsum(lengths) - lengths
+        total = int(lengths.sum())
+        idx = np.repeat(starts - offsets, lengths) + np.arange(total)
+        self._block_store = tuple(col[idx] for col in self._block_store)
+        span[:] = -1
+        span[live, 0] = offsets
+        span[live, 1] = offsets + lengths
+        self._block_used = total
 
     def _parts(self, e: dict) -> list:
         """Per node of the entry, its (world points, sigmas), fetched when first needed."""
