@@ -146,3 +146,30 @@ def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
             want = np.minimum(np.sqrt(want * want + gap * gap), 10.0 * res)
         got = _smear_sigmas(float(m.smear_deviation), sig, use, ranges, spacing, abs(inc), 0.5 * res, 10.0 * res)
         assert np.array_equal(got, want)
+
+
+def test_reference_positions_updated_row_by_row_are_the_whole_transform():
+    """The cached reference positions, redone for appended or moved last nodes only, equal the transform of every node."""
+    from slam2d.core import se2
+    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+
+    rng = np.random.default_rng(11)
+    fe = GraphFrontend(GraphSlamParams())
+
+    def whole():
+        return se2.transform_points(fe.graph.poses, fe._bary_base[:, None, :])[:, 0, :]
+
+    for step in range(60):
+        action = rng.integers(0, 4) if fe.graph.num_nodes else 0
+        if action == 0:  # a kept scan: a new node with its barycentre
+            fe.graph.add_node(rng.uniform(-5.0, 5.0, 3))
+            fe._bary_base = np.vstack([fe._bary_base, rng.uniform(-3.0, 3.0, (1, 2))])
+        elif action == 1:  # the near links' mean moves the newest node
+            fe.graph.poses[-1] = fe.graph.poses[-1] + rng.normal(0.0, 0.05, 3)
+        elif action == 2:  # an optimisation moves every node
+            fe.graph.poses[:] = fe.graph.poses + rng.normal(0.0, 0.01, fe.graph.poses.shape)
+        else:  # an older node alone moves (in place)
+            fe.graph.poses[int(rng.integers(0, fe.graph.num_nodes))] += 0.01
+        got = fe.reference_positions()
+        assert np.array_equal(got, whole()), step
+        assert np.array_equal(fe.reference_positions(), got)  # asked again: the cached answer

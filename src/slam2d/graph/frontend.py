@@ -718,11 +718,25 @@ class GraphFrontend:
             # Asked several times per kept scan while the poses rarely change: the last answer is
             # reused while the poses are the same (compared by value, so in-place edits count).
             cached = self._ref_cache
-            if cached is not None and np.array_equal(cached[0], self.graph.poses):
-                return cached[1]
-            out = se2.transform_points(self.graph.poses, self._bary_base[:, None, :])[:, 0, :]
+            poses = self.graph.poses
+            n = poses.shape[0]
+            if cached is not None:
+                old, out = cached
+                if old.shape == poses.shape and np.array_equal(old, poses):
+                    return out
+                # A kept scan appends a node, then may move it (the near links' mean): only the new or
+                # last rows are transformed again (elementwise, so each row is what the whole would give).
+                k = old.shape[0]
+                if 0 < k <= n and np.array_equal(old[: k - 1], poses[: k - 1]):
+                    first = k - 1 if old[k - 1].tolist() != poses[k - 1].tolist() else k
+                    out = np.concatenate([out[:first], se2.transform_points(
+                        poses[first:], self._bary_base[first:n, None, :])[:, 0, :]])
+                    out.flags.writeable = False
+                    self._ref_cache = (poses.copy(), out)
+                    return out
+            out = se2.transform_points(poses, self._bary_base[:, None, :])[:, 0, :]
             out.flags.writeable = False
-            self._ref_cache = (self.graph.poses.copy(), out)
+            self._ref_cache = (poses.copy(), out)
             return out
         poses = self.graph.poses if poses is None else poses
         if not self.params.use_scan_barycenter:
