@@ -702,3 +702,31 @@ def test_wall_refinement_refines_the_best_path_and_leaves_the_filter_alone(arena
     again = GMapping(GMappingParams(particles=10, wall_refinement=True), seed=3).run(frames)
     assert np.array_equal(again.trajectory()[1], p)
     assert refined.map().occupied().sum() > 100
+
+
+def test_islands_report_the_best_scoring_filter_run_alone_bit_for_bit(arena):
+    """islands=K runs K independent filters (the first with the run's seed) and reports the one whose best
+    particle has the largest log-likelihood per update: its path, map and counters are those of that
+    filter run alone with its seed."""
+    from slam2d.methods.gmapping import island_seed
+
+    frames = recording_frames(arena / "recording.log.gz")[:80]
+    params = GMappingParams(particles=6, islands=3)
+    slam = GMapping(params, seed=7).run(frames)
+    info = slam.diagnostics.summary["islands"]
+    assert info["seeds"][0] == 7 and len(set(info["seeds"])) == 3
+    alone = [GMapping(GMappingParams(particles=6), seed=island_seed(7, k)).run(frames) for k in range(3)]
+    scores = [float(a._weight_sum.max() / a._nodes) for a in alone]
+    assert info["scores"] == scores
+    k = int(np.argmax(scores))
+    assert info["reported"] == k
+    assert np.array_equal(slam.trajectory()[1], alone[k].trajectory()[1])
+    assert np.array_equal(slam.map().occupancy(), alone[k].map().occupancy())
+    assert slam.diagnostics.counters["resamples"] == alone[k].diagnostics.counters["resamples"]
+    # The islands differ (else choosing among them would be pointless), and the choice is logged per scan.
+    assert not np.array_equal(alone[0].trajectory()[1], alone[1].trajectory()[1])
+    assert np.nanmax(slam.diagnostics.array("island")) <= 2
+    # The same seed gives the same run; one island is the plain filter.
+    assert np.array_equal(GMapping(params, seed=7).run(frames).trajectory()[1], slam.trajectory()[1])
+    assert np.array_equal(GMapping(GMappingParams(particles=6, islands=1), seed=7).run(frames).trajectory()[1],
+                          alone[0].trajectory()[1])

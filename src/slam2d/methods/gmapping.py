@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -54,7 +54,12 @@ from slam2d.params import param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 
-__all__ = ["GMappingParams", "GMapping"]
+__all__ = ["GMappingParams", "GMapping", "island_seed"]
+
+
+def island_seed(seed: int, k: int) -> int:
+    """The seed of island ``k`` of a run seeded ``seed``: the run's own for the first, else drawn from both."""
+    return int(seed) if k == 0 else int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1)[0])
 
 
 # maxRange when the laser reports no finite range_max (the ROS wiki's maxUrange default)
@@ -70,6 +75,13 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams):
     ``wall_refinement``, over the odometry between frames)."""
 
     particles: int = param(30, low=1, high=10000, help="number of particles")
+    islands: int = param(
+        1, unit="filters", low=1, high=64,
+        help="not in GMapping: run this many independent filters of `particles` each (the first with the run's "
+        "seed, the others with seeds drawn from it) and report the one whose best particle has the largest "
+        "accumulated log-likelihood per update (GMapping's weightSum, its own choice of the best particle); "
+        "1 = GMapping. A filter that lost the right map early scores far lower (see docs/methods/gmapping.md, "
+        "islands); costs islands x the CPU and the memory")
     maxUrange: float | None = param(
         None, unit="m", low=0.0, help="usable range: beams are cut here for mapping and ignored beyond it "
         "for matching; unset: maxRange")
@@ -214,6 +226,7 @@ class GMapping(SlamMethod):
         "[particles]",
         "best_score": "scan-matching score of the best particle [beams]",
         "tiles": "map tiles in use over all particles [tiles]",
+        "island": "islands > 1: the island reported after this scan (0 = the run's own seed)",
     }
 
     def __init__(self, params: GMappingParams | None = None, **kwargs) -> None:
@@ -245,10 +258,30 @@ class GMapping(SlamMethod):
         self._track_pose: NDArray[np.float64] | None = None  # last matched pose of the best particle, and its odometry
         self._track_odom: NDArray[np.float64] | None = None
         self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
+        # islands > 1: independent filters fed the same frames; this one only picks among them.
+        self._islands: list[GMapping] = []
+        if self.params.islands > 1:
+            one = replace(self.params, islands=1)
+            self._islands = [GMapping(one, seed=island_seed(self.seed, k), sensor_model=self.sensor_model)
+                             for k in range(self.params.islands)]
+
+    # ----------------------------------------------------------------- islands
+
+    def island_scores(self) -> NDArray[np.float64]:
+        """Per island, its best particle's accumulated log-likelihood per filter update (-inf before its first)."""
+        return np.array([isl._weight_sum.max() / isl._nodes if isl._nodes else -math.inf for isl in self._islands])
+
+    def best_island(self) -> GMapping:
+        """The island reported (the first on a tie); this filter itself when it runs no islands."""
+        return self._islands[int(np.argmax(self.island_scores()))] if self._islands else self
 
     # ----------------------------------------------------------------- the filter
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
+        if self._islands:
+            values = [isl.update(frame) for isl in self._islands]
+            k = int(np.argmax(self.island_scores()))
+            return None if values[k] is None else {**values[k], "island": float(k)}
         odom = frame.odometry
         if odom is None:
             self.diagnostics.count("frames_without_odometry")
@@ -579,6 +612,8 @@ class GMapping(SlamMethod):
 
     def current_pose(self) -> NDArray[np.float64] | None:
         """The best particle's pose at the last update, moved on by the odometry since (the ROS node's tf)."""
+        if self._islands:
+            return self.best_island().current_pose()
         if self._maps is None:
             return None
         node = self._node_poses[self._nodes - 1, self.best_particle()]
@@ -595,6 +630,8 @@ class GMapping(SlamMethod):
     def trajectory(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The best particle's path: its tree nodes, and odometry composed onto the last node in between
         (after ``wall_refinement``, the refined path)."""
+        if self._islands:
+            return self.best_island().trajectory()
         if not self._frame_times:
             return np.zeros(0), np.zeros((0, 3))
         if self._refined is not None:
@@ -609,6 +646,8 @@ class GMapping(SlamMethod):
         return np.array(self._frame_times), se2.compose(nodes[k], rel)
 
     def map(self) -> OccupancyGrid:
+        if self._islands:
+            return self.best_island().map()
         key = (self._nodes, self.best_particle(), self._refined is not None)
         if self._map_cache is not None and self._map_cache[0] == key:
             return self._map_cache[1]
@@ -699,6 +738,19 @@ class GMapping(SlamMethod):
         return summary
 
     def finish(self) -> None:
+        if self._islands:
+            # Only the island reported is finished (its loop correction, wall refinement); its counters and
+            # summary become this filter's, with every island's score.
+            scores = self.island_scores()
+            best = self.best_island()
+            best.finish()
+            self.diagnostics.counters.update(best.diagnostics.counters)
+            self.diagnostics.summary.update(best.diagnostics.summary)
+            self.diagnostics.summary["islands"] = {
+                "reported": int(np.argmax(scores)), "seeds": [isl.seed for isl in self._islands],
+                "scores": [float(v) for v in scores],
+            }
+            return
         if self.params.loop_correction and self._maps is not None and self._nodes > 1:
             self.diagnostics.summary["loop_correction"] = self.correct_loops()
         if self.params.wall_refinement and self._maps is not None and len(self._frame_times) > 1:
