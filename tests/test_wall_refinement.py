@@ -255,3 +255,34 @@ def test_compiled_end_association_matches_the_numpy_loop():
     got = associate_ends(crowd, poses, 0.3, 2)
     assert got.max() >= 1
     np.testing.assert_array_equal(got, _associate_ends_numpy(crowd, poses, 0.3, 2))
+
+
+def test_frozen_and_given_associations(monkeypatch):
+    """The diagnostics' hooks (docs/measure_wall_refinement.py ``freeze=``): frozen associations are the first
+    round's, kept; given ones are used instead of the refinement's own."""
+    from slam2d.graph import wall_refinement as wr
+
+    truth, scans, graph = _room_problem()
+    p = GraphSlamParams(wall_refinement=True)
+    segs = scan_segments(scans, [None] * len(scans), p)
+    ends = scan_wall_ends(scans, [None] * len(scans), p)
+    free = refine_walls(graph, segs, p, ends=ends)
+    monkeypatch.setattr(wr, "_FREEZE", {"walls", "ends"})
+    frozen = refine_walls(graph, segs, p, ends=ends)
+    # the same associations, made at the start poses, as given ones: the same solve, bit for bit
+    walls0 = associate_segments(segs, graph.poses, p)
+    lm0 = associate_ends(ends, graph.poses, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+    monkeypatch.setattr(wr, "_FREEZE", set())
+    monkeypatch.setattr(wr, "_GIVEN", {"walls": lambda s: walls0, "ends": lambda e: lm0})
+    given = refine_walls(graph, segs, p, ends=ends)
+    np.testing.assert_array_equal(frozen.poses, given.poses)
+    assert {r["beams"] for r in frozen.rounds} == {float((walls0[segs.segment] >= 0).sum())}
+    assert {r["sightings"] for r in frozen.rounds} == {float((lm0 >= 0).sum())}
+    # from 6 cm off the association changes as the poses improve when it is redone, so the two solves differ
+    assert not np.array_equal(free.poses, frozen.poses)
+    assert len({r["beams"] for r in free.rounds}) > 1
+    # given "none": nothing to solve, the poses stay
+    monkeypatch.setattr(wr, "_GIVEN", {"walls": lambda s: np.full(s.seg_node.size, -1, np.int64),
+                                       "ends": lambda e: np.full(len(e), -1, np.int64)})
+    none = refine_walls(graph, segs, p, ends=ends)
+    np.testing.assert_array_equal(none.poses, graph.poses)
