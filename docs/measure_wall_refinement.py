@@ -16,6 +16,13 @@ the end the mean ATE per setting. The same numbers as docs/measure_wall_end_revi
 With ``--from-truth`` each setting also runs from the *true* poses of the frames (instead of karto's)
 and prints that ATE: what the refinement's own optimum is worth with the readings it uses, apart
 from where it starts.
+
+Diagnostics of the association (a setting's ``freeze=A,B,...``, not a parameter; docs/methods/karto-measured.md,
+*URG-04LX: is it the association?*): ``walls`` / ``ends`` make the segment-to-wall / end-to-landmark association
+once, in the first round (at the start poses), and keep it for every round; ``oracle-walls`` / ``oracle-ends``
+take it from the simulator's truth instead (each segment on the true straight line most of its beams lie on at
+the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
+refinement's own association at the true poses compares with the truth's.
 """
 
 from __future__ import annotations
@@ -27,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slam2d.graph import wall_refinement as wr
 from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+from slam2d.graph import wall_refinement as wr
 from slam2d.io.tum import write_tum
 from slam2d.methods.runner import build_method, run_method
 from slam2d.report.map_outputs import write_map_outputs
@@ -204,9 +211,10 @@ def main() -> None:
             slam.refine_walls()
             cpu = time.process_time() - cpu
             walls = slam.diagnostics.summary["wall_refinement"]["walls"]
+            objective = slam.diagnostics.summary["wall_refinement"]["objective_after"]
             ate, err = _judge(slam, truth, Path(a.cache) / f"run-refine-variant-{a.world}-{seed}")
             means.setdefault(k, []).append(ate)
-            text = f"[{variant_names[k]}] {ate:.3f} / {err:.3f} ({walls:.0f} walls, cpu {cpu:.1f} s"
+            text = f"[{variant_names[k]}] {ate:.3f} / {err:.3f} ({walls:.0f} walls, objective {objective:.6g}, cpu {cpu:.1f} s"
             if a.from_truth:
                 # The same refinement started at the true poses of the frames (and of the nodes among them).
                 node_frame = np.asarray(slam._frame_node)
@@ -217,8 +225,9 @@ def main() -> None:
                 slam.refine_walls()
                 del slam.trajectory
                 ate_t, _ = _judge(slam, truth, Path(a.cache) / f"run-refine-truth-{a.world}-{seed}")
+                objective = slam.diagnostics.summary["wall_refinement"]["objective_after"]
                 means.setdefault(-1 - k, []).append(ate_t)
-                text += f"; from the truth {ate_t:.3f}"
+                text += f"; from the truth {ate_t:.3f}, objective {objective:.6g}"
             line.append(text + ")")
         print(f"{a.world} {a.laser} seed {seed}: " + ", ".join(line), flush=True)
     for k, v in enumerate(variants):
