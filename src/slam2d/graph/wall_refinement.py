@@ -178,6 +178,13 @@ class WallRefinementParams:
         1.0, low=0.0,
         help="factor on the information of the edges that tie the poses (wall_refinement_edges) (wall_refinement)",
     )
+    wall_refinement_carry_damping: bool = param(
+        False,
+        help="keep the Levenberg-Marquardt damping from one association round to the next instead of restarting "
+        "each round at 1e-4 (wall_refinement): the along-track modes of a long chain of frames are far weaker than "
+        "the diagonal the damping scales, so restarted they barely move in 3 steps a round and the solve stops "
+        "short of its optimum (docs/methods/karto-measured.md, URG-04LX: is it the association?)",
+    )
 
 
 # ----------------------------------------------------------------------------- line extraction
@@ -697,6 +704,7 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
 
     rounds: list[dict[str, float]] = []
     cost_before = math.nan
+    lam = 1e-4
     nw = 0
     if "report" in _GIVEN:
         print(_GIVEN.pop("report")(segs, ends, p), flush=True)
@@ -723,7 +731,7 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
         obj = objective(x, alpha, d, lm, seg_wall, obs, psq)
         if math.isnan(cost_before):
             cost_before = obj
-        lam = 1e-4
+        lam = min(lam, 1e-4) if p.wall_refinement_carry_damping else 1e-4
         for _ in range(p.wall_refinement_steps if steps is None else steps):
             rows, cols, vals, rhs = [], [], [], []
             # beams: d res / d local pose step = n^T R [I | (-q_y, q_x)], d res / d (alpha, d) = (n_perp . p, -1)
