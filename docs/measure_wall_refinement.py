@@ -16,6 +16,13 @@ the end the mean ATE per setting. The same numbers as docs/measure_wall_end_revi
 With ``--from-truth`` each setting also runs from the *true* poses of the frames (instead of karto's)
 and prints that ATE: what the refinement's own optimum is worth with the readings it uses, apart
 from where it starts.
+
+Diagnostics of the association (a setting's ``freeze=A,B,...``, not a parameter; docs/methods/karto-measured.md,
+*URG-04LX: is it the association?*): ``walls`` / ``ends`` make the segment-to-wall / end-to-landmark association
+once, in the first round (at the start poses), and keep it for every round; ``oracle-walls`` / ``oracle-ends``
+take it from the simulator's truth instead (each segment on the true straight line most of its beams lie on at
+the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
+refinement's own association at the true poses compares with the truth's.
 """
 
 from __future__ import annotations
@@ -28,12 +35,121 @@ from pathlib import Path
 import numpy as np
 
 from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
+from slam2d.graph import wall_refinement as wr
 from slam2d.io.tum import write_tum
 from slam2d.methods.runner import build_method, run_method
 from slam2d.report.map_outputs import write_map_outputs
 
 sys.path.insert(0, str(Path(__file__).parent))
 from measure_gmapping_proposal import cached_recording  # noqa: E402
+
+
+def _oracle(world_name: str, true_frames: np.ndarray):
+    """Associations from the simulator's truth (diagnostics, ``freeze=oracle-walls,oracle-ends``): each segment's
+    wall is the true straight line (collinear walls of the world as one) that most of its beams, placed at the
+    true frame poses, lie on (none when under 80 % of them do); each wall-end sighting's landmark is the true
+    wall end point within 0.1 m of it (none: a detection where no wall ends). Also a function printing how the
+    refinement's own association at the true poses compares with them."""
+    from slam2d.eval.accuracy_bound import _hit_surfaces
+    from slam2d.graph.wall_refinement import associate_ends, associate_segments, place_points
+    from slam2d.sim.world import load_world
+
+    w = load_world(world_name)
+    seg = np.asarray(w.segments, np.float64)
+    circles = np.asarray(w.circles, np.float64).reshape(-1, 3)
+    t = np.arctan2(seg[:, 3] - seg[:, 1], seg[:, 2] - seg[:, 0]) + 0.5 * np.pi
+    t = np.mod(t, np.pi)
+    dd = np.cos(t) * seg[:, 0] + np.sin(t) * seg[:, 1]
+    _, line = np.unique(np.round(np.stack([t, dd], 1), 4), axis=0, return_inverse=True)
+    line = np.concatenate([line.ravel(), line.max() + 1 + np.arange(circles.shape[0])])  # a circle is its own
+    verts, vert_id = np.unique(np.round(np.concatenate([seg[:, :2], seg[:, 2:]]), 4), axis=0, return_inverse=True)
+
+    def surfaces(pts):
+        sf = np.empty(pts.shape[0], np.int64)
+        al = np.empty(pts.shape[0])
+        _hit_surfaces(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), seg, circles, sf, al)
+        return sf
+
+    def seg_lines(segs):
+        bl = line[surfaces(place_points(true_frames[segs.node], segs.q))]
+        ns = segs.seg_node.size
+        out = np.full(ns, -1, np.int64)
+        order = np.argsort(segs.segment, kind="stable")
+        bounds = np.searchsorted(segs.segment[order], np.arange(ns + 1))
+        for k in range(ns):
+            v = bl[order[bounds[k]: bounds[k + 1]]]
+            if v.size:
+                vals, cnt = np.unique(v, return_counts=True)
+                if cnt.max() >= 0.8 * v.size:
+                    out[k] = vals[np.argmax(cnt)]
+        return out
+
+    def walls(segs):
+        out = seg_lines(segs)
+        _, idx = np.unique(out[out >= 0], return_inverse=True)
+        res = np.full(out.size, -1, np.int64)
+        res[out >= 0] = idx.ravel()
+        return res
+
+    def end_points(e):
+        world = place_points(true_frames[e.node], e.z)
+        dist = np.hypot(world[:, None, 0] - verts[None, :, 0], world[:, None, 1] - verts[None, :, 1])
+        near = np.argmin(dist, 1)
+        return np.where(dist[np.arange(near.size), near] < 0.1, near, -1)
+
+    def report(segs, e, p):
+        """The refinement's association at the true poses against the truth's."""
+        tl = seg_lines(segs)
+        sw = associate_segments(segs, true_frames, p)
+        cnt = np.bincount(segs.segment, minlength=sw.size)
+        mixed = wrong = 0
+        for k in np.unique(sw[sw >= 0]):
+            mine = sw == k
+            vals, c = np.unique(tl[mine], return_counts=True)
+            major = vals[np.argmax(np.bincount(np.searchsorted(vals, tl[mine]), cnt[mine]))]
+            bad = mine & (tl != major)
+            wrong += int(cnt[bad].sum())
+            mixed += int(bad.any())
+        used = int(cnt[sw >= 0].sum())
+        txt = (f"walls at the truth: {int(sw.max()) + 1} walls, {used} beams, {wrong} beams "
+               f"({100.0 * wrong / max(used, 1):.1f} %) on segments not on the wall's main true line, in {mixed} walls; "
+               f"segments on no single true line {int((tl < 0).sum())} of {tl.size}")
+        if e is not None and len(e):
+            lm = associate_ends(e, true_frames, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+            tv = end_points(e)
+            on = lm >= 0
+            mixed_l = wrong_l = 0
+            for k in np.unique(lm[on]):
+                v = tv[lm == k]
+                vals, c = np.unique(v, return_counts=True)
+                major = vals[np.argmax(c)]
+                wrong_l += int((v != major).sum())
+                mixed_l += int((v != major).any())
+            txt += (f"; ends at the truth: {int(on.sum())} sightings used in {int(lm.max()) + 1} landmarks, "
+                    f"{int((on & (tv < 0)).sum())} of them at no true wall end, {wrong_l} not at their landmark's "
+                    f"main true end (in {mixed_l} landmarks); true-end sightings {int((tv >= 0).sum())} of {len(e)}")
+        return txt
+
+    def ends(e):
+        tv = end_points(e)
+        # One sighting per frame and end (the nearest), ends seen from 3 frames or more.
+        lm = np.full(tv.size, -1, np.int64)
+        world = place_points(true_frames[e.node], e.z)
+        err = np.where(tv >= 0, np.hypot(*(world - verts[np.maximum(tv, 0)]).T), np.inf)
+        order = np.lexsort((err, tv, e.node))
+        seen = set()
+        for i in order:
+            if tv[i] >= 0 and (int(e.node[i]), int(tv[i])) not in seen:
+                seen.add((int(e.node[i]), int(tv[i])))
+                lm[i] = tv[i]
+        vals, cnt = np.unique(lm[lm >= 0], return_counts=True)
+        keep = vals[cnt >= 3]
+        res = np.full(lm.size, -1, np.int64)
+        ok = np.isin(lm, keep)
+        res[ok] = np.searchsorted(keep, lm[ok])
+        return res
+
+    return walls, ends, report
 
 
 def _judge(slam, truth, out: Path) -> tuple[float, float]:
@@ -58,6 +174,7 @@ def main() -> None:
     base = dict(s.split("=", 1) for s in a.base.split())
     base.setdefault("wall_end_landmarks", "false")
     variants = [dict(s.split("=", 1) for s in v.split()) for v in (a.settings or [""])]
+    variant_names = [s or "defaults" for s in (a.settings or [""])]
     means: dict[int, list[float]] = {}
     for seed in (int(s) for s in a.seeds.split(",")):
         sim_dir = cached_recording(a.cache, a.world, a.laser, seed)
@@ -76,6 +193,16 @@ def main() -> None:
         times, _ = slam.trajectory()
         true_frames = truth.poses[np.clip(np.searchsorted(truth.times, times), 0, len(truth.times) - 1)]
         for k, v in enumerate(variants):
+            v = dict(v)
+            wr._FREEZE = set(v.pop("freeze", "").replace("+", ",").split(",")) - {""}
+            oracle_w, oracle_e, report = _oracle(a.world, true_frames)
+            wr._GIVEN = {}
+            if "oracle-walls" in wr._FREEZE:
+                wr._GIVEN["walls"] = oracle_w
+            if "oracle-ends" in wr._FREEZE:
+                wr._GIVEN["ends"] = oracle_e
+            if "report" in wr._FREEZE:
+                wr._GIVEN["report"] = report
             slam.params = fe.params = build_method("karto", settings={**base, **v, "wall_refinement": "true"}).params
             fe.graph.poses = poses0
             slam._refined = None
@@ -84,9 +211,10 @@ def main() -> None:
             slam.refine_walls()
             cpu = time.process_time() - cpu
             walls = slam.diagnostics.summary["wall_refinement"]["walls"]
+            objective = slam.diagnostics.summary["wall_refinement"]["objective_after"]
             ate, err = _judge(slam, truth, Path(a.cache) / f"run-refine-variant-{a.world}-{seed}")
             means.setdefault(k, []).append(ate)
-            text = f"[{' '.join(f'{x}={y}' for x, y in v.items()) or 'defaults'}] {ate:.3f} / {err:.3f} ({walls:.0f} walls, cpu {cpu:.1f} s"
+            text = f"[{variant_names[k]}] {ate:.3f} / {err:.3f} ({walls:.0f} walls, objective {objective:.6g}, cpu {cpu:.1f} s"
             if a.from_truth:
                 # The same refinement started at the true poses of the frames (and of the nodes among them).
                 node_frame = np.asarray(slam._frame_node)
@@ -97,13 +225,14 @@ def main() -> None:
                 slam.refine_walls()
                 del slam.trajectory
                 ate_t, _ = _judge(slam, truth, Path(a.cache) / f"run-refine-truth-{a.world}-{seed}")
+                objective = slam.diagnostics.summary["wall_refinement"]["objective_after"]
                 means.setdefault(-1 - k, []).append(ate_t)
-                text += f"; from the truth {ate_t:.3f}"
+                text += f"; from the truth {ate_t:.3f}, objective {objective:.6g}"
             line.append(text + ")")
         print(f"{a.world} {a.laser} seed {seed}: " + ", ".join(line), flush=True)
     for k, v in enumerate(variants):
         extra = f", from the truth {np.mean(means[-1 - k]):.3f}" if a.from_truth else ""
-        print(f"mean ATE {np.mean(means[k]):.3f} m{extra}: {' '.join(f'{x}={y}' for x, y in v.items()) or 'defaults'}")
+        print(f"mean ATE {np.mean(means[k]):.3f} m{extra}: {variant_names[k]}")
 
 
 if __name__ == "__main__":

@@ -255,3 +255,76 @@ def test_compiled_end_association_matches_the_numpy_loop():
     got = associate_ends(crowd, poses, 0.3, 2)
     assert got.max() >= 1
     np.testing.assert_array_equal(got, _associate_ends_numpy(crowd, poses, 0.3, 2))
+
+
+def test_frozen_and_given_associations(monkeypatch):
+    """The diagnostics' hooks (docs/measure_wall_refinement.py ``freeze=``): frozen associations are the first
+    round's, kept; given ones are used instead of the refinement's own."""
+    from slam2d.graph import wall_refinement as wr
+
+    truth, scans, graph = _room_problem()
+    p = GraphSlamParams(wall_refinement=True)
+    segs = scan_segments(scans, [None] * len(scans), p)
+    ends = scan_wall_ends(scans, [None] * len(scans), p)
+    free = refine_walls(graph, segs, p, ends=ends)
+    monkeypatch.setattr(wr, "_FREEZE", {"walls", "ends"})
+    frozen = refine_walls(graph, segs, p, ends=ends)
+    # the same associations, made at the start poses, as given ones: the same solve, bit for bit
+    walls0 = associate_segments(segs, graph.poses, p)
+    lm0 = associate_ends(ends, graph.poses, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+    monkeypatch.setattr(wr, "_FREEZE", set())
+    monkeypatch.setattr(wr, "_GIVEN", {"walls": lambda s: walls0, "ends": lambda e: lm0})
+    given = refine_walls(graph, segs, p, ends=ends)
+    np.testing.assert_array_equal(frozen.poses, given.poses)
+    assert {r["beams"] for r in frozen.rounds} == {float((walls0[segs.segment] >= 0).sum())}
+    assert {r["sightings"] for r in frozen.rounds} == {float((lm0 >= 0).sum())}
+    # from 6 cm off the association changes as the poses improve when it is redone, so the two solves differ
+    assert not np.array_equal(free.poses, frozen.poses)
+    assert len({r["beams"] for r in free.rounds}) > 1
+    # given "none": nothing to solve, the poses stay
+    monkeypatch.setattr(wr, "_GIVEN", {"walls": lambda s: np.full(s.seg_node.size, -1, np.int64),
+                                       "ends": lambda e: np.full(len(e), -1, np.int64)})
+    none = refine_walls(graph, segs, p, ends=ends)
+    np.testing.assert_array_equal(none.poses, graph.poses)
+
+
+class _EndPrior:
+    """An extra block for refine_walls: the last pose's x held at ``target`` (sigma 1 cm)."""
+
+    def __init__(self, n, target):
+        self.n, self.target = n, target
+
+    def associate(self, x):
+        return 1
+
+    def objective(self, x):
+        return float(((x[-1, 0] - self.target) / 0.01) ** 2)
+
+    def rows(self, x, row0):
+        return (np.array([row0]), np.array([3 * (self.n - 1)]), np.array([1.0 / 0.01]),
+                np.array([(x[-1, 0] - self.target) / 0.01]))
+
+
+def test_carried_damping_reaches_the_optimum_of_a_long_chain():
+    """A chain of 2000 poses tied by odometry 5 % long, the last one held at its true x: the along-chain mode is
+    far weaker than the diagonal the damping scales, so the solve restarted at 1e-4 each round (3 rounds of 2
+    steps) stops short of the optimum (a linear problem: the odometry's error spread evenly, up to the prior's
+    give); carried over the rounds it gets there."""
+    n = 2000
+    truth = np.stack([0.01 * np.arange(n), np.zeros(n), np.zeros(n)], -1)
+    inc = se2.relative(truth[:-1], truth[1:])
+    inc[:, 0] *= 1.05
+    start = np.zeros_like(truth)
+    for i in range(n - 1):
+        start[i + 1] = se2.compose(start[i], inc[i])
+    graph = PoseGraph()
+    graph.add_nodes(start)
+    graph.add_edges(np.arange(n - 1), np.arange(1, n), inc, np.diag(1.0 / np.array([0.01, 0.01, 0.01]) ** 2))
+    optimum = start[:, 0] * (truth[-1, 0] / start[-1, 0])  # the odometry's stretch spread evenly
+    segs = scan_segments([], [], GraphSlamParams())
+    off = [float(np.abs(refine_walls(graph, segs, GraphSlamParams(wall_refinement_carry_damping=carry),
+                                     extra=_EndPrior(n, truth[-1, 0]), iterations=3, steps=2).poses[:, 0]
+                              - optimum).max())
+           for carry in (False, True)]
+    assert start[-1, 0] - truth[-1, 0] > 0.9  # 1 m to take out
+    assert off[0] > 0.3 and off[1] < 0.02, off

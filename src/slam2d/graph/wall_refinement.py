@@ -59,6 +59,15 @@ __all__ = ["WallRefinementParams", "refine_path", "Segments", "extract_segments"
 
 _DEG = math.pi / 180.0
 
+# Diagnostics only (docs/measure_wall_refinement.py, a setting's ``freeze=walls,ends``), not a parameter: the
+# associations named here ("walls": segments to walls, "ends": wall-end sightings to landmarks) are made once,
+# in refine_walls' first round, and kept for every later round instead of being redone at the new poses.
+_FREEZE: set[str] = set()
+# Diagnostics only, likewise: associations given from outside (e.g. the simulator's truth), ``"walls"``: a function of
+# the Segments giving every segment's wall, ``"ends"``: of the EndSightings giving every sighting's landmark (-1: none);
+# used for every round.
+_GIVEN: dict[str, Any] = {}
+
 
 @dataclass
 class WallRefinementParams:
@@ -168,6 +177,13 @@ class WallRefinementParams:
     wall_refinement_edge_scale: float = param(
         1.0, low=0.0,
         help="factor on the information of the edges that tie the poses (wall_refinement_edges) (wall_refinement)",
+    )
+    wall_refinement_carry_damping: bool = param(
+        False,
+        help="keep the Levenberg-Marquardt damping from one association round to the next instead of restarting "
+        "each round at 1e-4 (wall_refinement): the along-track modes of a long chain of frames are far weaker than "
+        "the diagonal the damping scales, so restarted they barely move in 3 steps a round and the solve stops "
+        "short of its optimum (docs/methods/karto-measured.md, URG-04LX: is it the association?)",
     )
 
 
@@ -635,10 +651,12 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
            else np.zeros((0, 3, 3)))
     delta = p.wall_refinement_robust_delta
 
-    def point_setup(x_):
-        """Observations renumbered over the observed landmarks, their start positions and square-root information."""
+    def point_setup(x_, lm_=None):
+        """Observations renumbered over the observed landmarks, their start positions and square-root information
+        (``lm_``: the sightings' landmarks when given, else associated at ``x_``)."""
         if ends is not None and len(ends):
-            lm_ = associate_ends(ends, x_, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+            if lm_ is None:
+                lm_ = associate_ends(ends, x_, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
             ok = lm_ >= 0
             obs_ = PointObservations(ends.node[ok], lm_[ok], ends.z[ok], ends.information[ok])
         elif points is not None and len(points):
@@ -686,11 +704,20 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
 
     rounds: list[dict[str, float]] = []
     cost_before = math.nan
+    lam = 1e-4
     nw = 0
+    if "report" in _GIVEN:
+        print(_GIVEN.pop("report")(segs, ends, p), flush=True)
+    frozen_walls = _GIVEN["walls"](segs) if "walls" in _GIVEN else None
+    frozen_ends = _GIVEN["ends"](ends) if "ends" in _GIVEN and ends is not None and len(ends) else None
     for _ in range(p.wall_refinement_iterations if iterations is None else iterations):
-        seg_wall = associate_segments(segs, x, p)
+        seg_wall = associate_segments(segs, x, p) if frozen_walls is None else frozen_walls
+        if "walls" in _FREEZE:
+            frozen_walls = seg_wall
         nw = int(seg_wall.max()) + 1 if seg_wall.size and seg_wall.max() >= 0 else 0
-        obs, lm, psq = point_setup(x)
+        if frozen_ends is None and "ends" in _FREEZE and ends is not None and len(ends):
+            frozen_ends = associate_ends(ends, x, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+        obs, lm, psq = point_setup(x, frozen_ends)
         nl = lm.shape[0]
         pairs = extra.associate(x) if extra is not None else 0
         if nw == 0 and nl == 0 and pairs == 0:
@@ -704,7 +731,7 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
         obj = objective(x, alpha, d, lm, seg_wall, obs, psq)
         if math.isnan(cost_before):
             cost_before = obj
-        lam = 1e-4
+        lam = min(lam, 1e-4) if p.wall_refinement_carry_damping else 1e-4
         for _ in range(p.wall_refinement_steps if steps is None else steps):
             rows, cols, vals, rhs = [], [], [], []
             # beams: d res / d local pose step = n^T R [I | (-q_y, q_x)], d res / d (alpha, d) = (n_perp . p, -1)
