@@ -706,8 +706,8 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
     cost_before = math.nan
     lam = 1e-4
     nw = 0
-    if "report" in _GIVEN:
-        print(_GIVEN.pop("report")(segs, ends, p), flush=True)
+    if "report" in _GIVEN:  # the caller prints it (the library prints nothing)
+        _GIVEN["report_text"] = _GIVEN.pop("report")(segs, ends, p)
     frozen_walls = _GIVEN["walls"](segs) if "walls" in _GIVEN else None
     frozen_ends = _GIVEN["ends"](ends) if "ends" in _GIVEN and ends is not None and len(ends) else None
     for _ in range(p.wall_refinement_iterations if iterations is None else iterations):
