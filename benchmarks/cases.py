@@ -1216,6 +1216,11 @@ CASES: list[Case] = [
          _gmapping("aces/aces.clf.gz", particles=300, settings={**GMAPPING_DENSE, "ogain": 0.3}, more_seeds=(11, 12),
                    first_seed=10),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
+    Case("gmapping-aces-islands", "`gmapping` on aces with the dense-log set, 300 particles, `ogain=0.3` and "
+         "`islands=3` (three filters, the best-scoring reported), seeds 10-12; docs: \"Islands\"",
+         _gmapping("aces/aces.clf.gz", particles=300, settings={**GMAPPING_DENSE, "ogain": 0.3, "islands": 3},
+                   more_seeds=(11, 12), first_seed=10),
+         target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-fr101", "`gmapping` defaults (30 particles) on fr101", _gmapping("fr101/fr101.clf.gz"),
          target="ATE < 0.15 m (in the notes)", needs=(SHARED,), repeat=1),
     Case("gmapping-fr101-dense", "`gmapping` on fr101 with the docs' dense-log set (`srt=0.05 stt=0.05`)",
