@@ -13,7 +13,6 @@ alignment, m) and which island ``islands=K`` reports (the largest score).
 from __future__ import annotations
 
 import argparse
-import ast
 import sys
 from pathlib import Path
 
@@ -27,7 +26,8 @@ def main() -> None:
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
     from slam2d.io import open_recording
     from slam2d.io.tum import read_tum
-    from slam2d.methods.gmapping import GMapping, GMappingParams, island_seed
+    from slam2d.methods.gmapping import island_seed
+    from slam2d.methods.runner import build_method
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log", type=Path)
@@ -35,19 +35,13 @@ def main() -> None:
     ap.add_argument("--islands", type=int, default=10)
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE")
     a = ap.parse_args()
-    settings = {}
-    for item in a.set:
-        name, value = item.split("=", 1)
-        try:
-            settings[name] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            settings[name] = value
+    settings = dict(item.split("=", 1) for item in a.set)  # parsed as `slam2d run --set` parses them
     frames = list(open_recording(a.log).frames())
     rt, rp = read_tum(a.log.parent / "reference.tum")
     for seed in a.seeds:
         rows = []
         for k in range(a.islands):
-            slam = GMapping(GMappingParams(**settings), seed=island_seed(seed, k)).run(frames)
+            slam = build_method("gmapping", settings=settings, seed=island_seed(seed, k)).run(frames)
             t, p = slam.trajectory()
             ate = absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
             rows.append((float(slam._weight_sum.max() / slam._nodes), ate))
