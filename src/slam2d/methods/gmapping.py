@@ -80,8 +80,8 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams):
         help="not in GMapping: run this many independent filters of `particles` each (the first with the run's "
         "seed, the others with seeds drawn from it) and report the one whose best particle has the largest "
         "accumulated log-likelihood per update (GMapping's weightSum, its own choice of the best particle); "
-        "1 = GMapping. A filter that lost the right map early scores far lower (see docs/methods/gmapping.md, "
-        "islands); costs islands x the CPU and the memory")
+        "1 = GMapping. A filter that lost the right map early scores far lower (docs/methods/gmapping-measured.md, "
+        "Islands); costs islands x the CPU and the memory")
     maxUrange: float | None = param(
         None, unit="m", low=0.0, help="usable range: beams are cut here for mapping and ignored beyond it "
         "for matching; unset: maxRange")
