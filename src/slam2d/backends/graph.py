@@ -24,18 +24,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
+from slam2d.core.arrays import grown
 from slam2d.errors import InputError
 
 __all__ = ["PoseGraph", "edge_errors", "edge_jacobians", "graph_cost"]
-
-
-def _grow(arr: NDArray, needed: int) -> NDArray:
-    if needed <= arr.shape[0]:
-        return arr
-    cap = max(needed, 2 * arr.shape[0], 16)
-    out = np.zeros((cap,) + arr.shape[1:], dtype=arr.dtype)
-    out[: arr.shape[0]] = arr
-    return out
 
 
 def _plainly_valid(i, j, n: int, z: NDArray[np.float64], info: NDArray[np.float64]) -> bool:
@@ -115,7 +107,7 @@ class PoseGraph:
         if not np.all(np.isfinite(arr)):
             raise InputError("node pose must be finite", field="pose")
         k = arr.shape[0]
-        self._poses = _grow(self._poses, self._n + k)
+        self._poses = grown(self._poses, self._n + k, minimum=16)
         self._poses[self._n : self._n + k] = arr
         self._poses[self._n : self._n + k, 2] = se2.wrap_angle(arr[:, 2])
         idx = np.arange(self._n, self._n + k, dtype=np.int64)
@@ -154,10 +146,10 @@ class PoseGraph:
         if _plainly_valid(i, j, self._n, z, info):
             # A front end adds its edges one at a time: the checks add_edges makes, on Python floats.
             m = self._m
-            self._ei = _grow(self._ei, m + 1)
-            self._ej = _grow(self._ej, m + 1)
-            self._z = _grow(self._z, m + 1)
-            self._info = _grow(self._info, m + 1)
+            self._ei = grown(self._ei, m + 1, minimum=16)
+            self._ej = grown(self._ej, m + 1, minimum=16)
+            self._z = grown(self._z, m + 1, minimum=16)
+            self._info = grown(self._info, m + 1, minimum=16)
             self._ei[m] = i
             self._ej[m] = j
             self._z[m] = z
@@ -204,10 +196,10 @@ class PoseGraph:
         if k and np.any(np.linalg.eigvalsh(info)[:, 0] < -1e-9 * np.abs(info).max(axis=(1, 2))):
             raise InputError("information matrix must be positive semi-definite", field="information")
         m = self._m
-        self._ei = _grow(self._ei, m + k)
-        self._ej = _grow(self._ej, m + k)
-        self._z = _grow(self._z, m + k)
-        self._info = _grow(self._info, m + k)
+        self._ei = grown(self._ei, m + k, minimum=16)
+        self._ej = grown(self._ej, m + k, minimum=16)
+        self._z = grown(self._z, m + k, minimum=16)
+        self._info = grown(self._info, m + k, minimum=16)
         self._ei[m : m + k] = ii
         self._ej[m : m + k] = jj
         self._z[m : m + k] = z

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from slam2d.backends.landmarks import (PointObservations, landmark_covariance, landmark_positions,
                                       optimize_with_landmarks, point_errors)
 from slam2d.core import se2
+from slam2d.core.arrays import grown
 from slam2d.matching.wall_ends import detect_wall_ends
 from slam2d.params import param
 
@@ -151,14 +152,6 @@ class WallEndParams:
         "(wall_end_revisits): a box corner is the end of either face (90 deg), the two jambs of a door "
         "point opposite ways (180 deg)",
     )
-
-
-def _grow(arr: NDArray, needed: int) -> NDArray:
-    if needed <= arr.shape[0]:
-        return arr
-    out = np.zeros((max(needed, 2 * arr.shape[0], 64),) + arr.shape[1:], dtype=arr.dtype)
-    out[: arr.shape[0]] = arr
-    return out
 
 
 class WallEndLandmarks:
@@ -285,12 +278,12 @@ class WallEndLandmarks:
         lm = best[use]
         info = np.linalg.inv(ends.covariances[use]) * p.wall_end_information_scale
         k0, k = self._k, int(use.sum())
-        self._node = _grow(self._node, k0 + k)
-        self._lm = _grow(self._lm, k0 + k)
-        self._origin = _grow(self._origin, k0 + k)
-        self._z = _grow(self._z, k0 + k)
-        self._info = _grow(self._info, k0 + k)
-        self._alive = _grow(self._alive, k0 + k)
+        self._node = grown(self._node, k0 + k, minimum=64)
+        self._lm = grown(self._lm, k0 + k, minimum=64)
+        self._origin = grown(self._origin, k0 + k, minimum=64)
+        self._z = grown(self._z, k0 + k, minimum=64)
+        self._info = grown(self._info, k0 + k, minimum=64)
+        self._alive = grown(self._alive, k0 + k, minimum=64)
         self._node[k0 : k0 + k] = node
         self._lm[k0 : k0 + k] = lm
         self._origin[k0 : k0 + k] = lm
@@ -310,11 +303,11 @@ class WallEndLandmarks:
         return entered
 
     def _grow_landmarks(self, needed: int) -> None:
-        self._pos = _grow(self._pos, needed)
-        self._cov = _grow(self._cov, needed)
-        self._last = _grow(self._last, needed)
-        self._seen = _grow(self._seen, needed)
-        self._dir = _grow(self._dir, needed)
+        self._pos = grown(self._pos, needed, minimum=64)
+        self._cov = grown(self._cov, needed, minimum=64)
+        self._last = grown(self._last, needed, minimum=64)
+        self._seen = grown(self._seen, needed, minimum=64)
+        self._dir = grown(self._dir, needed, minimum=64)
 
     def _refresh(self, lm: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
         """Place landmarks ``lm`` from their alive sightings at ``poses``."""

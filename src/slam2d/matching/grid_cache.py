@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.core.arrays import grown
 from slam2d.matching.correlative_grid import _derive_grid, _inside, _inside_not, _smear
 from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks,
     _node_stats, _scatter_max_nodes)
@@ -109,9 +110,8 @@ class GridCache:
             return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
         top = int(idx.max()) + 1
         if top > self._known.size:
-            grow = max(top, 2 * self._known.size)
-            self._known = np.concatenate([self._known, np.zeros(grow - self._known.size, bool)])
-            self._box = np.concatenate([self._box, np.zeros((grow - self._box.shape[0], 6))])
+            self._known = grown(self._known, top)
+            self._box = grown(self._box, self._known.size)
         # Each node's box is computed once (until the next invalidate), the rest is array work.
         for n in idx[~self._known[idx]].tolist():
             pts, sig = self.points_of(n)
@@ -364,11 +364,7 @@ class GridCache:
 
     def _ensure_blocks(self, nodes: NDArray[np.int64]) -> None:
         """Compute the bound-grid blocks of those ``nodes`` that have none yet (once per node until invalidated)."""
-        top = int(nodes.max()) + 1
-        if top > self._block_span.shape[0]:
-            grow = max(top, 2 * self._block_span.shape[0])
-            self._block_span = np.concatenate([self._block_span, np.full((grow - self._block_span.shape[0], 2), -1,
-                                                                         np.int64)])
+        self._block_span = grown(self._block_span, int(nodes.max()) + 1, fill=-1)
         for n in nodes[self._block_span[nodes, 0] < 0].tolist():
             pts, sig = self.points_of(n)
             sigma_max = float(sig.max()) if sig.size else self.matcher.smear_deviation
@@ -376,10 +372,7 @@ class GridCache:
                                self.matcher.resolution, _BOUND_BLOCK)
             a = self._block_used
             b = a + got[0].shape[0]
-            if b > self._block_store[0].shape[0]:
-                cap = max(b, 2 * self._block_store[0].shape[0])
-                self._block_store = tuple(np.concatenate([col[:a], np.zeros(cap - a, col.dtype)])
-                                          for col in self._block_store)
+            self._block_store = tuple(grown(col, b) for col in self._block_store)
             for col, part in zip(self._block_store, got):
                 col[a:b] = part
             self._block_span[n] = (a, b)
@@ -422,12 +415,7 @@ class GridCache:
         done = len(starts) - 1
         if done < len(parts):
             size = starts[-1] + sum(p[0].shape[0] for p in parts[done:])
-            if size > cols[0].shape[0]:
-                cap = max(size, 2 * cols[0].shape[0])
-                for k in range(3):
-                    grown = np.empty(cap)
-                    grown[: starts[-1]] = cols[k][: starts[-1]]
-                    cols[k] = grown
+            cols[:] = [grown(col, size) for col in cols]
             new = parts[done:]
             a = starts[-1]
             pts, sig = _concat(new)  # one copy of the new nodes' points, then three column writes (not three per node)
