@@ -173,3 +173,50 @@ def test_reference_positions_updated_row_by_row_are_the_whole_transform():
         got = fe.reference_positions()
         assert np.array_equal(got, whole()), step
         assert np.array_equal(fe.reference_positions(), got)  # asked again: the cached answer
+
+
+@pytest.mark.parametrize("n", [0, 1, 31, 64, 65, 95, 96, 97, 500, 723])
+def test_interleaved_points_are_the_argsort_gather(n):
+    from slam2d.matching.correlative_search import _PRUNE_CHUNK, _interleaved
+
+    q = np.random.default_rng(n).normal(size=(n, 2))
+    stride = n // _PRUNE_CHUNK
+    expect = q if stride < 2 else q[np.argsort(np.arange(n) % stride, kind="stable")]
+    got = _interleaved(q)
+    assert got.flags.c_contiguous
+    assert np.array_equal(got, expect)
+    if stride >= 2:
+        assert got is not q and sorted(map(tuple, got)) == sorted(map(tuple, q))
+
+
+def test_search_offsets_are_the_arange_product():
+    from slam2d.matching.correlative import _offsets
+
+    for n_steps, half, step_m in ((31, 15, 0.02), (9, 4, 0.01), (5, 2, 0.1), (61, 30, 2 * 0.05)):
+        expect = (np.arange(n_steps) - half) * step_m
+        assert np.array_equal(_offsets(n_steps, half, step_m), expect)
+        assert _offsets(n_steps, half, step_m) is _offsets(n_steps, half, step_m)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_in_range_beams_are_valid_and_below_the_threshold(seed):
+    from slam2d.core.scan import make_scan
+    from slam2d.graph.frontend import _in_range, _valid_within
+
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(0.0, 30.0, 361)
+    r[rng.random(361) < 0.2] = np.nan
+    r[5] = 12.5  # exactly on the threshold: kept by both
+    r[6] = np.inf
+    for thr in (12.5, 0.0, 40.0, np.inf):
+        with np.errstate(invalid="ignore"):
+            expect = ~np.isnan(r) & (r <= thr)
+        use, count = _valid_within(r, thr)
+        assert use.dtype == np.bool_ and np.array_equal(use, expect) and count == int(expect.sum())
+    scan = make_scan(0.0, r, -1.5, 3.0 / 360, range_max=29.0)
+    with np.errstate(invalid="ignore"):
+        expect = scan.valid & (scan.ranges <= 12.5)
+    use, any_use = _in_range(scan, 12.5)
+    assert np.array_equal(use, expect) and any_use == bool(expect.any())
+    none, any_none = _in_range(scan, -1.0)
+    assert not none.any() and not any_none

@@ -369,15 +369,17 @@ class CorrelativeMatcher:
         return pd * pa
 
     def _search(self, grid, origin, q, center, prior, angles, half, step, penalize, allow_bnb, floor=-1.0,
-                prune=False):
+                prune=False, angle_order=None):
         """One search phase around ``center``: (best pose, best response, raw, surface, lookups).
 
         ``prune``: the surface is needed only within the covariance band of the best (a match's
         coarse search, not :meth:`places`): angles that cannot come within it are left unscored.
+        ``angle_order``: ``np.argsort(np.abs(angles), kind="stable")`` when the caller has it.
         """
         res = self.resolution
         n_steps = 2 * half + 1
         n_points = q.shape[0]
+        offs = _offsets(n_steps, half, step * res)
         # The bound is on the raw response, so it prunes exactly only without a penalty.
         exhaustive = penalize or not (allow_bnb and self.branch_and_bound and n_steps >= _BNB_MIN_STEPS)
         if exhaustive and prune:
@@ -386,10 +388,11 @@ class CorrelativeMatcher:
             cx, cy, ct = float(center[0]), float(center[1]), float(center[2])
             args = (float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
                     self.angle_variance_penalty, self.minimum_distance_penalty, self.minimum_angle_penalty)
+            if angle_order is None:
+                angle_order = np.argsort(np.abs(angles), kind="stable")
             lookups = _score_poses_pruned(grid, origin[0], origin[1], res, _interleaved(q), cx, cy, ct, angles,
-                                          np.argsort(np.abs(angles), kind="stable"), half, step, 0, 0, n_steps,
+                                          angle_order, half, step, 0, 0, n_steps,
                                           *args[:8], -1.0, _PRUNE_CHUNK, sums)
-            offs = (np.arange(n_steps) - half) * (step * res)
             pose, best, raw_best, resp = _finish_search(sums, n_points, offs, angles, cx, cy, ct, *args)
             return pose, best, float(raw_best), resp, offs, int(lookups)
         if exhaustive:
@@ -402,7 +405,6 @@ class CorrelativeMatcher:
                 _split(lambda a0, a1: _score_poses(grid, origin[0], origin[1], res, q, cx, cy, ct, angles, half, step,
                                                    a0, a1, sums), angles.shape[0],
                        pieces=_THREADS * _PIECES_PER_THREAD)
-                offs = (np.arange(n_steps) - half) * (step * res)
                 pose, best, raw_best, resp = _finish_search(
                     sums, n_points, offs, angles, cx, cy, ct, float(prior[0]), float(prior[1]), float(prior[2]),
                     penalize, self.distance_variance_penalty, self.angle_variance_penalty,
@@ -438,7 +440,6 @@ class CorrelativeMatcher:
         _split(score_strides, strides)
         lookups = _serial_blocks(sums, rows.shape[1], order, flat, n_blocks, block, n_steps, band, norm, least)
         lookups += flat.size * n_points
-        offs = (np.arange(n_steps) - half) * (step * res)
         pose, best, raw_best, resp = _finish_search(
             sums, n_points, offs, angles, float(center[0]), float(center[1]), float(center[2]),
             float(prior[0]), float(prior[1]), float(prior[2]), penalize, self.distance_variance_penalty,
@@ -545,9 +546,10 @@ class CorrelativeMatcher:
         qc = self.coarse_points(q)
         for _ in range(4 if self.response_expansion else 1):
             n_half = int(round(offset / self.coarse_angle_resolution))
-            angles, _ = _coarse_angles(offset, self.coarse_angle_resolution)
+            angles, angle_order = _coarse_angles(offset, self.coarse_angle_resolution)
             pose, best, raw, resp, offs, n = self._search(
-                g, origin, qc, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True
+                g, origin, qc, prior, prior, angles, self._coarse_half, 2, penalize, True, min_response, prune=True,
+                angle_order=angle_order,
             )
             lookups += n
             if best > 0.0:
@@ -738,6 +740,16 @@ def _coarse_angles(offset: float, step: float):
         n_half = int(round(offset / step))
         angles = np.arange(-n_half, n_half + 1) * step
         got = _ANGLES[key] = (angles, np.argsort(np.abs(angles), kind="stable"))
+    return got
+
+
+def _offsets(n_steps: int, half: int, step_m: float):
+    """A search's x, y offsets ``(np.arange(n_steps) - half) * step_m``, kept per (n_steps, half, step_m);
+    never written to."""
+    key = ("offsets", n_steps, half, step_m)
+    got = _ANGLES.get(key)
+    if got is None:
+        got = _ANGLES[key] = (np.arange(n_steps) - half) * step_m
     return got
 
 

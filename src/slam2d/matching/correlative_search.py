@@ -56,10 +56,6 @@ _PARALLEL_LOOKUPS = 1_000_000
 _PRUNE_CHUNK = 32
 
 
-# Interleaved point orders by point count, computed once (see _interleaved); never written to.
-_INTERLEAVE_ORDERS: dict = {}
-
-
 # Response bounds of at least this many points x headings share their headings among threads.
 _PARALLEL_BOUND = 4000
 
@@ -1144,10 +1140,22 @@ def _interleaved(q: NDArray[np.float64]) -> NDArray[np.float64]:
     stride = n // _PRUNE_CHUNK
     if stride < 2:
         return q
-    order = _INTERLEAVE_ORDERS.get(n)
-    if order is None:
-        order = _INTERLEAVE_ORDERS[n] = np.argsort(np.arange(n) % stride, kind="stable")
-    return np.ascontiguousarray(q[order])
+    # The order ``np.argsort(np.arange(n) % stride, kind="stable")`` gathered in one compiled pass.
+    return _interleave_rows(q, stride)
+
+
+@njit(cache=True)
+def _interleave_rows(q, stride):
+    """``q[np.argsort(np.arange(n) % stride, kind="stable")]`` (contiguous): rows 0, s, 2s, ..., then 1, s + 1, ..."""
+    n = q.shape[0]
+    out = np.empty((n, q.shape[1]), q.dtype)
+    m = 0
+    for r in range(stride):
+        for k in range(r, n, stride):
+            for c in range(q.shape[1]):
+                out[m, c] = q[k, c]
+            m += 1
+    return out
 
 
 @njit(cache=True)
