@@ -904,8 +904,7 @@ class GraphFrontend:
         self._points.append(points)
         self._sigmas.append(sigmas)
         if p.reference_range_margin > 0:
-            with np.errstate(invalid="ignore"):
-                wide = scan.valid & (scan.ranges <= p.range_threshold + p.reference_range_margin)
+            wide, _ = _in_range(scan, p.range_threshold + p.reference_range_margin)
             ref = self._scan_points(scan, sig, wide)
         else:
             ref = (points, sigmas)
@@ -1005,9 +1004,8 @@ class GraphFrontend:
             self.anchor, self.offset = last, offset
             return None
         scan = frame.scan
-        with np.errstate(invalid="ignore"):
-            use = scan.valid & (scan.ranges <= p.range_threshold)
-        if not use.any():
+        use, any_use = _in_range(scan, p.range_threshold)
+        if not any_use:
             self._count("empty_scans")
             self.anchor, self.offset = last, offset
             if not moved and chained is not None:
@@ -1758,6 +1756,31 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
         out[m] = v
         m += 1
     return out
+
+
+def _in_range(scan, threshold: float) -> tuple[NDArray[np.bool_], bool]:
+    """(``scan.valid & (scan.ranges <= threshold)``, whether any beam is in it): one compiled pass for
+    float64 ranges, numpy otherwise."""
+    r = scan.ranges
+    if type(r) is np.ndarray and r.dtype == np.float64 and r.ndim == 1:
+        use, count = _valid_within(r, float(threshold))
+        return use, count > 0
+    with np.errstate(invalid="ignore"):
+        use = scan.valid & (r <= threshold)
+    return use, bool(use.any())
+
+
+@njit(cache=True)
+def _valid_within(ranges, threshold):
+    """``~np.isnan(ranges) & (ranges <= threshold)`` and how many beams it holds."""
+    out = np.empty(ranges.shape[0], np.bool_)
+    count = 0
+    for k in range(ranges.shape[0]):
+        r = ranges[k]
+        ok = not np.isnan(r) and r <= threshold
+        out[k] = ok
+        count += ok
+    return out, count
 
 
 @njit(cache=True)
