@@ -8,7 +8,13 @@ import pytest
 from slam2d.graph.frontend import _runs, _within
 from slam2d.matching.correlative import CorrelativeMatcher, GridCache
 from slam2d.matching.correlative_search import _COVARIANCE_BAND, _band_on_part_edge
-from slam2d.matching.grid_cache import _concat
+
+
+def _concat(parts):
+    """(points, sigmas) of a list of per-node (points, sigmas), concatenated."""
+    if not parts:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
 
 def _runs_numpy(mask):
@@ -61,7 +67,7 @@ def test_entry_columns_are_the_concatenated_points_of_its_nodes():
     cache = GridCache(m, lambda i: (parts[i], sig[i]))
     lo, hi = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
     e = cache.reserve([0, 1, 2], lo, hi)
-    for nodes in ([0, 1, 2, 3, 4], list(range(12))):  # the entry grows: its columns grow with it
+    for nodes in ([0, 1, 2, 3], [0, 1, 2, 3, 4], list(range(12))):  # grows by one node, then by several
         e = cache.reserve(nodes, lo, hi, max_extra=20)
         cache._parts(e)
         n = len(e["order"])

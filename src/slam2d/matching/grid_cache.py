@@ -403,36 +403,35 @@ class GridCache:
     def _columns(self, e: dict, k0: int, k1: int):
         """x, y and sigma (contiguous, read-only use) of the points of the entry's nodes ``order[k0:k1]``.
 
-        The entry keeps its nodes' points as three growing columns (``starts``: where each node's
+        The entry keeps its nodes' points as the three rows of one growing store (``starts``: where each node's
         begin), filled as :meth:`_parts` fetches them, so a range of nodes is a slice, not a copy.
         """
         parts = e["parts"] if len(e["parts"]) >= k1 else self._parts(e)
         cols = e.get("cols")
         if cols is None:
-            cols = e["cols"] = [np.empty(0), np.empty(0), np.empty(0)]
+            cols = e["cols"] = np.empty((3, 0))  # rows x, y, sigma: each row's slice is contiguous
             e["starts"] = [0]
         starts = e["starts"]
         done = len(starts) - 1
         if done < len(parts):
-            size = starts[-1] + sum(p[0].shape[0] for p in parts[done:])
-            cols[:] = [grown(col, size) for col in cols]
             new = parts[done:]
             a = starts[-1]
-            pts, sig = _concat(new)  # one copy of the new nodes' points, then three column writes (not three per node)
-            cols[0][a:size] = pts[:, 0]
-            cols[1][a:size] = pts[:, 1]
-            cols[2][a:size] = sig
+            size = a
             for q in new:
-                a += q[0].shape[0]
-                starts.append(a)
+                size += q[0].shape[0]
+                starts.append(size)
+            if size > cols.shape[1]:
+                # Doubling, as grown() does along rows; only the filled columns are copied (the rest is never read).
+                wider = np.empty((3, max(size, 2 * cols.shape[1])))
+                wider[:, :a] = cols[:, :a]
+                cols = e["cols"] = wider
+            # The new nodes' points written straight into the rows (no concatenated copy first).
+            if len(new) == 1:
+                cols[0:2, a:size] = new[0][0].T
+                cols[2, a:size] = new[0][1]
+            else:
+                np.concatenate([q[0].T for q in new], axis=1, out=cols[0:2, a:size])
+                np.concatenate([q[1] for q in new], out=cols[2, a:size])
         a, b = starts[k0], starts[k1]
-        return cols[0][a:b], cols[1][a:b], cols[2][a:b]
+        return cols[0, a:b], cols[1, a:b], cols[2, a:b]
 
-
-def _concat(parts) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(points, sigmas) of a list of per-node (points, sigmas); a lone part's own arrays (read them only)."""
-    if not parts:
-        return np.zeros((0, 2)), np.zeros(0)
-    if len(parts) == 1:
-        return parts[0]
-    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
