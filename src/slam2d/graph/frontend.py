@@ -814,7 +814,7 @@ class GraphFrontend:
             jb = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
             acc = ja @ acc @ ja.T + jb @ c @ jb.T
             rel = se2.compose(rel, z)
-        return 0.5 * (acc + acc.T) + np.eye(3) * 1e-12
+        return 0.5 * (acc + acc.T) + _TINY_EYE
 
     def _has_edge(self, i: int, j: int) -> bool:
         ei, ej = self.graph.edge_i, self.graph.edge_j
@@ -1472,15 +1472,16 @@ class GraphFrontend:
 
     def _closest_to(self, chain: list[int], target: NDArray[np.float64]) -> int:
         """The chain's scan whose reference position is closest to ``target`` (the first on a tie)."""
-        d2 = ((self.reference_positions()[chain] - target) ** 2).sum(axis=1)
-        return int(chain[int(np.argmin(d2))])
+        ref = self.reference_positions()
+        # np.argmin(((ref[chain] - target) ** 2).sum(axis=1)) in one compiled pass (the same sums).
+        return int(chain[_closest_row(ref, np.asarray(chain, dtype=np.int64), float(target[0]), float(target[1]))])
 
     def _local_covariance(self, i: int, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """A world-frame match covariance rotated into node i's frame, as an edge from i holds it."""
         c, s = math.cos(self.graph.poses[i][2]), math.sin(self.graph.poses[i][2])
         rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
         cov = rot @ covariance @ rot.T
-        return 0.5 * (cov + cov.T) + np.eye(3) * 1e-12
+        return 0.5 * (cov + cov.T) + _TINY_EYE
 
     def _confirming_hypothesis(self, hyp: _Hypothesis) -> _Hypothesis | None:
         """A waiting hypothesis from another recent scan that agrees with ``hyp`` (pairwise consistency).
@@ -1758,6 +1759,28 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
     return out
 
 
+# np.eye(3) * 1e-12, added to a covariance to keep it invertible; never written to.
+_TINY_EYE = np.eye(3) * 1e-12
+_TINY_EYE.flags.writeable = False
+
+
+@njit(cache=True)
+def _closest_row(ref, idx, tx, ty):
+    """``np.argmin(((ref[idx] - (tx, ty)) ** 2).sum(axis=1))``: the first smallest (the first NaN if any)."""
+    best = np.inf
+    at = 0
+    for k in range(idx.shape[0]):
+        dx = ref[idx[k], 0] - tx
+        dy = ref[idx[k], 1] - ty
+        d = dx * dx + dy * dy
+        if np.isnan(d):
+            return k
+        if d < best:
+            best = d
+            at = k
+    return at
+
+
 def _in_range(scan, threshold: float) -> tuple[NDArray[np.bool_], bool]:
     """(``scan.valid & (scan.ranges <= threshold)``, whether any beam is in it): one compiled pass for
     float64 ranges, numpy otherwise."""
@@ -1866,7 +1889,7 @@ def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float
     info_sum = np.zeros((3, 3))
     acc = np.zeros(3)
     for m, c in zip(means, covs, strict=True):
-        info = np.linalg.inv(c + np.eye(3) * 1e-12)
+        info = np.linalg.inv(c + _TINY_EYE)
         v = np.array([m[0], m[1], ref[2] + float(se2.wrap_angle(m[2] - ref[2]))])
         info_sum += info
         acc += info @ v
