@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -226,3 +228,63 @@ def test_in_range_beams_are_valid_and_below_the_threshold(seed):
     assert np.array_equal(use, expect) and any_use == bool(expect.any())
     none, any_none = _in_range(scan, -1.0)
     assert not none.any() and not any_none
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_closest_row_is_numpys_argmin(seed):
+    from slam2d.graph.frontend import _closest_row
+
+    rng = np.random.default_rng(seed)
+    ref = np.round(rng.uniform(-5.0, 5.0, (400, 2)), 1)  # coarse values: ties happen
+    for _ in range(20):
+        idx = rng.choice(400, int(rng.integers(1, 80)), replace=False).astype(np.int64)
+        t = np.round(rng.uniform(-5.0, 5.0, 2), 1)
+        expect = int(np.argmin(((ref[idx] - t) ** 2).sum(axis=1)))
+        assert _closest_row(ref, idx, float(t[0]), float(t[1])) == expect
+    ref[7] = np.nan
+    idx = np.array([3, 9, 7, 12], np.int64)
+    assert _closest_row(ref, idx, 0.0, 0.0) == int(np.argmin(((ref[idx] - 0.0) ** 2).sum(axis=1))) == 2
+
+
+def _peaks_numpy(surface, floor):
+    padded = np.pad(surface, 1, constant_values=-np.inf)
+    ny, nx = surface.shape
+    peak = surface >= floor
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                peak &= surface >= padded[1 + dy : 1 + dy + ny, 1 + dx : 1 + dx + nx]
+    return peak
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_peaks_are_the_padded_comparisons(seed):
+    from slam2d.matching.correlative_search import _peaks
+
+    rng = np.random.default_rng(seed)
+    for shape in ((1, 1), (2, 3), (21, 21), (40, 17)):
+        s = np.round(rng.uniform(-1.0, 1.0, shape), 1)  # plateaus: equal neighbours count as peaks
+        if seed % 2:
+            s[rng.random(shape) < 0.05] = np.nan
+        for floor in (-np.inf, -1.0, 0.3, 0.9):
+            expect = _peaks_numpy(s, floor)
+            assert np.array_equal(_peaks(s, floor), expect)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_query_box_is_the_array_arithmetic(seed):
+    from slam2d.matching.correlative import _ANGLES
+    from slam2d.matching.correlative_search import _rotated_extent
+
+    rng = np.random.default_rng(seed)
+    m = CorrelativeMatcher(search_size=0.3, resolution=0.01)
+    q = rng.uniform(-8.0, 8.0, (300, 2))
+    prior = rng.uniform(-50.0, 50.0, 3)
+    for offset in (0.35, 1.4):
+        lo, hi = m.query_box(q, prior, offset)
+        lin = _ANGLES[("box", offset)]
+        angles = prior[2] + lin
+        x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), q)
+        pad = 0.5 * m.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + m.resolution
+        assert np.array_equal(lo, np.array([x_lo, y_lo]) + prior[:2] - pad)
+        assert np.array_equal(hi, np.array([x_hi, y_hi]) + prior[:2] + pad)

@@ -61,7 +61,7 @@ from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCAL
     _THREADS)
 from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edge, _BLOCK, _block_bounds,
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
-    _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND,
+    _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND, _peaks,
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
     _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
     _spaced, _spread_sums)
@@ -194,9 +194,9 @@ class CorrelativeMatcher:
         x_lo, y_lo, x_hi, y_hi, reach = _rotated_extent(np.cos(angles), np.sin(angles), np.ascontiguousarray(q))
         # Between the sampled angles an arc bulges by at most r (1 - cos(step / 2)).
         pad = 0.5 * self.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + self.resolution
-        lo = np.array([x_lo, y_lo]) + prior[:2] - pad
-        hi = np.array([x_hi, y_hi]) + prior[:2] + pad
-        return lo, hi
+        # Element by element what np.array([x_lo, y_lo]) + prior[:2] - pad gives (and hi so).
+        p0, p1 = float(prior[0]), float(prior[1])
+        return np.array([x_lo + p0 - pad, y_lo + p1 - pad]), np.array([x_hi + p0 + pad, y_hi + p1 + pad])
 
     def search_box(self, query_points: NDArray[np.float64], prior: NDArray[np.float64]):
         """The world box the query can reach in this matcher's full window (with response expansion)."""
@@ -322,7 +322,7 @@ class CorrelativeMatcher:
         prior = np.asarray(prior, dtype=np.float64).reshape(3)
         if self.response_expansion:
             return 1.0
-        if q.shape[0] == 0 or not np.all(np.isfinite(prior)):
+        if q.shape[0] == 0 or not all(map(math.isfinite, prior.tolist())):
             return 0.0
         key = ("bound", self.coarse_angle_offset, self.coarse_angle_resolution, self.fine_angle_step)
         got = _ANGLES.get(key)
@@ -460,11 +460,9 @@ class CorrelativeMatcher:
             if norm <= 1e-12 or best <= 0:
                 return np.diag([MAX_VARIANCE, MAX_VARIANCE])
             floor = 0.1 * step_m * step_m
-            cov = np.zeros((2, 2))
-            cov[0, 0] = max(sxx / norm, floor)
-            cov[1, 1] = max(syy / norm, floor)
-            cov[0, 1] = cov[1, 0] = sxy / norm
-            cov /= best
+            # Each entry divided by ``best`` as ``cov /= best`` would (one array, no in-place passes).
+            sxy = sxy / norm / best
+            cov = np.array([[max(sxx / norm, floor) / best, sxy], [sxy, max(syy / norm, floor) / best]])
             if edge:
                 # As in the general case below, with the same sums (the mask's extent along the
                 # main axis compiled too).
@@ -534,7 +532,7 @@ class CorrelativeMatcher:
         q = np.asarray(query_points, dtype=np.float64).reshape(-1, 2)
         ref = np.zeros((0, 2)) if ref_points is None else np.asarray(ref_points, dtype=np.float64).reshape(-1, 2)
         empty = grid is None and ref.shape[0] == 0
-        if q.shape[0] == 0 or empty or not np.all(np.isfinite(prior)):
+        if q.shape[0] == 0 or empty or not all(map(math.isfinite, prior.tolist())):
             return MatchResult(prior.copy(), np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE]), 0.0, 0.0, 0)
         if grid is None:
             grid = self.correlation_grid(ref, self._sig(ref, ref_sigmas), *self.search_box(q, prior))
@@ -701,14 +699,8 @@ class CorrelativeMatcher:
         angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
         _, _, _, resp, offs, _ = self._search(g, (ox, oy), q, prior, prior, angles, self._coarse_half, 2, False, False)
         surface = resp.max(axis=0)  # (y, x)
-        padded = np.pad(surface, 1, constant_values=-np.inf)
-        n = surface.shape[0]
-        peak = surface >= floor
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy or dx:
-                    peak &= surface >= padded[1 + dy : 1 + dy + n, 1 + dx : 1 + dx + n]
-        iy, ix = np.nonzero(peak)
+        # At least ``floor`` and each of its 8 neighbours (-inf beyond the edge), in one compiled pass.
+        iy, ix = np.nonzero(_peaks(surface, float(floor)))
         order = np.argsort(-surface[iy, ix], kind="stable")[:count]
         heading = resp.argmax(axis=0)
         n_fine = int(round(self.coarse_angle_resolution / self.fine_angle_step))

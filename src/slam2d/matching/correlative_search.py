@@ -1180,3 +1180,25 @@ def _spaced(q, spacing):
         out[k, 0] = q[keep[k], 0]
         out[k, 1] = q[keep[k], 1]
     return out
+
+
+@njit(cache=True)
+def _peaks(surface, floor):
+    """Cells of ``surface`` (2-D) at least ``floor`` and at least each of their 8 neighbours, a cell beyond
+    the edge reading -inf: ``surface >= floor`` and-ed with ``surface >= `` each shifted copy of
+    ``np.pad(surface, 1, constant_values=-np.inf)``, the same comparisons."""
+    ny, nx = surface.shape
+    out = np.empty((ny, nx), np.bool_)
+    for i in range(ny):
+        for j in range(nx):
+            v = surface[i, j]
+            ok = v >= floor
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    if di == 0 and dj == 0:
+                        continue
+                    a, b = i + di, j + dj
+                    w = surface[a, b] if 0 <= a < ny and 0 <= b < nx else -np.inf
+                    ok = ok and v >= w
+            out[i, j] = ok
+    return out
