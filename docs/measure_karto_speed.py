@@ -14,7 +14,9 @@ first whole run that loads every compiled function, so without the loading) the 
 time spent in compiled (numba) calls, on the main thread and on the worker threads, and per kind of frame
 (kept scan or between nodes) the wall time of ``GraphFrontend.process`` and its main-thread share in
 compiled calls (the rest is Python and numpy), with the worker threads' start after each hand-over
-(``_split``); ``--profile`` the
+(``_split``); ``--thread-cpu`` (with ``--kernels``) times each
+thread's own CPU (``time.thread_time``) instead of wall time, so the split is not inflated while the
+host runs other work; ``--profile`` the
 functions taking most CPU by cProfile (timed by ``process_time``; the profiler slows Python, not the
 compiled kernels, so their share is understated).
 """
@@ -59,6 +61,8 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true", help="cProfile's top functions by own time")
     ap.add_argument("--kernels", action="store_true",
                     help="wall time in compiled calls (main thread, workers) and per kind of frame")
+    ap.add_argument("--thread-cpu", action="store_true",
+                    help="with --kernels: each thread's own CPU time (time.thread_time) instead of wall time")
     args = ap.parse_args()
     kernel_times = None
     steps = collections.defaultdict(lambda: [0, 0.0])
@@ -84,7 +88,7 @@ def main() -> None:
             # Every compiled function loaded (or compiled) first, by a whole run: numba cannot compile a
             # function whose callee is the timing wrapper. So this mode's cpu and wall exclude loading.
             get_method("karto")(get_method("karto").Params(**settings)).run(frames)
-            kernel_times = _time_kernels()
+            kernel_times = _time_kernels(time.thread_time if args.thread_cpu else time.perf_counter)
         slam = method(method.Params(**settings))
         profiler = cProfile.Profile(time.process_time) if args.profile else None
         c0, w0 = _cpu(), time.perf_counter()
@@ -169,7 +173,7 @@ def _time_steps(steps) -> None:
         setattr(cls, name, wrapped)
 
 
-def _time_kernels() -> dict:
+def _time_kernels(clock=time.perf_counter) -> dict:
     """Wrap every compiled function the front end and the matcher call from Python, and their process step.
 
     Compiled functions calling each other are not affected (the wrappers sit on the module names
@@ -187,7 +191,8 @@ def _time_kernels() -> dict:
 
     main = threading.get_ident()
     times = {"main": 0.0, "workers": 0.0, "frames": collections.defaultdict(lambda: [0, 0.0, 0.0]),
-             "by_name": collections.defaultdict(float), "starts": []}
+             "by_name": collections.defaultdict(float), "starts": [],
+             "clock": "wall" if clock is time.perf_counter else "thread CPU"}
     current = [0.0]
     for module in (correlative, correlative_grid, correlative_search, grid_cache, frontend):
         for name, obj in list(vars(module).items()):
@@ -195,11 +200,11 @@ def _time_kernels() -> dict:
                 continue
 
             def wrapped(*a, _obj=obj, _name=name, **k):
-                t0 = time.perf_counter()
+                t0 = clock()
                 try:
                     return _obj(*a, **k)
                 finally:
-                    dt = time.perf_counter() - t0
+                    dt = clock() - t0
                     times["by_name"][_name] += dt
                     if threading.get_ident() == main:
                         times["main"] += dt
@@ -227,11 +232,11 @@ def _time_kernels() -> dict:
 
     def timed_process(self, frame):
         before = current[0]
-        t0 = time.perf_counter()
+        t0 = clock()
         out = process(self, frame)
         entry = times["frames"]["kept scan" if out is not None else "between nodes"]
         entry[0] += 1
-        entry[1] += time.perf_counter() - t0
+        entry[1] += clock() - t0
         entry[2] += current[0] - before
         return out
 
@@ -240,7 +245,7 @@ def _time_kernels() -> dict:
 
 
 def _print_kernels(times: dict) -> None:
-    print(f"  compiled calls: main thread {times['main']:.2f} s, worker threads {times['workers']:.2f} s (wall)")
+    print(f"  compiled calls: main thread {times['main']:.2f} s, worker threads {times['workers']:.2f} s ({times['clock']})")
     for name, seconds in sorted(times["by_name"].items(), key=lambda kv: -kv[1])[:8]:
         print(f"    {name}: {seconds:.2f} s")
     for kind, (n, total, compiled) in sorted(times["frames"].items()):
