@@ -288,3 +288,29 @@ def test_query_box_is_the_array_arithmetic(seed):
         pad = 0.5 * m.search_size + reach * (1.0 - math.cos(0.5 * (angles[1] - angles[0]))) + m.resolution
         assert np.array_equal(lo, np.array([x_lo, y_lo]) + prior[:2] - pad)
         assert np.array_equal(hi, np.array([x_hi, y_hi]) + prior[:2] + pad)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_equal_rows_and_transform_rows_are_numpys(seed):
+    from slam2d.core import se2
+    from slam2d.graph.frontend import _equal_rows, _transform_rows
+
+    rng = np.random.default_rng(seed)
+    a = rng.uniform(-5.0, 5.0, (int(rng.integers(1, 40)), 3))
+    b = np.concatenate([a, rng.uniform(-5.0, 5.0, (int(rng.integers(0, 5)), 3))])
+    if seed % 3 == 1:
+        b[int(rng.integers(0, a.shape[0])), int(rng.integers(0, 3))] += 1e-12
+    if seed % 3 == 2:
+        a[int(rng.integers(0, a.shape[0])), 0] = np.nan
+        b[: a.shape[0]] = a  # NaN == NaN is False: array_equal stops there too
+    same = _equal_rows(a, b)
+    m = min(a.shape[0], b.shape[0])
+    expect = next((i for i in range(m) if not np.array_equal(a[i], b[i])), m)
+    assert same == expect
+    assert _equal_rows(b, a) == expect
+    base = rng.uniform(-3.0, 3.0, (b.shape[0], 2))
+    for first in range(b.shape[0] + 1):
+        out = np.full((b.shape[0], 2), 7.0)
+        _transform_rows(b, base, np.cos(b[first:, 2]), np.sin(b[first:, 2]), first, out)
+        whole = se2.transform_points(b, base[:, None, :])[:, 0, :]
+        assert np.array_equal(out[first:], whole[first:]) and np.all(out[:first] == 7.0)

@@ -722,18 +722,23 @@ class GraphFrontend:
             n = poses.shape[0]
             if cached is not None:
                 old, out = cached
-                if old.shape == poses.shape and np.array_equal(old, poses):
+                k = old.shape[0]
+                # The rows old and poses share from the start, compared as np.array_equal does (==).
+                same = _equal_rows(old, poses) if old.ndim == poses.ndim == 2 and old.shape[1] == poses.shape[1] == 3 else -1
+                if k == n and same == n:
                     return out
                 # A kept scan appends a node, then may move it (the near links' mean): only the new or
                 # last rows are transformed again (elementwise, so each row is what the whole would give).
-                k = old.shape[0]
-                if 0 < k <= n and np.array_equal(old[: k - 1], poses[: k - 1]):
-                    first = k - 1 if old[k - 1].tolist() != poses[k - 1].tolist() else k
-                    out = np.concatenate([out[:first], se2.transform_points(
-                        poses[first:], self._bary_base[first:n, None, :])[:, 0, :]])
-                    out.flags.writeable = False
-                    self._ref_cache = (poses.copy(), out)
-                    return out
+                if 0 < k <= n and same >= k - 1:
+                    first = k - 1 if same == k - 1 else k
+                    ref = np.empty((n, 2))
+                    ref[:first] = out[:first]
+                    # se2.transform_points(poses[first:], bary[first:n, None, :]) row by row, its arithmetic.
+                    _transform_rows(poses, self._bary_base, np.cos(poses[first:, 2]), np.sin(poses[first:, 2]),
+                                    first, ref)
+                    ref.flags.writeable = False
+                    self._ref_cache = (poses.copy(), ref)
+                    return ref
             out = se2.transform_points(poses, self._bary_base[:, None, :])[:, 0, :]
             out.flags.writeable = False
             self._ref_cache = (poses.copy(), out)
@@ -1757,6 +1762,29 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
         out[m] = v
         m += 1
     return out
+
+
+@njit(cache=True)
+def _equal_rows(a, b):
+    """How many leading rows of ``a`` and ``b`` (both (n, 3)) are equal element by element (``==``: NaN never is)."""
+    n = min(a.shape[0], b.shape[0])
+    for i in range(n):
+        if not (a[i, 0] == b[i, 0] and a[i, 1] == b[i, 1] and a[i, 2] == b[i, 2]):
+            return i
+    return n
+
+
+@njit(cache=True)
+def _transform_rows(poses, base, cos, sin, first, out):
+    """Rows ``first:`` of ``out``: ``base[i]`` mapped by ``poses[i]`` (heading's cos and sin from ``first``),
+    with se2.transform_points' products and sums in its order."""
+    for i in range(first, poses.shape[0]):
+        c = cos[i - first]
+        s = sin[i - first]
+        px = base[i, 0]
+        py = base[i, 1]
+        out[i, 0] = poses[i, 0] + c * px - s * py
+        out[i, 1] = poses[i, 1] + s * px + c * py
 
 
 # np.eye(3) * 1e-12, added to a covariance to keep it invertible; never written to.
