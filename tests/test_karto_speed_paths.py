@@ -315,3 +315,60 @@ def test_equal_rows_and_transform_rows_are_numpys(seed):
         # What reference_positions transformed before: the rows from ``first`` (their cos and sin as one array).
         rows = se2.transform_points(b[first:], base[first:, None, :])[:, 0, :]
         assert np.array_equal(out[first:], rows, equal_nan=True) and np.all(out[:first] == 7.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_runs_counted_are_runs_and_their_flag_counts(seed):
+    from slam2d.graph.frontend import _runs_counted
+
+    rng = np.random.default_rng(seed)
+    for n in (0, 1, 5, 300):
+        mask = rng.random(n) < 0.6
+        flags = rng.random(n) < 0.3
+        expect = [[a, b, int(flags[a:b].sum())] for a, b in _runs_numpy(mask)]
+        assert _runs_counted(mask, flags) == expect
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_unknown_nodes_are_the_masked_index(seed):
+    from slam2d.matching.correlative_search import _unknown_nodes
+
+    rng = np.random.default_rng(seed)
+    known = rng.random(50) < 0.5
+    for size in (1, 7, 40):
+        idx = rng.integers(0, 60, size).astype(np.int64)  # some past known's end, some repeated
+        top, unknown = _unknown_nodes(known, idx)
+        padded = np.concatenate([known, np.zeros(61, bool)])
+        assert top == int(idx.max()) + 1
+        assert np.array_equal(unknown, idx[~padded[idx]])
+
+
+def test_barycentre_store_is_the_stacked_rows():
+    """_append_node's growing store of barycentres holds what stacking them row by row gives, also after
+    a caller replaced ``_bary_base`` (as tests do)."""
+    from slam2d.core.scan import make_scan
+    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+
+    rng = np.random.default_rng(2)
+    fe = GraphFrontend(GraphSlamParams())
+    stacked = np.zeros((0, 2))
+    for k in range(40):
+        if k == 17:  # replaced from outside: the store starts again from it
+            fe._bary_base = stacked = np.vstack([stacked, [[1.5, -2.0]]])
+            fe.graph.add_node(np.zeros(3))
+        scan = make_scan(float(k), rng.uniform(1.0, 9.0, 181), -1.5, 3.0 / 180, range_max=10.0)
+        use = scan.valid
+        sig = np.full(181, 0.01)
+        points, sigmas = fe._scan_points(scan, sig, use)
+        fe._append_node(scan, sig, points, sigmas, rng.uniform(-1.0, 1.0, 3), np.zeros(3), float(k))
+        stacked = np.vstack([stacked, points.mean(axis=0)[None, :]])
+        assert np.array_equal(fe._bary_base, stacked)
+
+
+def test_match_heading_wrap_in_floats_is_numpys():
+    rng = np.random.default_rng(0)
+    t = np.concatenate([rng.uniform(-20.0, 20.0, 20000), [np.pi, -np.pi, 3 * np.pi, 0.0, -0.0, 1e-300]])
+    for v in t:
+        a = np.array([0.0, 0.0, v])
+        a[2] = (a[2] + np.pi) % (2 * np.pi) - np.pi
+        assert np.float64((float(v) + math.pi) % (2 * math.pi) - math.pi).tobytes() == a[2].tobytes()

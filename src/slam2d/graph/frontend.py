@@ -59,6 +59,7 @@ from numba import njit
 
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
+from slam2d.core.arrays import grown
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher
@@ -493,6 +494,29 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return _run_bounds(np.ascontiguousarray(mask, dtype=np.bool_)).tolist()
 
 
+def _runs_counted(mask: NDArray[np.bool_], flags: NDArray[np.bool_]) -> list[list[int]]:
+    """:func:`_runs` of ``mask``, each with how many of ``flags[a:b]`` are True: ``[a, b, count]``."""
+    if mask.size == 0:
+        return []
+    return _run_counts(np.ascontiguousarray(mask, dtype=np.bool_), np.ascontiguousarray(flags, dtype=np.bool_)).tolist()
+
+
+@njit(cache=True)
+def _run_counts(mask, flags):
+    """(runs, 3): start, end (half-open) and the number of True ``flags`` of each run of True in ``mask``."""
+    runs = _run_bounds(mask)
+    out = np.empty((runs.shape[0], 3), np.int64)
+    for k in range(runs.shape[0]):
+        c = 0
+        for i in range(runs[k, 0], runs[k, 1]):
+            if flags[i]:
+                c += 1
+        out[k, 0] = runs[k, 0]
+        out[k, 1] = runs[k, 1]
+        out[k, 2] = c
+    return out
+
+
 @njit(cache=True)
 def _run_bounds(mask):
     """(runs, 2): start and end (half-open) of each run of True in ``mask``, in order."""
@@ -584,6 +608,7 @@ class GraphFrontend:
         self._odom: list[NDArray[np.float64]] = []
         self._times: list[float] = []
         self._bary_base = np.zeros((0, 2))
+        self._bary_store = self._bary_base  # _bary_base's rows, with room to grow (see _append_node)
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
         self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
@@ -918,7 +943,15 @@ class GraphFrontend:
         self._odom.append(odom)
         self._times.append(timestamp)
         bary = points.mean(axis=0) if points.shape[0] else np.zeros(2)  # no point: the robot's position
-        self._bary_base = np.vstack([self._bary_base, bary[None, :]])
+        # Appended to a growing store (``_bary_base`` is its first rows) instead of a vstack per node.
+        base, store = self._bary_base, self._bary_store
+        n = base.shape[0]
+        if base.base is not store or n > store.shape[0]:
+            store = base.copy()  # set from outside: start a store from it
+        store = grown(store, n + 1)
+        store[n] = bary
+        self._bary_store = store
+        self._bary_base = store[: n + 1]
         self._scans.append(scan)
         return node
 
@@ -1048,14 +1081,17 @@ class GraphFrontend:
         points, sigmas = self._scan_points(scan, sig, use)
         values: dict[str, float] = {}
         pose = predicted
-        cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         if last >= 0 and p.use_scan_matching:
             pose, cov, result = self._sequential_estimate(points, predicted, values, last_response,
                                                           seed=seed if after_between else None)
             values["response"] = result.response
-            values["correction_m"] = float(np.hypot(*(result.pose[:2] - predicted[:2])))
+            # np.hypot of the two differences, taken in Python floats (the same subtractions).
+            values["correction_m"] = float(np.hypot(float(result.pose[0]) - float(predicted[0]),
+                                                    float(result.pose[1]) - float(predicted[1])))
         elif last >= 0:
             cov = _odometry_covariance()
+        else:
+            cov = np.diag([MAX_COV, MAX_COV, MAX_COV])
         node = self._append_node(scan, sig, points, sigmas, pose, odom, frame.timestamp)
         if last >= 0:
             means = [pose]
@@ -1180,8 +1216,8 @@ class GraphFrontend:
         link = p.link_match_minimum_response_fine
         lo, hi = self.sequential.search_box(points, pose)  # the same query box for every chain
         count = 0
-        for a, b in _runs(near):
-            if a <= node < b or not linked[a:b].any() or b - a < p.loop_match_minimum_chain_size:
+        for a, b, n_linked in _runs_counted(near, linked):
+            if a <= node < b or not n_linked or b - a < p.loop_match_minimum_chain_size:
                 continue
             if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
                 self._count("near_skipped_retry")

@@ -582,7 +582,7 @@ class CorrelativeMatcher:
             lookups += runs * angles.shape[0] * 9 * q.shape[0]
         elif best <= 0.0:
             cov = np.diag([MAX_VARIANCE, MAX_VARIANCE, MAX_VARIANCE])
-        pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
+        pose[2] = (float(pose[2]) + math.pi) % (2 * math.pi) - math.pi  # numpy's wrap, in Python floats (same %)
         return MatchResult(pose, cov, max(best, 0.0), max(raw, 0.0), int(lookups), heading_var, prior_drop)
 
     def match_near(

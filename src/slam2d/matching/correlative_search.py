@@ -1202,3 +1202,19 @@ def _peaks(surface, floor):
                     ok = ok and v >= w
             out[i, j] = ok
     return out
+
+
+@njit(cache=True)
+def _unknown_nodes(known, idx):
+    """(``idx.max() + 1``, ``idx[~known[idx]]``) with nodes past ``known``'s end counted as unknown (``idx`` not empty)."""
+    top = idx[0]
+    out = np.empty(idx.shape[0], np.int64)
+    m = 0
+    for k in range(idx.shape[0]):
+        n = idx[k]
+        if n > top:
+            top = n
+        if n >= known.shape[0] or not known[n]:
+            out[m] = n
+            m += 1
+    return top + 1, out[:m]

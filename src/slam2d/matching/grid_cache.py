@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from slam2d.core.arrays import grown
 from slam2d.matching.correlative_grid import _derive_grid, _inside, _inside_not, _smear
 from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks,
-    _node_stats, _scatter_max_nodes)
+    _node_stats, _scatter_max_nodes, _unknown_nodes)
 
 if TYPE_CHECKING:
     from slam2d.matching.correlative import CorrelativeMatcher
@@ -108,12 +108,12 @@ class GridCache:
         idx = np.asarray(nodes, dtype=np.int64)
         if idx.size == 0:
             return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
-        top = int(idx.max()) + 1
+        top, unknown = _unknown_nodes(self._known, idx)  # idx.max() + 1, and the nodes without a box yet
         if top > self._known.size:
             self._known = grown(self._known, top)
             self._box = grown(self._box, self._known.size)
         # Each node's box is computed once (until the next invalidate), the rest is array work.
-        for n in idx[~self._known[idx]].tolist():
+        for n in unknown.tolist():
             pts, sig = self.points_of(n)
             _node_stats(pts, sig, self._box[n])
             self._known[n] = True
