@@ -1581,8 +1581,9 @@ class GraphFrontend:
         """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""
         if distance <= 0:
             return False
+        px, py = float(pose[0]), float(pose[1])  # read once (the same differences as pose[0] - x)
         for ta, tb, x, y in reversed(self._tried if tried is None else tried):
-            if ta < b and a < tb and math.hypot(pose[0] - x, pose[1] - y) < distance:
+            if ta < b and a < tb and math.hypot(px - x, py - y) < distance:
                 return True
         return False
 
