@@ -372,3 +372,31 @@ def test_match_heading_wrap_in_floats_is_numpys():
         a = np.array([0.0, 0.0, v])
         a[2] = (a[2] + np.pi) % (2 * np.pi) - np.pi
         assert np.float64((float(v) + math.pi) % (2 * math.pi) - math.pi).tobytes() == a[2].tobytes()
+
+
+def test_edge_between_is_numpys_any():
+    from slam2d.graph.frontend import _edge_between
+
+    rng = np.random.default_rng(4)
+    ei = rng.integers(0, 30, 200).astype(np.int64)
+    ej = rng.integers(0, 30, 200).astype(np.int64)
+    for i in range(30):
+        for j in range(30):
+            expect = bool(np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))))
+            assert bool(_edge_between(ei, ej, i, j)) == expect
+    assert not _edge_between(ei[:0], ej[:0], 1, 2)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_plane_max_is_numpys(seed):
+    from slam2d.matching.correlative_search import _plane_max
+
+    rng = np.random.default_rng(seed)
+    resp = rng.uniform(-1.0, 1.0, (7, 9, 9))
+    resp[2] = -1.0  # an unscored angle
+    if seed % 2:
+        resp[4, 3, 3] = np.nan
+    for a in range(7):
+        expect = float(resp[a].max())
+        got = _plane_max(resp, a)
+        assert (np.isnan(got) and np.isnan(expect)) or got == expect

@@ -847,8 +847,8 @@ class GraphFrontend:
         return 0.5 * (acc + acc.T) + _TINY_EYE
 
     def _has_edge(self, i: int, j: int) -> bool:
-        ei, ej = self.graph.edge_i, self.graph.edge_j
-        return bool(np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))))
+        # np.any(((ei == i) & (ej == j)) | ((ei == j) & (ej == i))) in one compiled pass (stops at the first).
+        return bool(_edge_between(self.graph.edge_i, self.graph.edge_j, int(i), int(j)))
 
     def _matches_between_nodes(self, last: int) -> bool:
         p = self.params
@@ -1799,6 +1799,15 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
         out[m] = v
         m += 1
     return out
+
+
+@njit(cache=True)
+def _edge_between(ei, ej, i, j):
+    """Whether some edge k joins i and j either way (``ei[k], ej[k]`` is ``i, j`` or ``j, i``)."""
+    for k in range(ei.shape[0]):
+        if (ei[k] == i and ej[k] == j) or (ei[k] == j and ej[k] == i):
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -62,6 +62,7 @@ from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCAL
 from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edge, _BLOCK, _block_bounds,
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
     _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND, _peaks,
+    _plane_max,
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
     _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
     _spaced, _spread_sums)
@@ -558,7 +559,7 @@ class CorrelativeMatcher:
         heading_var = _heading_spread(resp, angles, best, self.coarse_angle_resolution**2 / 12.0)
         # The coarse angles are offsets from the prior's heading, which the pruned search scores
         # first and in full; an angle it leaves unscored (only with min_response) is over the band below.
-        prior_drop = float(best - max(resp[n_half].max(), 0.0))
+        prior_drop = float(best - max(_plane_max(resp, n_half), 0.0))
         return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
                                   refine, lookups)
 
@@ -656,7 +657,7 @@ class CorrelativeMatcher:
         cov[:2, :2] = self._positional_covariance(resp, offs, prior, pose, best, step_m)
         heading_var = _heading_spread(resp, angles, best, self.coarse_angle_resolution**2 / 12.0)
         # The prior's heading over the whole window is not known: over any drop unless its best is in the band.
-        at_prior = float(resp[n_half].max())
+        at_prior = _plane_max(resp, n_half)
         prior_drop = float(best - at_prior) if at_prior >= best - _COVARIANCE_BAND else math.inf
         return self._finish_match(g, ox, oy, q, prior, pose, best, raw, cov, heading_var, prior_drop, penalize,
                                   True, lookups)

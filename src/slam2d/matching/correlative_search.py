@@ -1218,3 +1218,17 @@ def _unknown_nodes(known, idx):
             out[m] = n
             m += 1
     return top + 1, out[:m]
+
+
+@njit(cache=True)
+def _plane_max(resp, a):
+    """``float(resp[a].max())`` of a (angles, y, x) surface: the largest, or NaN if any is NaN (as numpy's)."""
+    best = -np.inf
+    for i in range(resp.shape[1]):
+        for j in range(resp.shape[2]):
+            v = resp[a, i, j]
+            if np.isnan(v):
+                return v
+            if v > best:
+                best = v
+    return best
