@@ -400,3 +400,27 @@ def test_plane_max_is_numpys(seed):
         expect = float(resp[a].max())
         got = _plane_max(resp, a)
         assert (np.isnan(got) and np.isnan(expect)) or got == expect
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_max_argmax0_is_numpys(seed):
+    from slam2d.matching.correlative_search import _max_argmax0
+
+    rng = np.random.default_rng(seed)
+    resp = np.round(rng.uniform(-1.0, 1.0, (21, 13, 13)), 1)  # ties across angles
+    if seed % 2:
+        resp[rng.random(resp.shape) < 0.01] = np.nan
+    best, at = _max_argmax0(resp)
+    assert np.array_equal(best, resp.max(axis=0), equal_nan=True)
+    assert np.array_equal(at, resp.argmax(axis=0))
+
+
+def test_wrap_of_a_float_difference_is_wrap_angles():
+    from slam2d.core import se2
+
+    rng = np.random.default_rng(1)
+    a = rng.uniform(-10.0, 10.0, 5000)
+    b = rng.uniform(-10.0, 10.0, 5000)
+    for x, y in zip(a, b):
+        d = np.float64(x) - np.float64(y)
+        assert np.float64(se2._wrap(float(d))).tobytes() == np.float64(float(se2.wrap_angle(d))).tobytes()

@@ -790,7 +790,7 @@ class GraphFrontend:
             return True
         if math.hypot(odom[0] - last[0], odom[1] - last[1]) >= p.minimum_travel_distance:
             return True
-        return abs(float(se2.wrap_angle(odom[2] - last[2]))) >= p.minimum_travel_heading
+        return abs(se2._wrap(float(odom[2] - last[2]))) >= p.minimum_travel_heading  # wrap_angle's arithmetic on a float
 
     def _match_information(self, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The information a scan-match edge gets from its covariance (scaled by match_covariance_scale)."""
@@ -1008,7 +1008,8 @@ class GraphFrontend:
         # The last frame's response is a reference only for a scan taken close to it (less than
         # the gate's travel by odometry): on logs thinned to a metre between scans it varies too much.
         last_response, self._frame_response = self._frame_response, math.nan
-        if previous_odom is None or math.hypot(*(odom[:2] - previous_odom[:2])) >= p.minimum_travel_distance:
+        if previous_odom is None or math.hypot(float(odom[0]) - float(previous_odom[0]),
+                                               float(odom[1]) - float(previous_odom[1])) >= p.minimum_travel_distance:
             last_response = math.nan
         if self.graph.num_nodes:
             last = self.graph.num_nodes - 1
@@ -1025,7 +1026,7 @@ class GraphFrontend:
             # turned wrong since the node, and the match could miss it: predict from that scan. Its
             # position is taken only if its match was not flat along a corridor (chaining those
             # drifts more than the odometry).
-            if abs(float(se2.wrap_angle(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
+            if abs(se2._wrap(float(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
                 self._count("predicted_from_last_scan")
                 if self._frame_degenerate:
                     predicted = np.array([predicted[0], predicted[1], chained[2]])
@@ -1964,9 +1965,9 @@ def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float
     acc = np.zeros(3)
     for m, c in zip(means, covs, strict=True):
         info = np.linalg.inv(c + _TINY_EYE)
-        v = np.array([m[0], m[1], ref[2] + float(se2.wrap_angle(m[2] - ref[2]))])
+        v = np.array([m[0], m[1], ref[2] + se2._wrap(float(m[2] - ref[2]))])
         info_sum += info
         acc += info @ v
     out = np.linalg.solve(info_sum, acc)
-    out[2] = float(se2.wrap_angle(out[2]))
+    out[2] = se2._wrap(float(out[2]))
     return out

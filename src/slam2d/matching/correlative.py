@@ -62,7 +62,7 @@ from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCAL
 from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edge, _BLOCK, _block_bounds,
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
     _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND, _peaks,
-    _plane_max,
+    _plane_max, _max_argmax0,
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
     _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
     _spaced, _spread_sums)
@@ -699,11 +699,10 @@ class CorrelativeMatcher:
         n_half = int(round(self.coarse_angle_offset / self.coarse_angle_resolution))
         angles = np.arange(-n_half, n_half + 1) * self.coarse_angle_resolution
         _, _, _, resp, offs, _ = self._search(g, (ox, oy), q, prior, prior, angles, self._coarse_half, 2, False, False)
-        surface = resp.max(axis=0)  # (y, x)
+        surface, heading = _max_argmax0(resp)  # (y, x): resp.max(axis=0), resp.argmax(axis=0)
         # At least ``floor`` and each of its 8 neighbours (-inf beyond the edge), in one compiled pass.
         iy, ix = np.nonzero(_peaks(surface, float(floor)))
         order = np.argsort(-surface[iy, ix], kind="stable")[:count]
-        heading = resp.argmax(axis=0)
         n_fine = int(round(self.coarse_angle_resolution / self.fine_angle_step))
         fine = np.arange(-n_fine, n_fine + 1) * self.fine_angle_step
         out = []

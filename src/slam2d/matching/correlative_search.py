@@ -1232,3 +1232,29 @@ def _plane_max(resp, a):
             if v > best:
                 best = v
     return best
+
+
+@njit(cache=True)
+def _max_argmax0(resp):
+    """``resp.max(axis=0)`` and ``resp.argmax(axis=0)`` of a (angles, y, x) surface in one pass (NaN wins, the
+    first on ties, as numpy's)."""
+    na, ny, nx = resp.shape
+    best = np.empty((ny, nx))
+    at = np.empty((ny, nx), np.int64)
+    for i in range(ny):
+        for j in range(nx):
+            b = resp[0, i, j]
+            k = 0
+            if not np.isnan(b):
+                for a in range(1, na):
+                    v = resp[a, i, j]
+                    if np.isnan(v):
+                        b = v
+                        k = a
+                        break
+                    if v > b:
+                        b = v
+                        k = a
+            best[i, j] = b
+            at[i, j] = k
+    return best, at
