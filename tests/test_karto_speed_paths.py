@@ -424,3 +424,26 @@ def test_wrap_of_a_float_difference_is_wrap_angles():
     for x, y in zip(a, b):
         d = np.float64(x) - np.float64(y)
         assert np.float64(se2._wrap(float(d))).tobytes() == np.float64(float(se2.wrap_angle(d))).tobytes()
+
+
+def test_pose_graph_single_node_and_edge_paths_are_the_batch_ones():
+    from slam2d.backends import PoseGraph
+
+    rng = np.random.default_rng(9)
+    one, batch = PoseGraph(), PoseGraph()
+    poses = rng.uniform(-12.0, 12.0, (60, 3))
+    poses[5, 2] = np.pi
+    poses[6, 2] = -np.pi
+    for p in poses:
+        one.add_node(p)
+    batch.add_nodes(poses)
+    assert np.array_equal(one.poses, batch.poses)
+    info = np.diag([4.0, 5.0, 6.0])
+    for k in range(59):
+        z = rng.uniform(-9.0, 9.0, 3)
+        one.add_edge(k, k + 1, z, info)
+        batch.add_edges([k], [k + 1], z[None], info[None])
+    assert np.array_equal(one.measurements, batch.measurements)
+    assert np.array_equal(one.information, batch.information)
+    with pytest.raises(Exception):
+        one.add_node(np.array([0.0, np.nan, 0.0]))  # the checked path still refuses it

@@ -97,6 +97,15 @@ class PoseGraph:
 
     def add_node(self, pose: ArrayLike) -> int:
         """Append a node at world pose ``[x, y, theta]``; returns its index."""
+        one = se2._one(pose)
+        if one is not None and all(map(math.isfinite, one)):
+            # One finite float64 pose (a front end's case): add_nodes' writes, its wrap on a float (same arithmetic).
+            n = self._n
+            self._poses = grown(self._poses, n + 1, minimum=16)
+            self._poses[n] = pose
+            self._poses[n, 2] = se2._wrap(one[2])
+            self._n = n + 1
+            return n
         return int(self.add_nodes(np.asarray(pose, dtype=np.float64).reshape(1, 3))[0])
 
     def add_nodes(self, poses: ArrayLike) -> NDArray[np.int64]:
@@ -153,7 +162,7 @@ class PoseGraph:
             self._ei[m] = i
             self._ej[m] = j
             self._z[m] = z
-            self._z[m, 2:3] = se2.wrap_angle(z[2:3])
+            self._z[m, 2] = se2._wrap(float(z[2]))  # wrap_angle's arithmetic on a float
             self._info[m] = info
             self._m += 1
             return m
