@@ -447,3 +447,21 @@ def test_pose_graph_single_node_and_edge_paths_are_the_batch_ones():
     assert np.array_equal(one.information, batch.information)
     with pytest.raises(Exception):
         one.add_node(np.array([0.0, np.nan, 0.0]))  # the checked path still refuses it
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_node_blocks_of_points_is_node_blocks_at_the_largest_sigma(seed):
+    from slam2d.matching.correlative_search import _BOUND_BLOCK, _node_blocks, _node_blocks_of
+
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-4.0, 4.0, (int(rng.integers(0, 300)), 2))
+    sig = rng.uniform(0.005, 0.08, pts.shape[0])
+    got = _node_blocks_of(pts, sig, 0.03, 0.01, _BOUND_BLOCK)
+    smax = float(sig.max()) if sig.size else 0.03
+    want = _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), smax, 0.01, _BOUND_BLOCK)
+    for g, w in zip(got, want, strict=True):
+        assert g.dtype == w.dtype and np.array_equal(g, w)
+    if sig.size > 3:  # the largest sigma decides the reach: a wider one gives other blocks
+        wide = sig.copy()
+        wide[3] = 0.2
+        assert not all(np.array_equal(g, w) for g, w in zip(_node_blocks_of(pts, wide, 0.03, 0.01, _BOUND_BLOCK), want))

@@ -1258,3 +1258,19 @@ def _max_argmax0(resp):
             best[i, j] = b
             at[i, j] = k
     return best, at
+
+
+@njit(cache=True)
+def _node_blocks_of(pts, sig, default_sigma, resolution, block):
+    """:func:`_node_blocks` of a scan's (N, 2) points at the largest of its sigmas (NaN if any is, as
+    ``float(sig.max())``; ``default_sigma`` when there are none)."""
+    s = default_sigma
+    if sig.shape[0]:
+        s = sig[0]
+        for k in range(1, sig.shape[0]):
+            v = sig[k]
+            if np.isnan(s):
+                break
+            if np.isnan(v) or v > s:
+                s = v
+    return _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), s, resolution, block)

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from slam2d.core.arrays import grown
 from slam2d.matching.correlative_grid import _derive_grid, _inside, _inside_not, _smear
-from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks,
+from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks_of,
     _node_stats, _scatter_max_nodes, _unknown_nodes)
 
 if TYPE_CHECKING:
@@ -365,14 +365,16 @@ class GridCache:
     def _ensure_blocks(self, nodes: NDArray[np.int64]) -> None:
         """Compute the bound-grid blocks of those ``nodes`` that have none yet (once per node until invalidated)."""
         self._block_span = grown(self._block_span, int(nodes.max()) + 1, fill=-1)
+        res, default = self.matcher.resolution, float(self.matcher.smear_deviation)
         for n in nodes[self._block_span[nodes, 0] < 0].tolist():
             pts, sig = self.points_of(n)
-            sigma_max = float(sig.max()) if sig.size else self.matcher.smear_deviation
-            got = _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), sigma_max,
-                               self.matcher.resolution, _BOUND_BLOCK)
+            # _node_blocks of the point columns at the largest sigma (the default when none), in one compiled call.
+            got = _node_blocks_of(np.asarray(pts, dtype=np.float64), np.asarray(sig, dtype=np.float64), default, res,
+                                  _BOUND_BLOCK)
             a = self._block_used
             b = a + got[0].shape[0]
-            self._block_store = tuple(grown(col, b) for col in self._block_store)
+            if b > self._block_store[0].shape[0]:
+                self._block_store = tuple(grown(col, b) for col in self._block_store)
             for col, part in zip(self._block_store, got):
                 col[a:b] = part
             self._block_span[n] = (a, b)
