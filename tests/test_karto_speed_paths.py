@@ -465,3 +465,37 @@ def test_node_blocks_of_points_is_node_blocks_at_the_largest_sigma(seed):
         wide = sig.copy()
         wide[3] = 0.2
         assert not all(np.array_equal(g, w) for g, w in zip(_node_blocks_of(pts, wide, 0.03, 0.01, _BOUND_BLOCK), want))
+
+
+def _chain_covariance_before(seq_steps, i, last, step, step_cov):
+    """GraphFrontend._chain_covariance as it was written first (the whole relative pose composed)."""
+    from slam2d.core import se2
+
+    rel = np.zeros(3)
+    acc = np.zeros((3, 3))
+    for z, c in [seq_steps[k] for k in range(i, last)] + [(step, step_cov)]:
+        ct, st = math.cos(rel[2]), math.sin(rel[2])
+        ja = np.array([[1.0, 0.0, -st * z[0] - ct * z[1]], [0.0, 1.0, ct * z[0] - st * z[1]], [0.0, 0.0, 1.0]])
+        jb = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
+        acc = ja @ acc @ ja.T + jb @ c @ jb.T
+        rel = se2.compose(rel, z)
+    return 0.5 * (acc + acc.T) + np.eye(3) * 1e-12
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_chain_covariance_is_the_composed_one(seed):
+    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+
+    rng = np.random.default_rng(seed)
+    fe = GraphFrontend(GraphSlamParams())
+
+    def cov():
+        a = rng.normal(0.0, 0.1, (3, 3))
+        return a @ a.T + np.eye(3) * 1e-4
+
+    fe._seq_steps = [(np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-2.0, 2.0)]), cov())
+                     for _ in range(40)]
+    step, step_cov = rng.uniform(-0.5, 0.5, 3), cov()
+    for i, last in ((0, 0), (0, 39), (12, 30), (38, 39)):
+        got = fe._chain_covariance(i, last, step, step_cov)
+        assert np.array_equal(got, _chain_covariance_before(fe._seq_steps, i, last, step, step_cov))

@@ -835,15 +835,17 @@ class GraphFrontend:
         step): Ja covers how the heading error so far swings the step's translation, Jb rotates
         the step's own covariance. The chain is at most the running buffer long.
         """
-        rel = np.zeros(3)
+        heading = 0.0  # of the relative pose so far (se2.compose's heading: its x, y are not needed)
         acc = np.zeros((3, 3))
-        steps = [self._seq_steps[k] for k in range(i, last)] + [(step, step_cov)]
-        for z, c in steps:  # a few dozen 3x3 products per linked scan, not a per-beam loop
-            ct, st = math.cos(rel[2]), math.sin(rel[2])
-            ja = np.array([[1.0, 0.0, -st * z[0] - ct * z[1]], [0.0, 1.0, ct * z[0] - st * z[1]], [0.0, 0.0, 1.0]])
+        seq = self._seq_steps
+        for k in range(i, last + 1):  # a few dozen 3x3 products per linked scan, not a per-beam loop
+            z, c = seq[k] if k < last else (step, step_cov)
+            z0, z1, z2 = float(z[0]), float(z[1]), float(z[2])
+            ct, st = math.cos(heading), math.sin(heading)
+            ja = np.array([[1.0, 0.0, -st * z0 - ct * z1], [0.0, 1.0, ct * z0 - st * z1], [0.0, 0.0, 1.0]])
             jb = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
             acc = ja @ acc @ ja.T + jb @ c @ jb.T
-            rel = se2.compose(rel, z)
+            heading = se2._wrap(heading + z2)
         return 0.5 * (acc + acc.T) + _TINY_EYE
 
     def _has_edge(self, i: int, j: int) -> bool:
