@@ -499,3 +499,23 @@ def test_chain_covariance_is_the_composed_one(seed):
     for i, last in ((0, 0), (0, 39), (12, 30), (38, 39)):
         got = fe._chain_covariance(i, last, step, step_cov)
         assert np.array_equal(got, _chain_covariance_before(fe._seq_steps, i, last, step, step_cov))
+
+
+def test_reserve_of_a_range_is_reserve_of_its_list():
+    """GridCache.reserve with node ranges (near chains) keeps the same entries as with the lists."""
+    rng = np.random.default_rng(8)
+    parts = [(rng.uniform(-3.0, 3.0, (30, 2)) + [0.2 * i, 0.0], rng.uniform(0.01, 0.03, 30)) for i in range(80)]
+    m = CorrelativeMatcher(search_size=0.3, resolution=0.01)
+    a = GridCache(m, lambda i: parts[i], max_entries=4)
+    b = GridCache(m, lambda i: parts[i], max_entries=4)
+    for _ in range(200):
+        lo_n = int(rng.integers(0, 70))
+        hi_n = lo_n + int(rng.integers(1, 10))
+        c = rng.uniform(-2.0, 2.0, 2)
+        lo, hi = c - 1.0, c + 1.0
+        extra = int(rng.integers(0, 4))
+        ea = a.reserve(range(lo_n, hi_n), lo, hi, max_extra=extra)
+        eb = b.reserve(list(range(lo_n, hi_n)), lo, hi, max_extra=extra)
+        assert ea["order"] == eb["order"] and ea["nodes"] == eb["nodes"] and ea["span"] == eb["span"]
+        assert [x["order"] for x in a._entries] == [x["order"] for x in b._entries]
+    assert a.extensions == b.extensions > 0 and a.builds == b.builds

@@ -1228,7 +1228,7 @@ class GraphFrontend:
             if self._tried_nearby(a, b, pose, p.near_link_skip_distance, self._near_linked_at):
                 self._count("near_skipped_linked")
                 continue
-            chain = list(range(a, b))
+            chain = range(a, b)  # a list only where it links (reserve reads a range's ends directly)
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
             entry = self._seq_cache.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
@@ -1262,7 +1262,7 @@ class GraphFrontend:
                     self._count("near_links_flat")
                 means.append(result.pose)
                 covs.append(cov)
-                self._link_chain_to_scan(chain, node, result.pose, cov)
+                self._link_chain_to_scan(list(chain), node, result.pose, cov)
                 count += 1
                 if p.near_link_skip_distance > 0:
                     self._near_linked_at.append((a, b, float(pose[0]), float(pose[1])))

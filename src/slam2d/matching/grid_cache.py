@@ -142,16 +142,23 @@ class GridCache:
         """
         wanted = set(nodes.tolist() if isinstance(nodes, np.ndarray) else nodes)
         extra = self.max_extra if max_extra is None else int(max_extra)  # a caller may accept a looser superset
-        wmin, wmax = (min(wanted), max(wanted)) if wanted else (0, -1)
+        if not wanted:
+            wmin, wmax = 0, -1
+        elif type(nodes) is range and nodes.step == 1:
+            wmin, wmax = nodes[0], nodes[-1]  # a range's least and most without a pass over it
+        else:
+            wmin, wmax = min(wanted), max(wanted)
         lx, ly, hx, hy = float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
         for k, e in enumerate(self._entries):
             if e["span"][1] < wmin or e["span"][0] > wmax:
                 continue  # no node in common (a cheap test first: up to 32 entries per request)
             have = e["nodes"]
-            common = len(have & wanted)
-            if not common or len(have) - common > extra:
+            if have.isdisjoint(wanted):
+                continue  # nothing in common
+            miss = wanted - have
+            if len(have) - (len(wanted) - len(miss)) > extra:  # drawn but not asked for: len(have - wanted)
                 continue
-            missing = sorted(wanted - have)
+            missing = sorted(miss)
             if missing:
                 xlo, xhi, reach = self._extent(missing)
                 xlo = np.minimum(xlo, e["ext_lo"])
