@@ -1146,7 +1146,10 @@ class GraphFrontend:
         m = self.sequential
         if p.sequential_recovery_window <= m.search_size:
             return result, False
-        shift = float(np.abs(result.pose[:2] - predicted[:2]).max())
+        # np.abs(result.pose[:2] - predicted[:2]).max() on floats (NaN if either is, as numpy's max).
+        d0 = abs(float(result.pose[0]) - float(predicted[0]))
+        d1 = abs(float(result.pose[1]) - float(predicted[1]))
+        shift = math.nan if d0 != d0 or d1 != d1 else max(d0, d1)
         edge = shift >= 0.5 * m.search_size - 2.5 * m.resolution  # within a coarse step of the edge
         # A drop from the last matched scan's response (NaN: none) counts as weak as well.
         drop = result.raw_response < last_response - p.sequential_recovery_drop
@@ -1200,9 +1203,10 @@ class GraphFrontend:
             self._running.pop(0)
         if len(self._running) > 1:
             ref = self.reference_positions()
-            newest = ref[self._running[-1]]
+            nx, ny = ref[self._running[-1]].tolist()
             while len(self._running) > 1:
-                d = float(np.hypot(*(ref[self._running[0]] - newest)))
+                ox, oy = ref[self._running[0]].tolist()
+                d = float(np.hypot(ox - nx, oy - ny))  # np.hypot of the same differences, on floats
                 if d <= p.scan_buffer_maximum_scan_distance:
                     break
                 self._running.pop(0)
