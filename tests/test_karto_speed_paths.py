@@ -519,3 +519,13 @@ def test_reserve_of_a_range_is_reserve_of_its_list():
         assert ea["order"] == eb["order"] and ea["nodes"] == eb["nodes"] and ea["span"] == eb["span"]
         assert [x["order"] for x in a._entries] == [x["order"] for x in b._entries]
     assert a.extensions == b.extensions > 0 and a.builds == b.builds
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_column_means_are_numpys_mean(seed):
+    from slam2d.graph.frontend import _column_means
+
+    rng = np.random.default_rng(seed)
+    for n in (1, 2, 7, 8, 9, 100, 361, 1081, 4000):
+        p = rng.normal(0.0, 10.0, (n, 2)) * rng.uniform(0.1, 100.0)
+        assert np.array_equal(_column_means(p), p.mean(axis=0))

@@ -944,7 +944,12 @@ class GraphFrontend:
         self._world.append(None)
         self._odom.append(odom)
         self._times.append(timestamp)
-        bary = points.mean(axis=0) if points.shape[0] else np.zeros(2)  # no point: the robot's position
+        if not points.shape[0]:
+            bary = np.zeros(2)  # no point: the robot's position
+        elif points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 2 and points.flags.c_contiguous:
+            bary = _column_means(points)  # points.mean(axis=0): its row-by-row sums and division, compiled
+        else:
+            bary = points.mean(axis=0)
         # Appended to a growing store (``_bary_base`` is its first rows) instead of a vstack per node.
         base, store = self._bary_base, self._bary_store
         n = base.shape[0]
@@ -1805,6 +1810,22 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
             v = min(math.sqrt(v * v + gap * gap), hi)
         out[m] = v
         m += 1
+    return out
+
+
+@njit(cache=True)
+def _column_means(p):
+    """``p.mean(axis=0)`` of a C-contiguous (n >= 1, 2) array as numpy reduces it: the first row, then each
+    next row added in order, divided by n."""
+    n = p.shape[0]
+    sx = p[0, 0]
+    sy = p[0, 1]
+    for k in range(1, n):
+        sx += p[k, 0]
+        sy += p[k, 1]
+    out = np.empty(2)
+    out[0] = sx / n
+    out[1] = sy / n
     return out
 
 
