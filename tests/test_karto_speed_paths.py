@@ -529,3 +529,15 @@ def test_column_means_are_numpys_mean(seed):
     for n in (1, 2, 7, 8, 9, 100, 361, 1081, 4000):
         p = rng.normal(0.0, 10.0, (n, 2)) * rng.uniform(0.1, 100.0)
         assert np.array_equal(_column_means(p), p.mean(axis=0))
+
+
+def test_take3_is_the_three_fancy_indexes():
+    from slam2d.matching.grid_cache import _take3
+
+    rng = np.random.default_rng(6)
+    store = rng.normal(size=(3, 500))
+    px, py, sig = store[0, 40:400], store[1, 40:400], store[2, 40:400]  # row slices, as _columns gives
+    for idx in (np.zeros(0, np.int64), np.array([0, 359], np.int64), np.sort(rng.choice(360, 120, replace=False))):
+        got = _take3(px, py, sig, idx.astype(np.int64))
+        for g, w in zip(got, (px[idx], py[idx], np.ascontiguousarray(sig[idx])), strict=True):
+            assert g.flags.c_contiguous and np.array_equal(g, w)

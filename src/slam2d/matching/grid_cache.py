@@ -6,6 +6,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from slam2d.core.arrays import grown
@@ -265,7 +266,7 @@ class GridCache:
         if not ok:
             return False
         if todo.size:
-            _smear(g, ox, oy, res, px[todo], py[todo], np.ascontiguousarray(sig[todo]), False)
+            _smear(g, ox, oy, res, *_take3(px, py, sig, todo), False)
             self.smeared += int(todo.size)
         # A full cell (a kernel's centre) no longer means its whole kernel is drawn (the clearing may
         # have cut it), so repeated cells are never skipped in this grid.
@@ -320,13 +321,13 @@ class GridCache:
             keep = _inside_not(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m,
                                old[0][0] - m_old, old[0][1] - m_old, old[1][0] + m_old, old[1][1] + m_old)
             if keep.size:
-                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, *_take3(px, py, sig, keep), same)
                 self.smeared += int(keep.size)
         if e["n_drawn"] < len(parts):
             px, py, sig = self._columns(e, e["n_drawn"], len(parts))
             keep = _inside(px, py, new[0][0] - m, new[0][1] - m, new[1][0] + m, new[1][1] + m)
             if keep.size:
-                _smear(g, ox, oy, res, px[keep], py[keep], np.ascontiguousarray(sig[keep]), same)
+                _smear(g, ox, oy, res, *_take3(px, py, sig, keep), same)
                 self.smeared += int(keep.size)
         e["drawn"] = (np.asarray(new[0], dtype=np.float64), np.asarray(new[1], dtype=np.float64))
         e["n_drawn"] = len(parts)
@@ -444,3 +445,17 @@ class GridCache:
         a, b = starts[k0], starts[k1]
         return cols[0, a:b], cols[1, a:b], cols[2, a:b]
 
+
+@njit(cache=True)
+def _take3(px, py, sig, idx):
+    """``px[idx], py[idx], sig[idx]`` (new contiguous arrays) in one compiled pass."""
+    n = idx.shape[0]
+    ox = np.empty(n, px.dtype)
+    oy = np.empty(n, py.dtype)
+    os_ = np.empty(n, sig.dtype)
+    for k in range(n):
+        i = idx[k]
+        ox[k] = px[i]
+        oy[k] = py[i]
+        os_[k] = sig[i]
+    return ox, oy, os_
