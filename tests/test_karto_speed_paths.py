@@ -541,3 +541,13 @@ def test_take3_is_the_three_fancy_indexes():
         got = _take3(px, py, sig, idx.astype(np.int64))
         for g, w in zip(got, (px[idx], py[idx], np.ascontiguousarray(sig[idx])), strict=True):
             assert g.flags.c_contiguous and np.array_equal(g, w)
+
+
+def test_point_columns_are_the_slices_and_their_ranges():
+    from slam2d.matching.correlative_search import _point_columns, _ranges
+
+    q = np.random.default_rng(7).normal(0.0, 5.0, (333, 2))
+    qx, qy, rng = _point_columns(q)
+    ex, ey = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
+    assert np.array_equal(qx, ex) and np.array_equal(qy, ey) and np.array_equal(rng, _ranges(ex, ey))
+    assert qx.flags.c_contiguous and qy.flags.c_contiguous

@@ -62,7 +62,7 @@ from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCAL
 from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edge, _BLOCK, _block_bounds,
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
     _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND, _peaks,
-    _plane_max, _max_argmax0,
+    _plane_max, _max_argmax0, _point_columns,
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
     _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
     _spaced, _spread_sums)
@@ -334,13 +334,13 @@ class CorrelativeMatcher:
             got = _ANGLES[key] = (angles[np.argsort(np.abs(angles), kind="stable")], delta)
         angles, delta = got
         n = q.shape[0] * _SCALE
-        qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
         trans, slack = self._bound_window()
         cut = int(math.ceil(stop * n))
         if tables is None:
+            qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
             rng, table = _bound_table(pooled, _BOUND_BLOCK, self.resolution, qx, qy, trans, slack, delta)
         else:
-            rng = _ranges(qx, qy)
+            qx, qy, rng = _point_columns(q)  # the two columns (contiguous) and _ranges of them, in one pass
             levels = _bound_levels(rng, _BOUND_BLOCK, self.resolution, trans, slack, delta)
             table = tables.get("table")
             if table is None or table.shape[0] < levels:

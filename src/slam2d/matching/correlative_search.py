@@ -1274,3 +1274,15 @@ def _node_blocks_of(pts, sig, default_sigma, resolution, block):
             if np.isnan(v) or v > s:
                 s = v
     return _node_blocks(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), s, resolution, block)
+
+
+@njit(cache=True)
+def _point_columns(q):
+    """``q[:, 0]``, ``q[:, 1]`` (contiguous copies) of (N, 2) points and :func:`_ranges` of them."""
+    n = q.shape[0]
+    qx = np.empty(n)
+    qy = np.empty(n)
+    for k in range(n):
+        qx[k] = q[k, 0]
+        qy[k] = q[k, 1]
+    return qx, qy, _ranges(qx, qy)
