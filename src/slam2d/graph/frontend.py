@@ -728,7 +728,8 @@ class GraphFrontend:
 
     def _node_reference(self, i: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Node i as a matching reference: its points with the gaps filled (world frame) and their sigmas."""
-        return self._world_points(i), self._ref[i][1]
+        w = self._world[i]  # (asked for every node of every new grid: the cached points without a second call)
+        return (self._world_points(i) if w is None else w), self._ref[i][1]
 
     def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine,
                min_response=-1.0):

@@ -407,7 +407,7 @@ class GridCache:
         """Per node of the entry, its (world points, sigmas), fetched when first needed."""
         parts, order = e["parts"], e["order"]
         if len(parts) < len(order):
-            parts.extend(self.points_of(n) for n in order[len(parts):])
+            parts.extend(map(self.points_of, order[len(parts):]))
         return parts
 
     def _columns(self, e: dict, k0: int, k1: int):
