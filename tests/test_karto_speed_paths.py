@@ -551,3 +551,26 @@ def test_point_columns_are_the_slices_and_their_ranges():
     ex, ey = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
     assert np.array_equal(qx, ex) and np.array_equal(qy, ey) and np.array_equal(rng, _ranges(ex, ey))
     assert qx.flags.c_contiguous and qy.flags.c_contiguous
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_columns_copied_like_another_entry_are_the_parts(seed):
+    from slam2d.matching.grid_cache import _copy_like
+
+    rng = np.random.default_rng(seed)
+    parts = [(rng.uniform(-3.0, 3.0, (int(rng.integers(0, 40)), 2)), None) for _ in range(30)]
+    parts = [(p, rng.uniform(0.01, 0.05, p.shape[0])) for p, _ in parts]
+    m = CorrelativeMatcher(search_size=0.3, resolution=0.01)
+    cache = GridCache(m, lambda i: parts[i])
+    like = {"parts": [], "order": list(range(5, 25))}
+    cache._columns(like, 0, 20)  # like's rows hold nodes 5..24
+    # nodes in runs of like's, out of its order, not in it, and one moved (new arrays for node 12)
+    order = [3, 4] + list(range(8, 15)) + [20, 19, 26] + list(range(21, 25))
+    mine = [parts[i] for i in order]
+    mine[order.index(12)] = (parts[12][0].copy(), parts[12][1])
+    size = sum(p[0].shape[0] for p in mine)
+    cols = np.full((3, size + 5), 9.0)
+    _copy_like(cols, mine, like)
+    pts, sig = _concat(mine)
+    assert np.array_equal(cols[0, :size], pts[:, 0]) and np.array_equal(cols[1, :size], pts[:, 1])
+    assert np.array_equal(cols[2, :size], sig) and np.all(cols[:, size:] == 9.0)

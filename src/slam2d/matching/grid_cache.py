@@ -247,7 +247,7 @@ class GridCache:
         c0, r0 = max(c0, 0), max(r0, 0)
         drawn = set(d["order"][: d["n_drawn"]])
         parts = self._parts(e)
-        px, py, sig = self._columns(e, 0, len(parts))
+        px, py, sig = self._columns(e, 0, len(parts), like=d)
         kept = np.repeat(np.array([n in drawn for n in e["order"]], dtype=np.bool_), np.diff(e["starts"]))
         # The donor's drawn scans the new entry does not hold, from the donor's columns.
         dx, dy, ds = self._columns(d, 0, d["n_drawn"])
@@ -410,7 +410,7 @@ class GridCache:
             parts.extend(map(self.points_of, order[len(parts):]))
         return parts
 
-    def _columns(self, e: dict, k0: int, k1: int):
+    def _columns(self, e: dict, k0: int, k1: int, like: dict | None = None):
         """x, y and sigma (contiguous, read-only use) of the points of the entry's nodes ``order[k0:k1]``.
 
         The entry keeps its nodes' points as the three rows of one growing store (``starts``: where each node's
@@ -436,7 +436,9 @@ class GridCache:
                 wider[:, :a] = cols[:, :a]
                 cols = e["cols"] = wider
             # The new nodes' points written straight into the rows (no concatenated copy first).
-            if len(new) == 1:
+            if like is not None and done == 0 and like.get("cols") is not None and len(new) > 1:
+                _copy_like(cols, new, like)  # runs of the same node arrays copied from ``like``'s rows
+            elif len(new) == 1:
                 cols[0:2, a:size] = new[0][0].T
                 cols[2, a:size] = new[0][1]
             else:
@@ -444,6 +446,36 @@ class GridCache:
                 np.concatenate([q[1] for q in new], out=cols[2, a:size])
         a, b = starts[k0], starts[k1]
         return cols[0, a:b], cols[1, a:b], cols[2, a:b]
+
+
+def _copy_like(cols, parts, like: dict) -> None:
+    """Fill ``cols`` (3 rows) with the points of ``parts`` (per node (points, sigmas)), one node after another.
+
+    A run of parts that are the very arrays (the same objects) of consecutive parts of ``like``, another
+    entry whose rows already hold them, is copied from ``like``'s rows in one slice; any other part is
+    written from its arrays. The values are the ones writing every part from its arrays gives.
+    """
+    lp, lst, lcols = like["parts"], like["starts"], like["cols"]
+    nl = len(lst) - 1  # like's parts held in its rows
+    where = {id(q[0]): j for j, q in enumerate(lp[:nl])}
+    pos, k, n = 0, 0, len(parts)
+    while k < n:
+        pts, sig = parts[k]
+        j = where.get(id(pts))
+        if j is not None and lp[j][0] is pts and lp[j][1] is sig:
+            r = 1
+            while k + r < n and j + r < nl and lp[j + r][0] is parts[k + r][0] and lp[j + r][1] is parts[k + r][1]:
+                r += 1
+            s0, s1 = lst[j], lst[j + r]
+            cols[:, pos:pos + s1 - s0] = lcols[:, s0:s1]
+            pos += s1 - s0
+            k += r
+        else:
+            m = pts.shape[0]
+            cols[0:2, pos:pos + m] = pts.T
+            cols[2, pos:pos + m] = sig
+            pos += m
+            k += 1
 
 
 @njit(cache=True)
