@@ -152,6 +152,79 @@ def _oracle(world_name: str, true_frames: np.ndarray):
     return walls, ends, report
 
 
+def _refinement_inputs(sim, p):
+    """The beams and wall ends the wall refinement uses on a simulated recording, as ``(scans, beams)`` masks for
+    :func:`slam2d.eval.accuracy_bound.oracle_smoother`: ``beams``, the returns on its extracted segments (every
+    scan's, as ``refine_path`` extracts them: no sensor model, karto's range threshold) whose wall is kept at the
+    *true* poses (seen from enough scans); ``detected``, the nearer beam of every wall end its detector reports
+    (``scan_wall_ends``' settings); ``ends``, those of them that join a landmark at the true poses (seen from enough
+    scans)."""
+    from slam2d.graph.wall_refinement import (associate_ends, associate_segments, floored_sigmas, scan_segments,
+                                              scan_wall_ends)
+    from slam2d.matching.wall_ends import detect_wall_ends
+
+    truth = np.asarray(sim.truth)[np.asarray(sim.scan_indices)]
+    scans = list(sim.scans)
+    n, b = len(scans), scans[0].num_beams
+    segs = scan_segments(scans, [None] * n, p, p.range_threshold)
+    on = associate_segments(segs, truth, p)[segs.segment] >= 0
+    # each segment beam's index, from its point (base frame) through the laser's mount
+    m = np.asarray(scans[0].mount, np.float64)
+    c, s_ = np.cos(m[2]), np.sin(m[2])
+    dx, dy = segs.q[:, 0] - m[0], segs.q[:, 1] - m[1]
+    bearing = np.arctan2(-s_ * dx + c * dy, c * dx + s_ * dy)
+    ang = np.asarray(scans[0].angles)
+    beam = np.clip(np.rint((bearing - ang[0]) / (ang[1] - ang[0])).astype(np.int64), 0, b - 1)
+    beams = np.zeros((n, b), bool)
+    beams[segs.node[on], beam[on]] = True
+    # the detector's nearer beam per sighting, in scan_wall_ends' order
+    near = []
+    for scan in scans:
+        sig = floored_sigmas(None, np.arange(scan.num_beams), p.wall_end_range_sigma)  # as scan_wall_ends
+        near.append(detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
+                                     max_incidence=p.wall_refinement_end_incidence,
+                                     open_incidence=p.wall_refinement_end_open_incidence,
+                                     max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma).beams)
+    e = scan_wall_ends(scans, [None] * n, p)
+    k = np.concatenate(near)
+    assert k.size == len(e)
+    detected = np.zeros((n, b), bool)
+    detected[e.node, k] = True
+    lm = associate_ends(e, truth, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+    ends = np.zeros((n, b), bool)
+    ends[e.node[lm >= 0], k[lm >= 0]] = True
+    return beams, detected, ends
+
+
+def _oracle_table(world: str, laser: str, seeds: list[int], settings: dict) -> None:
+    """``--oracle``: the oracle smoother (the truth's associations, every reading solved as the accuracy bound
+    counts it) on each seed's recording, with all its readings and restricted to the refinement's inputs."""
+    from slam2d.eval.accuracy_bound import laser_information, oracle_smoother, setup_from_simulation
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    p = build_method("karto", settings={**settings, "wall_refinement": "true"}).params
+    for seed in seeds:
+        sim = simulate(world, SimulationParams(duration=120.0 if world == "office" else None, seed=seed, laser=laser))
+        beams, detected, ends = _refinement_inputs(sim, p)
+        info = laser_information(setup_from_simulation(sim))
+        shape = beams.shape
+        edge_beams = np.zeros(shape[0] * shape[1], bool)
+        edge_beams[info.beam[info.beams_used:]] = True
+        edge_beams = edge_beams.reshape(shape)
+        none = np.zeros(shape, bool)
+        rows = [("(a) all beams, all ends", None, None), ("(b) segment beams, all ends", beams, None),
+                ("(c) all beams, detected ends", None, ends), ("(c') all beams, no ends", None, none),
+                ("(d) segment beams, detected ends", beams, ends), ("(d') segment beams, no ends", beams, none)]
+        out = []
+        for name, bm, em in rows:
+            r = oracle_smoother(sim, beam_mask=bm, edge_mask=em)
+            out.append(f"{name} {r['ate_m']:.3f}")
+        print(f"{world} {laser} seed {seed}: oracle ATE (m): " + ", ".join(out)
+              + f"; beams {int(info.beams_used)} of which on segments {int(beams.sum())}; true wall-end gaps "
+              f"{int(info.edges_used)}, detector's sightings {int(detected.sum())} ({int((detected & edge_beams).sum())} "
+              f"at a true end gap's near beam), used {int(ends.sum())} ({int((ends & edge_beams).sum())})", flush=True)
+
+
 def _judge(slam, truth, out: Path) -> tuple[float, float]:
     out.mkdir(parents=True, exist_ok=True)
     t, p = slam.trajectory()
@@ -169,9 +242,16 @@ def main() -> None:
     ap.add_argument("--cache", default="/tmp/slam2d-proposal")
     ap.add_argument("--base", default="", help="karto settings of the run, key=value separated by spaces")
     ap.add_argument("--from-truth", action="store_true", help="also refine from the true frame poses")
+    ap.add_argument("--oracle", action="store_true",
+                    help="no karto run: the oracle smoother on each recording, all readings and the refinement's")
     ap.add_argument("settings", nargs="*", help='refinement settings, one quoted "key=value ..." each ("" = defaults)')
     a = ap.parse_args()
     base = dict(s.split("=", 1) for s in a.base.split())
+    if a.oracle:
+        for v in a.settings or [""]:
+            _oracle_table(a.world, a.laser, [int(s) for s in a.seeds.split(",")],
+                          {**base, **dict(s.split("=", 1) for s in v.split())})
+        return
     base.setdefault("wall_end_landmarks", "false")
     variants = [dict(s.split("=", 1) for s in v.split()) for v in (a.settings or [""])]
     variant_names = [s or "defaults" for s in (a.settings or [""])]
