@@ -181,7 +181,7 @@ def _refinement_inputs(sim, p):
     near = []
     for scan in scans:
         sig = floored_sigmas(None, np.arange(scan.num_beams), p.wall_end_range_sigma)  # as scan_wall_ends
-        near.append(detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
+        near.append(detect_wall_ends(scan, sig, jump=p.wall_refinement_end_jump, run=p.wall_refinement_end_run,
                                      max_incidence=p.wall_refinement_end_incidence,
                                      open_incidence=p.wall_refinement_end_open_incidence,
                                      max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma).beams)

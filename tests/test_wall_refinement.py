@@ -328,3 +328,48 @@ def test_carried_damping_reaches_the_optimum_of_a_long_chain():
            for carry in (False, True)]
     assert start[-1, 0] - truth[-1, 0] > 0.9  # 1 m to take out
     assert off[0] > 0.3 and off[1] < 0.02, off
+
+
+def _box_scene_scan(lost=()):
+    """A scan of the room with a box standing 0.25 m in front of its wall at y = 3.5, from (-1, 0) facing +y;
+    ``lost``: beams with no return."""
+    from slam2d.core import make_scan
+    from tests._room import ROOM, _box_hits
+
+    box = (0.0, 2.75, 0.6, 3.25)
+    n, fov = 721, math.radians(240)
+    a = math.pi / 2 - fov / 2 + fov * np.arange(n) / (n - 1)
+    r = np.fmin(_box_hits(-1.0, 0.0, np.cos(a), np.sin(a), ROOM, True),
+                _box_hits(-1.0, 0.0, np.cos(a), np.sin(a), box, False))
+    r[list(lost)] = np.nan
+    return make_scan(0.0, r, -fov / 2, fov / (n - 1), 0.02, 20.0)
+
+
+def _ends_near(scan, p, point):
+    """Whether the refinement's wall-end detection finds an end within 5 cm of ``point`` (world; robot at (-1, 0),
+    facing +y)."""
+    from slam2d.graph.wall_refinement import scan_wall_ends
+
+    e = scan_wall_ends([scan], [None], p)
+    world = np.stack([-1.0 - e.z[:, 1], e.z[:, 0]], 1)
+    return bool(np.any(np.hypot(world[:, 0] - point[0], world[:, 1] - point[1]) < 0.05))
+
+
+def test_end_jump_and_run_of_the_refinement():
+    # A box 0.25 m in front of a wall: its far corner is a wall end with only 0.26 m behind it, missed with the
+    # 0.3 m jump of wall_end_landmarks and found with wall_refinement_end_jump=0.2; its near corner (a full jump)
+    # is lost when a return among the 5 beams before it is lost, and found again with wall_refinement_end_run=3.
+    from slam2d.matching.wall_ends import detect_wall_ends
+
+    p = from_mapping(GraphSlamParams, {"wall_refinement": True})
+    scan = _box_scene_scan()
+    assert not _ends_near(scan, p, (0.0, 3.25)) and _ends_near(scan, p, (0.6, 2.75))
+    assert _ends_near(scan, from_mapping(GraphSlamParams, {"wall_refinement": True, "wall_refinement_end_jump": 0.2}),
+                      (0.0, 3.25))
+    ends = detect_wall_ends(scan, 0.01, max_incidence=p.wall_refinement_end_incidence)
+    k = int(ends.beams[np.argmin(np.abs(ends.points[:, 1] + 1.6))])  # the near corner, 1.6 m to the right
+    side = int(ends.side[np.argmin(np.abs(ends.points[:, 1] + 1.6))])
+    gappy = _box_scene_scan(lost=[k - 3 * side])
+    assert not _ends_near(gappy, p, (0.6, 2.75))
+    assert _ends_near(gappy, from_mapping(GraphSlamParams, {"wall_refinement": True, "wall_refinement_end_run": 3}),
+                      (0.6, 2.75))

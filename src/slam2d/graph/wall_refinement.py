@@ -150,6 +150,16 @@ class WallRefinementParams:
         help="largest incidence of a wall end with no return after it (wall_refinement_ends; "
         "wall_end_open_incidence for the refinement)",
     )
+    wall_refinement_end_jump: float = param(
+        0.3, unit="m", low=0.0,
+        help="least range step from a wall end's beam to the next two (wall_refinement_ends; wall_end_jump for the "
+        "refinement): a box 0.25 m in front of a wall is missed at 0.3 m",
+    )
+    wall_refinement_end_run: int = param(
+        5, unit="beams", low=2,
+        help="returns without a jump on the near wall before its end (wall_refinement_ends; wall_end_run for the "
+        "refinement): a lost return among them (a grazing wall far ahead) loses the end",
+    )
     wall_refinement_end_gate: float = param(
         0.15, unit="m", low=0.0,
         help="a wall end joins the nearest landmark (mean of its sightings) within this, never two of one scan "
@@ -489,13 +499,14 @@ class EndSightings:
 
 def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p: Any) -> EndSightings:
     """The wall ends of every scan (:func:`slam2d.matching.wall_ends.detect_wall_ends`, the WallEndParams but the
-    incidence limits ``wall_refinement_end_incidence`` and ``wall_refinement_end_open_incidence``)."""
+    incidence limits ``wall_refinement_end_incidence`` and ``wall_refinement_end_open_incidence``, the jump
+    ``wall_refinement_end_jump`` and the run ``wall_refinement_end_run``)."""
     from slam2d.matching.wall_ends import detect_wall_ends
 
     node, z, info = [], [], []
     for i, scan in enumerate(scans):
         sig = floored_sigmas(sigmas[i], np.arange(scan.num_beams), p.wall_end_range_sigma)
-        ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
+        ends = detect_wall_ends(scan, sig, jump=p.wall_refinement_end_jump, run=p.wall_refinement_end_run,
                                 max_incidence=p.wall_refinement_end_incidence,
                                 open_incidence=p.wall_refinement_end_open_incidence,
                                 max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma)
