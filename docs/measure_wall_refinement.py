@@ -212,9 +212,35 @@ def _oracle_table(world: str, laser: str, seeds: list[int], settings: dict) -> N
         edge_beams[info.beam[info.beams_used:]] = True
         edge_beams = edge_beams.reshape(shape)
         none = np.zeros(shape, bool)
+        # Why the detector misses a true wall end (a beam gap the oracle counts): its nearer beam returned nothing;
+        # the next two beams are not both `wall_refinement_end_jump` farther; a return among the
+        # `wall_refinement_end_run` beams before it is lost; else one of the later checks (incidence, open end,
+        # continuation of the ranges).
+        rng = np.stack([np.asarray(sc.ranges, np.float64) for sc in sim.scans])
+        rr = np.where(np.isfinite(rng), rng, np.inf)
+        gap_beam = info.beam[info.beams_used:]
+        si, k = gap_beam // shape[1], gap_beam % shape[1]
+        def at(j):
+            return rr[si, np.clip(j, 0, shape[1] - 1)]
+        side = np.where(at(k + 1) >= at(k - 1), 1, -1)
+        missed = ~(detected[si, k] | detected[si, np.clip(k + 1, 0, shape[1] - 1)] | detected[si, np.clip(k - 1, 0, shape[1] - 1)])
+        lost = ~np.isfinite(rr[si, k])
+        small = ~lost & ~((at(k + side) > rr[si, k] + p.wall_refinement_end_jump)
+                          & (at(k + 2 * side) > rr[si, k] + p.wall_refinement_end_jump))
+        run = ~lost & ~small & ~np.all([np.isfinite(at(k - j * side)) for j in range(1, p.wall_refinement_end_run)], 0)
+        why = {"near beam lost": missed & lost, "jump": missed & small, "lost return in the run": missed & run,
+               "later checks": missed & ~lost & ~small & ~run}
+
+        def plus(sel):
+            m = ends.copy()
+            m[si[sel], k[sel]] = True
+            return m
         rows = [("(a) all beams, all ends", None, None), ("(b) segment beams, all ends", beams, None),
                 ("(c) all beams, detected ends", None, ends), ("(c') all beams, no ends", None, none),
-                ("(d) segment beams, detected ends", beams, ends), ("(d') segment beams, no ends", beams, none)]
+                ("(d) segment beams, detected ends", beams, ends), ("(d') segment beams, no ends", beams, none),
+                ("(d) and the ends missed for the jump", beams, plus(why["jump"])),
+                ("(d) and those missed for a lost return in the run", beams, plus(why["lost return in the run"])),
+                ("(d) and those missed by the later checks", beams, plus(why["later checks"]))]
         out = []
         for name, bm, em in rows:
             r = oracle_smoother(sim, beam_mask=bm, edge_mask=em)
@@ -222,7 +248,8 @@ def _oracle_table(world: str, laser: str, seeds: list[int], settings: dict) -> N
         print(f"{world} {laser} seed {seed}: oracle ATE (m): " + ", ".join(out)
               + f"; beams {int(info.beams_used)} of which on segments {int(beams.sum())}; true wall-end gaps "
               f"{int(info.edges_used)}, detector's sightings {int(detected.sum())} ({int((detected & edge_beams).sum())} "
-              f"at a true end gap's near beam), used {int(ends.sum())} ({int((ends & edge_beams).sum())})", flush=True)
+              f"at a true end gap's near beam), used {int(ends.sum())} ({int((ends & edge_beams).sum())}); true gaps "
+              "missed: " + ", ".join(f"{k_} {int(v.sum())}" for k_, v in why.items()), flush=True)
 
 
 def _judge(slam, truth, out: Path) -> tuple[float, float]:
