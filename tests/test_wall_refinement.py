@@ -373,3 +373,29 @@ def test_end_jump_and_run_of_the_refinement():
     assert not _ends_near(gappy, p, (0.6, 2.75))
     assert _ends_near(gappy, from_mapping(GraphSlamParams, {"wall_refinement": True, "wall_refinement_end_run": 3}),
                       (0.6, 2.75))
+
+
+def test_two_pass_refines_with_the_landmarks_detector_first_then_its_own():
+    # wall_refinement_end_two_pass: a first refinement with wall_end_jump / wall_end_run (here a pillar 0.25 m
+    # deep is not an end at a 0.5 m jump), its poses the start of the second with the refinement's own jump
+    # (0.2 m: the pillar's corners are); the same as the two solves by hand, bit for bit, and not the one-pass solve.
+    from slam2d.graph.wall_refinement import refine_path
+
+    truth, scans, graph = _room_problem()
+    settings = {"wall_refinement": True, "wall_end_jump": 0.5, "wall_refinement_end_jump": 0.2}
+    one = from_mapping(GraphSlamParams, settings)
+    two = from_mapping(GraphSlamParams, {**settings, "wall_refinement_end_two_pass": True})
+    few = scan_wall_ends(scans, [None] * len(scans), two, jump=0.5, run=two.wall_end_run)
+    many = scan_wall_ends(scans, [None] * len(scans), two)
+    assert len(few) < len(many)
+    segs = scan_segments(scans, [None] * len(scans), two)
+    first = refine_walls(graph, segs, two, ends=few)
+    g = graph.copy()
+    g.poses = first.poses
+    second = refine_walls(g, segs, two, ends=many)
+    res, _ = refine_path(scans, graph.poses, two, graph=graph)
+    np.testing.assert_array_equal(res.poses, second.poses)
+    assert len(res.rounds) == len(first.rounds) + len(second.rounds) and res.cost_before == first.cost_before
+    single, _ = refine_path(scans, graph.poses, one, graph=graph)
+    assert len(single.rounds) == len(second.rounds) and np.abs(single.poses - res.poses).max() > 0
+    assert _rms(res.poses, truth) < 0.01
