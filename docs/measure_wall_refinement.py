@@ -2,7 +2,7 @@
 """karto's wall bundle adjustment (`wall_refinement`) on the simulated URG-04LX recordings: several settings per karto run.
 
     .venv/bin/python docs/measure_wall_refinement.py [--world office] [--laser urg-04lx] [--seeds 0,1,2] \
-        [--base "key=value ..."] [--from-truth] ["key=value ..." ...]
+        [--base "key=value ..."] [--from-truth] [--oracle] ["key=value ..." ...]
 
 Per seed, karto runs once (the `karto-sim-lasers` recordings, written once under --cache as
 docs/measure_gmapping_proposal.py writes them; `--base` settings, `wall_end_landmarks` false unless
@@ -23,6 +23,12 @@ once, in the first round (at the start poses), and keep it for every round; ``or
 take it from the simulator's truth instead (each segment on the true straight line most of its beams lie on at
 the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
 refinement's own association at the true poses compares with the truth's.
+
+``--oracle`` (no karto run; docs/methods/karto-measured.md, *URG-04LX: which inputs hold the last centimetres*):
+per seed the oracle smoother (:func:`slam2d.eval.accuracy_bound.oracle_smoother`) on the recording, with all its
+readings and restricted (its ``beam_mask`` / ``edge_mask``) to the beams of the refinement's segments and the wall
+ends its detector finds (karto's parameters and each setting), and why the detector misses the true wall ends it
+misses, with what each kind is worth added back.
 """
 
 from __future__ import annotations
