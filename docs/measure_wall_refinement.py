@@ -24,6 +24,10 @@ take it from the simulator's truth instead (each segment on the true straight li
 the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
 refinement's own association at the true poses compares with the truth's.
 
+A setting's ``ends_model=bearing`` (not a parameter) gives every wall-end sighting the oracle's model of it: a
+bearing over the beam gap, perpendicular to the ray, instead of the detector's point covariance; ``ends_model=across:S``
+scales the point's across-wall sigma by S.
+
 ``--oracle`` (no karto run; docs/methods/karto-measured.md, *URG-04LX: which inputs hold the last centimetres*):
 per seed the oracle smoother (:func:`slam2d.eval.accuracy_bound.oracle_smoother`) on the recording, with all its
 readings and restricted (its ``beam_mask`` / ``edge_mask``) to the beams of the refinement's segments and the wall
@@ -258,6 +262,40 @@ def _oracle_table(world: str, laser: str, seeds: list[int], settings: dict) -> N
               "missed: " + ", ".join(f"{k_} {int(v.sum())}" for k_, v in why.items()), flush=True)
 
 
+_SCAN_WALL_ENDS = wr.scan_wall_ends
+
+
+def _bearing_ends(scans, sigmas, p, **kw):
+    """Diagnostics (a setting's ``ends_model=bearing``, not a parameter): the wall-end sightings of
+    ``scan_wall_ends`` with the oracle's model of them: a bearing over the beam gap (``gap^2 / 12`` of the scan's
+    angle increment) perpendicular to the ray from the laser, instead of the point's along-wall / across-wall
+    covariance (nothing along the ray but a 10 m sigma, to keep it invertible)."""
+    e = _SCAN_WALL_ENDS(scans, sigmas, p, **kw)
+    if not len(e):
+        return e
+    m = np.asarray(scans[0].mount, np.float64)
+    da = float(abs(scans[0].angles[1] - scans[0].angles[0]))
+    d = e.z - m[:2]
+    r = np.hypot(d[:, 0], d[:, 1])
+    u = d / r[:, None]
+    v = np.stack([-u[:, 1], u[:, 0]], 1)
+    info = (v[:, :, None] * v[:, None, :]) / (r * r * da * da / 12.0)[:, None, None] + (u[:, :, None] * u[:, None, :]) / 100.0
+    return wr.EndSightings(e.node, e.z, info)
+
+
+def _across_ends(scale: float):
+    """Diagnostics (``ends_model=across:S``, not a parameter): the detector's sightings with their across-wall
+    sigma (the covariance's smaller axis) times S, the along-wall one kept."""
+    def ends(scans, sigmas, p, **kw):
+        e = _SCAN_WALL_ENDS(scans, sigmas, p, **kw)
+        if not len(e):
+            return e
+        w, vec = np.linalg.eigh(e.information)  # ascending: the along-wall axis first, the across-wall one last
+        w[:, 1] /= scale * scale
+        return wr.EndSightings(e.node, e.z, np.einsum("kij,kj,klj->kil", vec, w, vec))
+    return ends
+
+
 def _judge(slam, truth, out: Path) -> tuple[float, float]:
     out.mkdir(parents=True, exist_ok=True)
     t, p = slam.trajectory()
@@ -308,6 +346,9 @@ def main() -> None:
         for k, v in enumerate(variants):
             v = dict(v)
             wr._FREEZE = set(v.pop("freeze", "").replace("+", ",").split(",")) - {""}
+            model = v.pop("ends_model", "point")
+            wr.scan_wall_ends = (_bearing_ends if model == "bearing" else
+                                 _across_ends(float(model.split(":")[1])) if model.startswith("across:") else _SCAN_WALL_ENDS)
             oracle_w, oracle_e, report = _oracle(a.world, true_frames)
             wr._GIVEN = {}
             if "oracle-walls" in wr._FREEZE:
