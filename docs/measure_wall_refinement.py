@@ -2,7 +2,7 @@
 """karto's wall bundle adjustment (`wall_refinement`) on the simulated URG-04LX recordings: several settings per karto run.
 
     .venv/bin/python docs/measure_wall_refinement.py [--world office] [--laser urg-04lx] [--seeds 0,1,2] \
-        [--base "key=value ..."] [--from-truth] ["key=value ..." ...]
+        [--base "key=value ..."] [--from-truth] [--oracle] ["key=value ..." ...]
 
 Per seed, karto runs once (the `karto-sim-lasers` recordings, written once under --cache as
 docs/measure_gmapping_proposal.py writes them; `--base` settings, `wall_end_landmarks` false unless
@@ -23,6 +23,16 @@ once, in the first round (at the start poses), and keep it for every round; ``or
 take it from the simulator's truth instead (each segment on the true straight line most of its beams lie on at
 the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
 refinement's own association at the true poses compares with the truth's.
+
+A setting's ``ends_model=bearing`` (not a parameter) gives every wall-end sighting the oracle's model of it: a
+bearing over the beam gap, perpendicular to the ray, instead of the detector's point covariance; ``ends_model=across:S``
+scales the point's across-wall sigma by S.
+
+``--oracle`` (no karto run; docs/methods/karto-measured.md, *URG-04LX: which inputs hold the last centimetres*):
+per seed the oracle smoother (:func:`slam2d.eval.accuracy_bound.oracle_smoother`) on the recording, with all its
+readings and restricted (its ``beam_mask`` / ``edge_mask``) to the beams of the refinement's segments and the wall
+ends its detector finds (karto's parameters and each setting), and why the detector misses the true wall ends it
+misses, with what each kind is worth added back.
 """
 
 from __future__ import annotations
@@ -152,6 +162,140 @@ def _oracle(world_name: str, true_frames: np.ndarray):
     return walls, ends, report
 
 
+def _refinement_inputs(sim, p):
+    """The beams and wall ends the wall refinement uses on a simulated recording, as ``(scans, beams)`` masks for
+    :func:`slam2d.eval.accuracy_bound.oracle_smoother`: ``beams``, the returns on its extracted segments (every
+    scan's, as ``refine_path`` extracts them: no sensor model, karto's range threshold) whose wall is kept at the
+    *true* poses (seen from enough scans); ``detected``, the nearer beam of every wall end its detector reports
+    (``scan_wall_ends``' settings); ``ends``, those of them that join a landmark at the true poses (seen from enough
+    scans)."""
+    from slam2d.graph.wall_refinement import (associate_ends, associate_segments, floored_sigmas, scan_segments,
+                                              scan_wall_ends)
+    from slam2d.matching.wall_ends import detect_wall_ends
+
+    truth = np.asarray(sim.truth)[np.asarray(sim.scan_indices)]
+    scans = list(sim.scans)
+    n, b = len(scans), scans[0].num_beams
+    segs = scan_segments(scans, [None] * n, p, p.range_threshold)
+    on = associate_segments(segs, truth, p)[segs.segment] >= 0
+    # each segment beam's index, from its point (base frame) through the laser's mount
+    m = np.asarray(scans[0].mount, np.float64)
+    c, s_ = np.cos(m[2]), np.sin(m[2])
+    dx, dy = segs.q[:, 0] - m[0], segs.q[:, 1] - m[1]
+    bearing = np.arctan2(-s_ * dx + c * dy, c * dx + s_ * dy)
+    ang = np.asarray(scans[0].angles)
+    beam = np.clip(np.rint((bearing - ang[0]) / (ang[1] - ang[0])).astype(np.int64), 0, b - 1)
+    beams = np.zeros((n, b), bool)
+    beams[segs.node[on], beam[on]] = True
+    # the detector's nearer beam per sighting, in scan_wall_ends' order
+    near = []
+    for scan in scans:
+        sig = floored_sigmas(None, np.arange(scan.num_beams), p.wall_end_range_sigma)  # as scan_wall_ends
+        near.append(detect_wall_ends(scan, sig, jump=p.wall_refinement_end_jump, run=p.wall_refinement_end_run,
+                                     max_incidence=p.wall_refinement_end_incidence,
+                                     open_incidence=p.wall_refinement_end_open_incidence,
+                                     max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma).beams)
+    e = scan_wall_ends(scans, [None] * n, p)
+    k = np.concatenate(near)
+    assert k.size == len(e)
+    detected = np.zeros((n, b), bool)
+    detected[e.node, k] = True
+    lm = associate_ends(e, truth, p.wall_refinement_end_gate, p.wall_refinement_minimum_nodes)
+    ends = np.zeros((n, b), bool)
+    ends[e.node[lm >= 0], k[lm >= 0]] = True
+    return beams, detected, ends
+
+
+def _oracle_table(world: str, laser: str, seeds: list[int], settings: dict) -> None:
+    """``--oracle``: the oracle smoother (the truth's associations, every reading solved as the accuracy bound
+    counts it) on each seed's recording, with all its readings and restricted to the refinement's inputs."""
+    from slam2d.eval.accuracy_bound import laser_information, oracle_smoother, setup_from_simulation
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    p = build_method("karto", settings={**settings, "wall_refinement": "true"}).params
+    for seed in seeds:
+        sim = simulate(world, SimulationParams(duration=120.0 if world == "office" else None, seed=seed, laser=laser))
+        beams, detected, ends = _refinement_inputs(sim, p)
+        info = laser_information(setup_from_simulation(sim))
+        shape = beams.shape
+        edge_beams = np.zeros(shape[0] * shape[1], bool)
+        edge_beams[info.beam[info.beams_used:]] = True
+        edge_beams = edge_beams.reshape(shape)
+        none = np.zeros(shape, bool)
+        # Why the detector misses a true wall end (a beam gap the oracle counts): its nearer beam returned nothing;
+        # the next two beams are not both `wall_refinement_end_jump` farther; a return among the
+        # `wall_refinement_end_run` beams before it is lost; else one of the later checks (incidence, open end,
+        # continuation of the ranges).
+        rng = np.stack([np.asarray(sc.ranges, np.float64) for sc in sim.scans])
+        rr = np.where(np.isfinite(rng), rng, np.inf)
+        gap_beam = info.beam[info.beams_used:]
+        si, k = gap_beam // shape[1], gap_beam % shape[1]
+        def at(j):
+            return rr[si, np.clip(j, 0, shape[1] - 1)]
+        side = np.where(at(k + 1) >= at(k - 1), 1, -1)
+        missed = ~(detected[si, k] | detected[si, np.clip(k + 1, 0, shape[1] - 1)] | detected[si, np.clip(k - 1, 0, shape[1] - 1)])
+        lost = ~np.isfinite(rr[si, k])
+        small = ~lost & ~((at(k + side) > rr[si, k] + p.wall_refinement_end_jump)
+                          & (at(k + 2 * side) > rr[si, k] + p.wall_refinement_end_jump))
+        run = ~lost & ~small & ~np.all([np.isfinite(at(k - j * side)) for j in range(1, p.wall_refinement_end_run)], 0)
+        why = {"near beam lost": missed & lost, "jump": missed & small, "lost return in the run": missed & run,
+               "later checks": missed & ~lost & ~small & ~run}
+
+        def plus(sel):
+            m = ends.copy()
+            m[si[sel], k[sel]] = True
+            return m
+        rows = [("(a) all beams, all ends", None, None), ("(b) segment beams, all ends", beams, None),
+                ("(c) all beams, detected ends", None, ends), ("(c') all beams, no ends", None, none),
+                ("(d) segment beams, detected ends", beams, ends), ("(d') segment beams, no ends", beams, none),
+                ("(d) and the ends missed for the jump", beams, plus(why["jump"])),
+                ("(d) and those missed for a lost return in the run", beams, plus(why["lost return in the run"])),
+                ("(d) and those missed by the later checks", beams, plus(why["later checks"]))]
+        out = []
+        for name, bm, em in rows:
+            r = oracle_smoother(sim, beam_mask=bm, edge_mask=em)
+            out.append(f"{name} {r['ate_m']:.3f}")
+        print(f"{world} {laser} seed {seed}: oracle ATE (m): " + ", ".join(out)
+              + f"; beams {int(info.beams_used)} of which on segments {int(beams.sum())}; true wall-end gaps "
+              f"{int(info.edges_used)}, detector's sightings {int(detected.sum())} ({int((detected & edge_beams).sum())} "
+              f"at a true end gap's near beam), used {int(ends.sum())} ({int((ends & edge_beams).sum())}); true gaps "
+              "missed: " + ", ".join(f"{k_} {int(v.sum())}" for k_, v in why.items()), flush=True)
+
+
+_SCAN_WALL_ENDS = wr.scan_wall_ends
+
+
+def _bearing_ends(scans, sigmas, p, **kw):
+    """Diagnostics (a setting's ``ends_model=bearing``, not a parameter): the wall-end sightings of
+    ``scan_wall_ends`` with the oracle's model of them: a bearing over the beam gap (``gap^2 / 12`` of the scan's
+    angle increment) perpendicular to the ray from the laser, instead of the point's along-wall / across-wall
+    covariance (nothing along the ray but a 10 m sigma, to keep it invertible)."""
+    e = _SCAN_WALL_ENDS(scans, sigmas, p, **kw)
+    if not len(e):
+        return e
+    m = np.asarray(scans[0].mount, np.float64)
+    da = float(abs(scans[0].angles[1] - scans[0].angles[0]))
+    d = e.z - m[:2]
+    r = np.hypot(d[:, 0], d[:, 1])
+    u = d / r[:, None]
+    v = np.stack([-u[:, 1], u[:, 0]], 1)
+    info = (v[:, :, None] * v[:, None, :]) / (r * r * da * da / 12.0)[:, None, None] + (u[:, :, None] * u[:, None, :]) / 100.0
+    return wr.EndSightings(e.node, e.z, info)
+
+
+def _across_ends(scale: float):
+    """Diagnostics (``ends_model=across:S``, not a parameter): the detector's sightings with their across-wall
+    sigma (the covariance's smaller axis) times S, the along-wall one kept."""
+    def ends(scans, sigmas, p, **kw):
+        e = _SCAN_WALL_ENDS(scans, sigmas, p, **kw)
+        if not len(e):
+            return e
+        w, vec = np.linalg.eigh(e.information)  # ascending: the along-wall axis first, the across-wall one last
+        w[:, 1] /= scale * scale
+        return wr.EndSightings(e.node, e.z, np.einsum("kij,kj,klj->kil", vec, w, vec))
+    return ends
+
+
 def _judge(slam, truth, out: Path) -> tuple[float, float]:
     out.mkdir(parents=True, exist_ok=True)
     t, p = slam.trajectory()
@@ -169,9 +313,16 @@ def main() -> None:
     ap.add_argument("--cache", default="/tmp/slam2d-proposal")
     ap.add_argument("--base", default="", help="karto settings of the run, key=value separated by spaces")
     ap.add_argument("--from-truth", action="store_true", help="also refine from the true frame poses")
+    ap.add_argument("--oracle", action="store_true",
+                    help="no karto run: the oracle smoother on each recording, all readings and the refinement's")
     ap.add_argument("settings", nargs="*", help='refinement settings, one quoted "key=value ..." each ("" = defaults)')
     a = ap.parse_args()
     base = dict(s.split("=", 1) for s in a.base.split())
+    if a.oracle:
+        for v in a.settings or [""]:
+            _oracle_table(a.world, a.laser, [int(s) for s in a.seeds.split(",")],
+                          {**base, **dict(s.split("=", 1) for s in v.split())})
+        return
     base.setdefault("wall_end_landmarks", "false")
     variants = [dict(s.split("=", 1) for s in v.split()) for v in (a.settings or [""])]
     variant_names = [s or "defaults" for s in (a.settings or [""])]
@@ -195,6 +346,9 @@ def main() -> None:
         for k, v in enumerate(variants):
             v = dict(v)
             wr._FREEZE = set(v.pop("freeze", "").replace("+", ",").split(",")) - {""}
+            model = v.pop("ends_model", "point")
+            wr.scan_wall_ends = (_bearing_ends if model == "bearing" else
+                                 _across_ends(float(model.split(":")[1])) if model.startswith("across:") else _SCAN_WALL_ENDS)
             oracle_w, oracle_e, report = _oracle(a.world, true_frames)
             wr._GIVEN = {}
             if "oracle-walls" in wr._FREEZE:

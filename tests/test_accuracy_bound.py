@@ -13,6 +13,7 @@ from slam2d.eval.accuracy_bound import (
     chain_marginals,
     laser_information,
     odometry_covariances,
+    setup_from_simulation,
 )
 from slam2d.errors import InputError
 from slam2d.sensors.motion_noise import OdometryNoise
@@ -248,3 +249,34 @@ def test_the_oracle_smoother_reaches_the_bound_on_real_readings(world):
             ates.append(oracle_smoother(sim, map=map_model)["ate_m"])
         ratio = math.sqrt(np.mean(np.square(ates))) / bound
         assert 0.75 < ratio < 1.3, (map_model, ratio, ates, bound)
+
+
+def test_the_oracle_smoothers_masks_leave_out_exactly_the_readings_they_mark():
+    # beam_mask / edge_mask restrict the oracle to a method's inputs (docs/methods/karto-measured.md, URG-04LX:
+    # which inputs hold the last centimetres): all True is the unmasked solve, no wall end at all is edges=False,
+    # and a masked beam's reading is gone from the count and from the solve.
+    from slam2d.eval.accuracy_bound import oracle_smoother
+    from slam2d.sim.simulate import SimulationParams, simulate
+
+    sim = simulate("office", SimulationParams(duration=10.0, seed=0, laser="urg-04lx"))
+    shape = (len(sim.scans), sim.scans[0].num_beams)
+    full = oracle_smoother(sim)
+    same = oracle_smoother(sim, beam_mask=np.ones(shape, bool), edge_mask=np.ones(shape, bool))
+    np.testing.assert_allclose(same["estimate"], full["estimate"], atol=1e-12)
+    assert same["readings_used"] == full["readings_used"]
+    no_ends = oracle_smoother(sim, edge_mask=np.zeros(shape, bool))
+    without = oracle_smoother(sim, edges=False)
+    np.testing.assert_allclose(no_ends["estimate"], without["estimate"], atol=1e-9)
+    assert no_ends["readings_used"] == without["readings_used"] < full["readings_used"]
+    assert no_ends["ate_m"] > full["ate_m"]  # the office's wall ends hold the position along the corridors
+    # every other beam of every scan left out: the returns among them are gone from the count
+    half = np.ones(shape, bool)
+    half[:, ::2] = False
+    masked = oracle_smoother(sim, beam_mask=half, edges=False)
+    returned = np.stack([np.isfinite(s.ranges) for s in sim.scans])
+    info = laser_information(setup_from_simulation(sim), edges=False)
+    lost = int((returned.reshape(-1)[info.beam] & ~half.reshape(-1)[info.beam]).sum())
+    assert 0 < lost and masked["readings_used"] == without["readings_used"] - lost
+    assert np.abs(masked["estimate"] - without["estimate"]).max() > 1e-6
+    with pytest.raises(InputError):
+        oracle_smoother(sim, beam_mask=np.ones((shape[0], shape[1] - 1), bool))

@@ -328,3 +328,74 @@ def test_carried_damping_reaches_the_optimum_of_a_long_chain():
            for carry in (False, True)]
     assert start[-1, 0] - truth[-1, 0] > 0.9  # 1 m to take out
     assert off[0] > 0.3 and off[1] < 0.02, off
+
+
+def _box_scene_scan(lost=()):
+    """A scan of the room with a box standing 0.25 m in front of its wall at y = 3.5, from (-1, 0) facing +y;
+    ``lost``: beams with no return."""
+    from slam2d.core import make_scan
+    from tests._room import ROOM, _box_hits
+
+    box = (0.0, 2.75, 0.6, 3.25)
+    n, fov = 721, math.radians(240)
+    a = math.pi / 2 - fov / 2 + fov * np.arange(n) / (n - 1)
+    r = np.fmin(_box_hits(-1.0, 0.0, np.cos(a), np.sin(a), ROOM, True),
+                _box_hits(-1.0, 0.0, np.cos(a), np.sin(a), box, False))
+    r[list(lost)] = np.nan
+    return make_scan(0.0, r, -fov / 2, fov / (n - 1), 0.02, 20.0)
+
+
+def _ends_near(scan, p, point):
+    """Whether the refinement's wall-end detection finds an end within 5 cm of ``point`` (world; robot at (-1, 0),
+    facing +y)."""
+    from slam2d.graph.wall_refinement import scan_wall_ends
+
+    e = scan_wall_ends([scan], [None], p)
+    world = np.stack([-1.0 - e.z[:, 1], e.z[:, 0]], 1)
+    return bool(np.any(np.hypot(world[:, 0] - point[0], world[:, 1] - point[1]) < 0.05))
+
+
+def test_end_jump_and_run_of_the_refinement():
+    # A box 0.25 m in front of a wall: its far corner is a wall end with only 0.26 m behind it, missed with the
+    # 0.3 m jump of wall_end_landmarks and found with wall_refinement_end_jump=0.2; its near corner (a full jump)
+    # is lost when a return among the 5 beams before it is lost, and found again with wall_refinement_end_run=3.
+    from slam2d.matching.wall_ends import detect_wall_ends
+
+    p = from_mapping(GraphSlamParams, {"wall_refinement": True})
+    scan = _box_scene_scan()
+    assert not _ends_near(scan, p, (0.0, 3.25)) and _ends_near(scan, p, (0.6, 2.75))
+    assert _ends_near(scan, from_mapping(GraphSlamParams, {"wall_refinement": True, "wall_refinement_end_jump": 0.2}),
+                      (0.0, 3.25))
+    ends = detect_wall_ends(scan, 0.01, max_incidence=p.wall_refinement_end_incidence)
+    k = int(ends.beams[np.argmin(np.abs(ends.points[:, 1] + 1.6))])  # the near corner, 1.6 m to the right
+    side = int(ends.side[np.argmin(np.abs(ends.points[:, 1] + 1.6))])
+    gappy = _box_scene_scan(lost=[k - 3 * side])
+    assert not _ends_near(gappy, p, (0.6, 2.75))
+    assert _ends_near(gappy, from_mapping(GraphSlamParams, {"wall_refinement": True, "wall_refinement_end_run": 3}),
+                      (0.6, 2.75))
+
+
+def test_two_pass_refines_with_the_landmarks_detector_first_then_its_own():
+    # wall_refinement_end_two_pass: a first refinement with wall_end_jump / wall_end_run (here a pillar 0.25 m
+    # deep is not an end at a 0.5 m jump), its poses the start of the second with the refinement's own jump
+    # (0.2 m: the pillar's corners are); the same as the two solves by hand, bit for bit, and not the one-pass solve.
+    from slam2d.graph.wall_refinement import refine_path
+
+    truth, scans, graph = _room_problem()
+    settings = {"wall_refinement": True, "wall_end_jump": 0.5, "wall_refinement_end_jump": 0.2}
+    one = from_mapping(GraphSlamParams, settings)
+    two = from_mapping(GraphSlamParams, {**settings, "wall_refinement_end_two_pass": True})
+    few = scan_wall_ends(scans, [None] * len(scans), two, jump=0.5, run=two.wall_end_run)
+    many = scan_wall_ends(scans, [None] * len(scans), two)
+    assert len(few) < len(many)
+    segs = scan_segments(scans, [None] * len(scans), two)
+    first = refine_walls(graph, segs, two, ends=few)
+    g = graph.copy()
+    g.poses = first.poses
+    second = refine_walls(g, segs, two, ends=many)
+    res, _ = refine_path(scans, graph.poses, two, graph=graph)
+    np.testing.assert_array_equal(res.poses, second.poses)
+    assert len(res.rounds) == len(first.rounds) + len(second.rounds) and res.cost_before == first.cost_before
+    single, _ = refine_path(scans, graph.poses, one, graph=graph)
+    assert len(single.rounds) == len(second.rounds) and np.abs(single.poses - res.poses).max() > 0
+    assert _rms(res.poses, truth) < 0.01

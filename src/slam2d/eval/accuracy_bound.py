@@ -647,7 +647,8 @@ def _map_blocks(laser: LaserInformation, n: int) -> tuple[NDArray, NDArray, int]
     return b[3:], c, p
 
 
-def oracle_smoother(sim: Any, *, map: str = "walls", edges: bool = True) -> dict[str, Any]:
+def oracle_smoother(sim: Any, *, map: str = "walls", edges: bool = True, beam_mask: NDArray[np.bool_] | None = None,
+                    edge_mask: NDArray[np.bool_] | None = None) -> dict[str, Any]:
     """The maximum-likelihood smoother with the data association known, on the recording's actual readings.
 
     The estimator the bound is the bound of: every range reading (as the simulated laser
@@ -658,6 +659,10 @@ def oracle_smoother(sim: Any, *, map: str = "walls", edges: bool = True) -> dict
     maximum-likelihood estimate to first order. No method can use this (it knows which surface
     each beam hit); it shows whether the bound can be reached at all. Returns ``ate_m`` and
     ``heading_deg`` as ``slam2d evaluate`` computes them (after alignment).
+
+    ``beam_mask`` / ``edge_mask`` (optional, boolean ``(scans, beams)``): use only the range readings
+    of the beams marked True / only the wall-end bearings whose nearer beam is marked True (e.g. the
+    beams and wall ends a method actually uses: what its inputs are worth when solved this way).
     """
     from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
 
@@ -669,6 +674,13 @@ def oracle_smoother(sim: Any, *, map: str = "walls", edges: bool = True) -> dict
     measured = np.concatenate([np.asarray(s.ranges, dtype=np.float64) for s in sim.scans])[laser.beam]
     is_edge = np.arange(laser.scan.shape[0]) >= laser.beams_used
     observed = np.isfinite(measured)
+    shape = (n, setup.angles.shape[0])
+    for mask, rows_of in ((beam_mask, ~is_edge), (edge_mask, is_edge)):
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != shape:
+                raise InputError(f"a mask of shape {mask.shape} for {shape} (scans, beams)", field="mask")
+            observed &= ~rows_of | mask.reshape(-1)[laser.beam]
     residual = np.where(is_edge, se2.wrap_angle(laser.reading - laser.value), measured - laser.value)
     root_w = np.where(observed, 1.0 / np.sqrt(laser.variance), 0.0)
     residual = np.where(observed, residual, 0.0)

@@ -150,6 +150,24 @@ class WallRefinementParams:
         help="largest incidence of a wall end with no return after it (wall_refinement_ends; "
         "wall_end_open_incidence for the refinement)",
     )
+    wall_refinement_end_jump: float = param(
+        0.3, unit="m", low=0.0,
+        help="least range step from a wall end's beam to the next two (wall_refinement_ends; wall_end_jump for the "
+        "refinement): a box 0.25 m in front of a wall is missed at 0.3 m",
+    )
+    wall_refinement_end_run: int = param(
+        5, unit="beams", low=2,
+        help="returns without a jump on the near wall before its end (wall_refinement_ends; wall_end_run for the "
+        "refinement): a lost return among them (a grazing wall far ahead) loses the end",
+    )
+    wall_refinement_end_two_pass: bool = param(
+        False,
+        help="refine first with wall_end_landmarks' jump and run (wall_end_jump, wall_end_run), then again from those "
+        "poses with wall_refinement_end_jump and wall_refinement_end_run (wall_refinement_ends): the ends the second "
+        "detector adds (a box close in front of a wall, a jamb far ahead after a lost return) are associated at the "
+        "first pass's poses, not at the run's, where they can join the wrong landmark "
+        "(docs/methods/karto-measured.md, URG-04LX: which inputs hold the last centimetres)",
+    )
     wall_refinement_end_gate: float = param(
         0.15, unit="m", low=0.0,
         help="a wall end joins the nearest landmark (mean of its sightings) within this, never two of one scan "
@@ -487,15 +505,18 @@ class EndSightings:
         return int(self.node.shape[0])
 
 
-def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p: Any) -> EndSightings:
+def scan_wall_ends(scans: list[Any], sigmas: list[NDArray[np.float64] | None], p: Any, *, jump: float | None = None,
+                   run: int | None = None) -> EndSightings:
     """The wall ends of every scan (:func:`slam2d.matching.wall_ends.detect_wall_ends`, the WallEndParams but the
-    incidence limits ``wall_refinement_end_incidence`` and ``wall_refinement_end_open_incidence``)."""
+    incidence limits ``wall_refinement_end_incidence`` and ``wall_refinement_end_open_incidence``, the jump
+    ``wall_refinement_end_jump`` and the run ``wall_refinement_end_run``, unless ``jump`` / ``run`` are given)."""
     from slam2d.matching.wall_ends import detect_wall_ends
 
     node, z, info = [], [], []
     for i, scan in enumerate(scans):
         sig = floored_sigmas(sigmas[i], np.arange(scan.num_beams), p.wall_end_range_sigma)
-        ends = detect_wall_ends(scan, sig, jump=p.wall_end_jump, run=p.wall_end_run,
+        ends = detect_wall_ends(scan, sig, jump=p.wall_refinement_end_jump if jump is None else jump,
+                                run=p.wall_refinement_end_run if run is None else run,
                                 max_incidence=p.wall_refinement_end_incidence,
                                 open_incidence=p.wall_refinement_end_open_incidence,
                                 max_range=p.wall_end_maximum_range, bearing_sigma=p.wall_end_bearing_sigma)
@@ -827,7 +848,9 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
     The per-beam range sigma comes from ``sensor_model`` (none: ``wall_refinement_range_sigma``);
     returns beyond ``range_limit`` are not fitted. With ``wall_refinement_ends`` the wall ends are
     detected with ``detector``'s wall-end settings (default ``p``) and associated over all scans;
-    otherwise ``points`` (``point_count`` landmarks, e.g. a tracker's) are used, if any.
+    otherwise ``points`` (``point_count`` landmarks, e.g. a tracker's) are used, if any. With
+    ``wall_refinement_end_two_pass`` a first refinement with ``detector``'s ``wall_end_jump`` and ``wall_end_run``
+    gives the start of the one with the refinement's own.
     ``dense``: the :class:`slam2d.graph.dense_refinement.DenseRefinementParams` of a dense alignment run
     after it from its poses (:class:`slam2d.graph.dense_refinement.DenseTerm` as an extra block of the
     same solve, with the same edges, and the walls and ends when ``dense_refinement_walls``); None: none.
@@ -835,14 +858,25 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
     """
     sig = [beam_sigmas(s, sensor_model, 0.0) if sensor_model is not None else None for s in scans]
     segs = scan_segments(scans, sig, p, range_limit)
-    ends = scan_wall_ends(scans, sig, p if detector is None else detector) if p.wall_refinement_ends else None
+    det = p if detector is None else detector
+    ends = scan_wall_ends(scans, sig, det) if p.wall_refinement_ends else None
     if graph is None:
         graph = odometry_graph(poses, odometry, p, int(fixed))
         if extra_edges is not None and len(extra_edges[0]):
             graph.add_edges(*extra_edges)
     if ends is not None:
         points, point_count = None, 0
+    first = None
+    if ends is not None and p.wall_refinement_end_two_pass:
+        first = refine_walls(graph, segs, p, ends=scan_wall_ends(scans, sig, det, jump=det.wall_end_jump,
+                                                                 run=det.wall_end_run))
+        if np.all(np.isfinite(first.poses)):
+            graph = graph.copy()
+            graph.poses = first.poses
     res = refine_walls(graph, segs, p, points, point_count, ends)
+    if first is not None:
+        res = WallRefinementResult(res.poses, res.walls, res.beams, res.points, first.cost_before, res.cost_after,
+                                   first.rounds + res.rounds)
     if dense is None or not np.all(np.isfinite(res.poses)):
         return res, segs
     from slam2d.graph.dense_refinement import DenseTerm
