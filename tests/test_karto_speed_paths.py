@@ -423,7 +423,7 @@ def test_wrap_of_a_float_difference_is_wrap_angles():
     b = rng.uniform(-10.0, 10.0, 5000)
     for x, y in zip(a, b):
         d = np.float64(x) - np.float64(y)
-        assert np.float64(se2._wrap(float(d))).tobytes() == np.float64(float(se2.wrap_angle(d))).tobytes()
+        assert np.float64(se2.wrap_scalar(float(d))).tobytes() == np.float64(float(se2.wrap_angle(d))).tobytes()
 
 
 def test_pose_graph_single_node_and_edge_paths_are_the_batch_ones():

@@ -103,7 +103,7 @@ class PoseGraph:
             n = self._n
             self._poses = grown(self._poses, n + 1, minimum=16)
             self._poses[n] = pose
-            self._poses[n, 2] = se2._wrap(one[2])
+            self._poses[n, 2] = se2.wrap_scalar(one[2])
             self._n = n + 1
             return n
         return int(self.add_nodes(np.asarray(pose, dtype=np.float64).reshape(1, 3))[0])
@@ -162,7 +162,7 @@ class PoseGraph:
             self._ei[m] = i
             self._ej[m] = j
             self._z[m] = z
-            self._z[m, 2] = se2._wrap(float(z[2]))  # wrap_angle's arithmetic on a float
+            self._z[m, 2] = se2.wrap_scalar(float(z[2]))  # wrap_angle's arithmetic on a float
             self._info[m] = info
             self._m += 1
             return m

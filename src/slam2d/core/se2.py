@@ -17,6 +17,7 @@ Poses = NDArray[np.float64]
 
 __all__ = [
     "wrap_angle",
+    "wrap_scalar",
     "compose",
     "inverse",
     "relative",
@@ -48,7 +49,8 @@ def _one(a) -> list[float] | None:
     return None
 
 
-def _wrap(t: float) -> float:
+def wrap_scalar(t: float) -> float:
+    """Wrap one angle (a Python float, radians) to ``[-pi, pi)``: :func:`wrap_angle`'s arithmetic without numpy."""
     return (t + math.pi) % (2.0 * math.pi) - math.pi
 
 
@@ -64,7 +66,7 @@ def compose(a: ArrayLike, b: ArrayLike) -> Poses:
     if one_a is not None and one_b is not None:
         (a0, a1, a2), (b0, b1, b2) = one_a, one_b
         c, s = math.cos(a2), math.sin(a2)
-        return np.array([a0 + c * b0 - s * b1, a1 + s * b0 + c * b1, _wrap(a2 + b2)])
+        return np.array([a0 + c * b0 - s * b1, a1 + s * b0 + c * b1, wrap_scalar(a2 + b2)])
     a = as_poses(a)
     b = as_poses(b)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -89,7 +91,7 @@ def relative(a: ArrayLike, b: ArrayLike) -> Poses:
         (a0, a1, a2), (b0, b1, b2) = one_a, one_b
         c, s = math.cos(a2), math.sin(a2)
         dx, dy = b0 - a0, b1 - a1
-        return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b2 - a2)])
+        return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_scalar(b2 - a2)])
     a = as_poses(a)
     b = as_poses(b)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])

@@ -791,7 +791,7 @@ class GraphFrontend:
             return True
         if math.hypot(odom[0] - last[0], odom[1] - last[1]) >= p.minimum_travel_distance:
             return True
-        return abs(se2._wrap(float(odom[2] - last[2]))) >= p.minimum_travel_heading  # wrap_angle's arithmetic on a float
+        return abs(se2.wrap_scalar(float(odom[2] - last[2]))) >= p.minimum_travel_heading  # wrap_angle's arithmetic on a float
 
     def _match_information(self, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The information a scan-match edge gets from its covariance (scaled by match_covariance_scale)."""
@@ -846,7 +846,7 @@ class GraphFrontend:
             ja = np.array([[1.0, 0.0, -st * z0 - ct * z1], [0.0, 1.0, ct * z0 - st * z1], [0.0, 0.0, 1.0]])
             jb = np.array([[ct, -st, 0.0], [st, ct, 0.0], [0.0, 0.0, 1.0]])
             acc = ja @ acc @ ja.T + jb @ c @ jb.T
-            heading = se2._wrap(heading + z2)
+            heading = se2.wrap_scalar(heading + z2)
         return 0.5 * (acc + acc.T) + _TINY_EYE
 
     def _has_edge(self, i: int, j: int) -> bool:
@@ -1034,7 +1034,7 @@ class GraphFrontend:
             # turned wrong since the node, and the match could miss it: predict from that scan. Its
             # position is taken only if its match was not flat along a corridor (chaining those
             # drifts more than the odometry).
-            if abs(se2._wrap(float(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
+            if abs(se2.wrap_scalar(float(chained[2] - predicted[2]))) > 0.5 * p.coarse_search_angle_offset:
                 self._count("predicted_from_last_scan")
                 if self._frame_degenerate:
                     predicted = np.array([predicted[0], predicted[1], chained[2]])
@@ -1993,9 +1993,9 @@ def _weighted_mean(means: list[NDArray[np.float64]], covs: list[NDArray[np.float
     acc = np.zeros(3)
     for m, c in zip(means, covs, strict=True):
         info = np.linalg.inv(c + _TINY_EYE)
-        v = np.array([m[0], m[1], ref[2] + se2._wrap(float(m[2] - ref[2]))])
+        v = np.array([m[0], m[1], ref[2] + se2.wrap_scalar(float(m[2] - ref[2]))])
         info_sum += info
         acc += info @ v
     out = np.linalg.solve(info_sum, acc)
-    out[2] = se2._wrap(float(out[2]))
+    out[2] = se2.wrap_scalar(float(out[2]))
     return out
