@@ -976,8 +976,7 @@ class GraphFrontend:
         """
         p = self.params
         odom = np.asarray(odom, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            use = scan.valid & (scan.ranges <= p.range_threshold)
+        use, _ = _in_range(scan, p.range_threshold)
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
         points, sigmas = self._scan_points(scan, sig, use)
         last = self.graph.num_nodes - 1

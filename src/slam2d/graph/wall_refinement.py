@@ -38,7 +38,7 @@ and map follow them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -875,8 +875,7 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
             graph.poses = first.poses
     res = refine_walls(graph, segs, p, points, point_count, ends)
     if first is not None:
-        res = WallRefinementResult(res.poses, res.walls, res.beams, res.points, first.cost_before, res.cost_after,
-                                   first.rounds + res.rounds)
+        res = replace(res, cost_before=first.cost_before, rounds=first.rounds + res.rounds)
     if dense is None or not np.all(np.isfinite(res.poses)):
         return res, segs
     from slam2d.graph.dense_refinement import DenseTerm
