@@ -49,6 +49,7 @@ DATASETS: tuple[Dataset, ...] = (
     Dataset("intel", "shared", "intel/intel.clf.gz"),
     Dataset("aces", "shared", "aces/aces.clf.gz"),
     Dataset("fr101", "shared", "fr101/fr101.clf.gz"),
+    Dataset("csail", "shared", "csail/csail.clf.gz"),
     Dataset("mines-exp1", "shared", "mines-exp1/mines-exp1.clf.gz"),
     Dataset("mines-exp2", "shared", "mines-exp2/mines-exp2.clf.gz"),
 )

@@ -216,6 +216,7 @@ def test_real_entry_point_prints_no_traceback(tmp_path):
         ("intel/intel.clf.gz", 910),
         ("aces/aces.clf.gz", 440),
         ("fr101/fr101.clf.gz", 292),
+        ("csail/csail.clf.gz", 406),
         ("mines-exp1/mines-exp1.clf.gz", 756),
         ("mines-exp2/mines-exp2.clf.gz", 641),
         ("robustness/csail-robotlaser1-corrected.log", 686),

@@ -218,6 +218,7 @@ REAL_LOGS = {
     "aces/aces.clf.gz": (440, 180, "FLASER"),
     "fr079/fr079.clf.gz": (4791, 360, "FLASER"),
     "fr101/fr101.clf.gz": (292, 360, "FLASER"),
+    "csail/csail.clf.gz": (406, 361, "FLASER"),
     "mines-exp1/mines-exp1.clf.gz": (756, 682, "ROBOTLASER1"),
     "mines-exp2/mines-exp2.clf.gz": (641, 682, "ROBOTLASER1"),
     "robustness/csail-robotlaser1-corrected.log": (686, 361, "ROBOTLASER1"),
@@ -255,7 +256,9 @@ def test_real_log_reads(name):
         assert np.allclose(scan.mount, [0.145, 0.0, 0.0], atol=1e-5)
         assert scan.range_max == 5.6
     elif keyword == "FLASER":
-        assert coverage == pytest.approx(180.0, abs=1e-9)
+        # 180 or 360 beams cover 180 deg; 361 (csail) span it end to end, half a degree more
+        assert coverage == pytest.approx(180.0 + (math.degrees(scan.angle_increment) if n_beams % 2 else 0.0),
+                                         abs=1e-9)
         assert scan.angle_min == pytest.approx(-math.pi / 2, abs=1e-12)
         # aces writes no return as exactly 50.00 m, inferred from the log (see below)
         assert scan.range_max == (50.0 if name.startswith("aces") else DEFAULT_SICK_MAX_RANGE)
@@ -314,7 +317,7 @@ def test_odom_lines_as_odometry_drop_out_of_order_readings():
 
 
 @pytest.mark.datasets
-@pytest.mark.parametrize("name", ["intel", "aces", "fr079", "fr101"])
+@pytest.mark.parametrize("name", ["intel", "aces", "fr079", "fr101", "csail"])
 def test_reference_trajectory_has_one_pose_per_scan(name):
     log = CarmenLog(dataset_file(f"{name}/{name}.clf.gz"), ReadOptions(odometry="none"))
     scan_times = np.array([s.timestamp for s in _scans(log)])

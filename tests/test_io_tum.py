@@ -149,7 +149,7 @@ def test_undecodable(tmp_path):
 
 
 @pytest.mark.datasets
-@pytest.mark.parametrize(("name", "count"), [("intel", 910), ("aces", 440), ("fr079", 4791), ("fr101", 292)])
+@pytest.mark.parametrize(("name", "count"), [("intel", 910), ("aces", 440), ("fr079", 4791), ("fr101", 292), ("csail", 406)])
 def test_reference_trajectories_read(name, count):
     times, poses = read_tum(dataset_file(f"{name}/reference.tum"))
     assert times.shape == (count,) and poses.shape == (count, 3)

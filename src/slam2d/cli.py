@@ -373,14 +373,18 @@ def _command_line() -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from slam2d.methods.runner import build_method, run_method
 
-    slam = build_method(args.method, settings=_settings(args.settings), params_file=args.params, seed=args.seed,
-                        sensor_model=args.sensor_model)
+    build = {"settings": _settings(args.settings), "params_file": args.params, "seed": args.seed,
+             "sensor_model": args.sensor_model}
+    slam = build_method(args.method, **build)  # every setting checked before the recording is read
     options = _read_options(args)
     with progress_bar(f"{slam.name} on {args.data.name}") as progress:
-        summary = run_method(slam, args.data, args.out, read_options=options, progress=progress,
-                             command=_command_line())
+        # by name: run_method resolves the auto parameters from the recording
+        summary = run_method(args.method, args.data, args.out, read_options=options, progress=progress,
+                             command=_command_line(), **build)
     out = _console()
     rec = summary.record
+    for name, how in rec.get("auto", {}).items():
+        out.print(f"auto {name} = {how['value']}: {how['from']}", markup=False)
     span = rec["data_span_s"]
     duration = (span[1] - span[0]) if span[0] is not None else 0.0
     out.print(

@@ -36,7 +36,17 @@ __all__ = [
     "markdown_table",
     "from_mapping",
     "as_dict",
+    "AUTO",
+    "is_auto",
+    "auto_fields",
 ]
+
+#: The value of a parameter that resolves from the recording before the run (see ``param(auto=...)``).
+AUTO = "auto"
+
+
+def is_auto(value: Any) -> bool:
+    return isinstance(value, str) and value == AUTO
 
 # Units a number may carry on the command line or in a parameter file
 # ("--set max_range=450cm", "angular_update: 25deg"), with their factor to the
@@ -58,10 +68,18 @@ def param(
     choices: tuple[Any, ...] | None = None,
     low: float | None = None,
     high: float | None = None,
+    auto: str | None = None,
 ) -> Any:
-    """A dataclass field carrying its unit, help line, allowed choices and range."""
-    meta = {"help": help, "unit": unit, "choices": choices, "low": low, "high": high}
-    return dataclasses.field(default=default, metadata=meta)
+    """A dataclass field carrying its unit, help line, allowed choices and range.
+
+    With ``auto`` (a line saying what the value is resolved from), the field's default is
+    :data:`AUTO`: the method resolves it from the recording before the run
+    (:mod:`slam2d.sensors.recording_profile`), and ``default`` is the original's value it falls
+    back to when the recording cannot tell. A user's explicit value always wins.
+    """
+    meta = {"help": help, "unit": unit, "choices": choices, "low": low, "high": high,
+            "auto": auto, "fallback": default}
+    return dataclasses.field(default=AUTO if auto else default, metadata=meta)
 
 
 @dataclass(frozen=True)
@@ -74,6 +92,8 @@ class ParamInfo:
     choices: tuple[Any, ...] | None
     low: float | None
     high: float | None
+    auto: str | None = None  # what an ``auto`` default resolves from (None: no auto default)
+    fallback: Any = None  # the value an ``auto`` default takes when the recording cannot tell
 
     @property
     def optional(self) -> bool:
@@ -111,9 +131,16 @@ def describe(cls: type) -> list[ParamInfo]:
                 choices=m.get("choices"),
                 low=m.get("low"),
                 high=m.get("high"),
+                auto=m.get("auto"),
+                fallback=m.get("fallback", f.default),
             )
         )
     return out
+
+
+def auto_fields(instance: Any) -> list[ParamInfo]:
+    """The parameters of an instance whose value is still :data:`AUTO`."""
+    return [p for p in describe(type(instance)) if p.auto and is_auto(getattr(instance, p.name))]
 
 
 def _flag(name: str) -> str:
@@ -126,7 +153,9 @@ def _help_text(p: ParamInfo) -> str:
         text += f" [{p.unit}]"
     if p.choices:
         text += f" (one of: {', '.join(map(str, p.choices))})"
-    if p.default is not None and p.base_type is not bool:
+    if p.auto:
+        text += f" (default: auto, from {p.auto}; {p.fallback} when the recording cannot tell)"
+    elif p.default is not None and p.base_type is not bool:
         text += f" (default: {p.default})"
     return text
 
@@ -158,6 +187,8 @@ def coerce(p: ParamInfo, text: Any) -> Any:
         return None
     if isinstance(text, str) and p.optional and text.strip().lower() in ("none", "null", ""):
         return None
+    if p.auto and isinstance(text, str) and text.strip().lower() == AUTO:
+        return AUTO
     t = p.base_type
     try:
         if isinstance(text, bool) and t in (int, float):
@@ -211,6 +242,8 @@ def validate(instance: Any) -> None:
             if not p.optional:
                 raise InputError("a value is required", field=p.name)
             continue
+        if p.auto and is_auto(value):
+            continue
         if p.choices and value not in p.choices:
             raise InputError(
                 f"{value!r} is not one of: {', '.join(map(str, p.choices))}", field=p.name
@@ -256,6 +289,8 @@ def markdown_table(cls: type, *, names: str = "flags") -> str:
             rng.append(f"<= {p.high}")
         if rng:
             meaning += " Range: " + ", ".join(rng) + "."
+        if p.auto:
+            meaning += f" `auto`: from {p.auto}; `{p.fallback}` when the recording cannot tell."
         shown = _flag(p.name) if names == "flags" else p.name
         rows.append(f"| `{shown}` | `{p.default}` | {p.unit or '-'} | {meaning} |")
     return "\n".join(rows) + "\n"

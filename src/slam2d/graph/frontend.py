@@ -57,6 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 from numba import njit
 
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.arrays import grown
@@ -76,7 +77,7 @@ _DEG = math.pi / 180.0
 
 
 @dataclass
-class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefinementParams):
+class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefinementParams, OdometryGapParams):
     """Karto's mapper parameters (open_karto names in snake case, its defaults), plus the back end.
 
     Squared quantities are given squared (m^2, rad^2) and angles in radians:

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from slam2d.matching.correlative_grid import smear_points
 
-__all__ = ["consecutive_motion"]
+__all__ = ["consecutive_motion", "registration_fit"]
 
 # (cell size m, smear sigma m) of the coarse field (the heading sweep) and the fine one (Gauss-Newton)
 _COARSE = (0.10, 0.15)
@@ -221,3 +221,25 @@ def consecutive_motion(previous: NDArray[np.float64], current: NDArray[np.float6
     return _register(np.ascontiguousarray(previous[:, 0]), np.ascontiguousarray(previous[:, 1]),
                      np.ascontiguousarray(current[:, 0]), np.ascontiguousarray(current[:, 1]), current, guess,
                      float(half_turn))
+
+
+@njit(cache=True)
+def _fits(px, py, qx, qy, poses):
+    coarse, cox, coy = _field(px, py, _COARSE[0], _COARSE[1])
+    inv = 1.0 / _COARSE[0]
+    out = np.empty(poses.shape[0])
+    for k in range(poses.shape[0]):
+        out[k] = _score(coarse, cox, coy, inv, qx, qy, poses[k, 0], poses[k, 1], poses[k, 2]) / qx.shape[0]
+    return out
+
+
+def registration_fit(previous: NDArray[np.float64], current: NDArray[np.float64],
+                     poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How well the current scan's points lie on the previous scan's at each pose ``(k, 3)``: the mean of the
+    previous points' coarse smeared field (0: nowhere near, 1: on them) under the current points. Compares
+    candidate motions of one scan pair; its level depends on how much the two scans overlap."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+    if previous.shape[0] < 3 or current.shape[0] < 3:
+        return np.zeros(poses.shape[0])
+    return _fits(np.ascontiguousarray(previous[:, 0]), np.ascontiguousarray(previous[:, 1]),
+                 np.ascontiguousarray(current[:, 0]), np.ascontiguousarray(current[:, 1]), poses)

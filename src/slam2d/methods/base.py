@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import OccupancyGrid
-from slam2d.params import as_dict, validate
+from slam2d.params import as_dict, auto_fields, validate
 
 __all__ = ["SlamMethod", "Diagnostics"]
 
@@ -119,14 +119,24 @@ class SlamMethod(ABC):
     optional_odometry: ClassVar[bool] = False
     #: Whether results depend on the seed.
     stochastic: ClassVar[bool] = False
+    #: Whether every scan is matched (so the odometry's error is taken out scan by scan; see gap_check).
+    matches_every_scan: ClassVar[bool] = False
     #: Per-update values the method reports, name -> "meaning [unit]" (for the docs and the report).
     DIAGNOSTICS: ClassVar[dict[str, str]] = {}
+    #: Values every method that reads odometry may report (``odometry_gap_check``).
+    COMMON_DIAGNOSTICS: ClassVar[dict[str, str]] = {
+        "odometry_recovery": "1 where the odometry was corrected before this scan: the scans showed a turn or "
+        "shift it missed [-]",
+    }
 
-    def __init__(self, params: Any = None, *, seed: int = 0, sensor_model: Any = None) -> None:
+    def __init__(self, params: Any = None, *, seed: int = 0, sensor_model: Any = None, profile: Any = None) -> None:
         self.params = params if params is not None else self.Params()
         if not isinstance(self.params, self.Params):
             raise TypeError(f"{self.name}: params must be a {self.Params.__name__}, got {type(self.params).__name__}")
         validate(self.params)
+        # The ``auto`` parameters, resolved from the recording's profile (or to the original's defaults):
+        # name -> {"value": ..., "from": why}; run.json records it.
+        self.auto: dict[str, dict[str, Any]] = self._resolve_auto(profile)
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
         # A per-beam range noise model (sigma(range, incidence)); None: the method's own default.
@@ -135,8 +145,22 @@ class SlamMethod(ABC):
         self._times: list[float] = []
         self._poses: list[NDArray[np.float64]] = []
         self.frames_fed = 0
+        self._gap_guard = None
+        if self.checks_odometry_gaps():
+            from slam2d.matching.odometry_gaps import OdometryGapGuard
+
+            self._gap_guard = OdometryGapGuard(self.gap_check())
 
     # ----------------------------------------------------------------- what a method implements
+
+    @classmethod
+    def auto_values(cls, params: Any, profile: Any) -> dict[str, tuple[Any, str]]:
+        """The values of the ``auto`` parameters this recording calls for: name -> (value, why).
+
+        ``profile`` is a :class:`~slam2d.sensors.recording_profile.RecordingProfile`. A name left out
+        falls back to the original's default. Methods with ``auto`` parameters override this.
+        """
+        return {}
 
     @abstractmethod
     def update(self, frame: Frame) -> Mapping[str, float] | None:
@@ -159,11 +183,36 @@ class SlamMethod(ABC):
 
     # ----------------------------------------------------------------- what every method gets
 
+    def _resolve_auto(self, profile: Any) -> dict[str, dict[str, Any]]:
+        import dataclasses
+
+        pending = auto_fields(self.params)
+        if not pending:
+            return {}
+        chosen = self.auto_values(self.params, profile) if profile is not None else {}
+        if profile is None:
+            fallback_why = "the original's default: the recording was not measured (a live feed, or no profile given)"
+        else:
+            fallback_why = "the original's default: " + ("; ".join(profile.notes) or "the recording cannot tell")
+        values, out = {}, {}
+        for p in pending:
+            value, why = chosen.get(p.name, (p.fallback, fallback_why))
+            values[p.name] = value
+            out[p.name] = {"value": value, "from": why}
+        self.params = dataclasses.replace(self.params, **values)
+        validate(self.params)
+        return out
+
     def feed(self, frame: Frame) -> None:
         """Process one frame, timing the update and recording the pose it ends at."""
         wall0 = time.perf_counter()
         cpu0 = time.process_time()
+        recovered = False
+        if self._gap_guard is not None and frame.odometry is not None and self._uses_odometry_now():
+            frame, recovered = self._check_odometry(frame)
         values = self.update(frame)
+        if recovered:
+            values = {**(values or {}), "odometry_recovery": 1.0}
         cpu = time.process_time() - cpu0
         wall = time.perf_counter() - wall0
         self.frames_fed += 1
@@ -172,6 +221,41 @@ class SlamMethod(ABC):
             self._times.append(frame.timestamp)
             self._poses.append(np.array(pose, dtype=np.float64).reshape(3))
         self.diagnostics.record(frame.timestamp, wall, cpu, values)
+
+    def checks_odometry_gaps(self) -> bool:
+        """Whether frames go through the odometry gap guard (``odometry_gap_check``) before :meth:`update`."""
+        return bool(getattr(self.params, "odometry_gap_check", False))
+
+    def gap_check(self) -> Any:
+        """When the guard checks (:class:`~slam2d.matching.odometry_gaps.GapCheck`); None: its defaults.
+
+        A method that matches every scan (``matches_every_scan``) takes out the odometry's error scan by
+        scan, so the guard checks every scan against the last: a correction over a longer interval would
+        take that error out a second time.
+        """
+        if self.matches_every_scan:
+            from slam2d.matching.odometry_gaps import GapCheck
+
+            return GapCheck(check_travel=0.0, check_turn=0.0, check_frames=1)
+        return None
+
+    def _uses_odometry_now(self) -> bool:
+        return self.uses_odometry and (not self.optional_odometry or bool(getattr(self.params, "use_odometry", True)))
+
+    def _check_odometry(self, frame: Frame) -> tuple[Frame, bool]:
+        """The frame with its odometry corrected where the scans show it missed a turn or a shift."""
+        import dataclasses
+
+        odom = self.usable_odometry(frame)
+        if odom is None:
+            return frame, False
+        corrected, recovered = self._gap_guard.correct(frame.scan.points_in_base(), odom)
+        if recovered:
+            self.diagnostics.count("odometry_recoveries")
+            c = self._gap_guard.last_correction
+            log.info("%s: odometry corrected by %.2f m, %.1f deg at t=%.3f (the scans show a turn or shift it missed)",
+                     self.name, math.hypot(c[0], c[1]), math.degrees(c[2]), frame.timestamp)
+        return dataclasses.replace(frame, odometry=corrected), recovered
 
     def run(self, frames: Iterable[Frame]) -> SlamMethod:
         """Feed every frame, then :meth:`finish` (timed into ``diagnostics.summary['finish_wall_s']``)."""

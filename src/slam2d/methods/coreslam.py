@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.hole_map import FREE, HoleMap
@@ -37,7 +38,7 @@ _MAX_ODOMETRY_STEP = 5.0  # m
 
 
 @dataclass
-class CoreSlamParams:
+class CoreSlamParams(OdometryGapParams):
     """BreezySLAM's ``RMHC_SLAM`` defaults, in metres and radians."""
 
     resolution: float = param(
@@ -110,6 +111,7 @@ def _endpoints(beams: NDArray[np.float64], ranges: NDArray[np.float64]) -> NDArr
 
 @register
 class CoreSlam(SlamMethod):
+    matches_every_scan = True
     name = "coreslam"
     Params = CoreSlamParams
     summary = "tinySLAM/BreezySLAM: hole map + random-mutation hill climbing, odometry optional"

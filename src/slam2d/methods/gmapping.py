@@ -19,10 +19,12 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.filters import (
@@ -50,7 +52,7 @@ from slam2d.matching.hill_climb import (
 from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
-from slam2d.params import param
+from slam2d.params import is_auto, param
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 
@@ -68,8 +70,18 @@ _PRIOR_FLOOR = np.array([0.01, 0.01, 0.01])  # m, m, rad: the prior's smallest s
 _STEP_FLOOR = np.array([0.01, 0.01, 0.005])  # m, m, rad: loop_correction's smallest step standard deviations
 
 
+# auto defaults (GMappingParams.srt, stt, between_updates; resolved in GMapping.auto_values)
+_GUIDED_SCANS_PER_UPDATE = 3.0  # scans per filter update from which the scan-matched increments drive the motion
+_NOISE_FLOOR = 0.05  # rad/m and rad/rad: the least odometry noise auto resolves to
+_NOISE_CAP = 0.2  # and the most (GMapping's defaults)
+_AUTO_SRT = ("the odometry's heading error per unit of an update's motion (linearUpdate m + angularUpdate rad), "
+             f"measured against scan matching, within [{_NOISE_FLOOR}, {_NOISE_CAP}]; {_NOISE_FLOOR} when guided")
+_AUTO_STT = "the same value as srt"
+_AUTO_BETWEEN = f"the scans per filter update: guided at {_GUIDED_SCANS_PER_UPDATE:g} or more, else matched"
+
+
 @dataclass
-class GMappingParams(WallRefinementParams, LoopCorrectionParams):
+class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapParams):
     """GMapping's parameters, with the names and defaults of slam_gmapping (and, not in GMapping, the loop
     correction of the finished best path by a pose graph, ``loop_correction``, and its wall refinement,
     ``wall_refinement``, over the odometry between frames)."""
@@ -150,9 +162,10 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams):
     minimumScore: float = param(
         0.0, low=0.0, help="a match scoring at most this fails and the particle keeps its odometry pose")
     srr: float = param(0.1, unit="m/m", low=0.0, help="odometry translation noise from translation")
-    srt: float = param(0.2, unit="rad/m", low=0.0, help="odometry rotation noise from translation (as GMapping's code)")
+    srt: float = param(0.2, unit="rad/m", low=0.0, help="odometry rotation noise from translation (as GMapping's code)",
+                       auto=_AUTO_SRT)
     str: float = param(0.1, unit="m/rad", low=0.0, help="odometry translation noise from rotation (as GMapping's code)")
-    stt: float = param(0.2, unit="rad/rad", low=0.0, help="odometry rotation noise from rotation")
+    stt: float = param(0.2, unit="rad/rad", low=0.0, help="odometry rotation noise from rotation", auto=_AUTO_STT)
     linearUpdate: float = param(1.0, unit="m", low=0.0, help="update the filter after this much travel")
     angularUpdate: float = param(0.5, unit="rad", low=0.0, help="update the filter after this much rotation")
     temporalUpdate: float = param(
@@ -199,7 +212,7 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams):
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
         "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
     between_updates: str = param(
-        "matched", choices=("matched", "odometry", "guided"),
+        "matched", choices=("matched", "odometry", "guided"), auto=_AUTO_BETWEEN,
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
         "particle's last pose moved on by the odometry, then hill-climbed on that particle's map (one particle; "
         "the filter and the maps are unchanged); odometry: not climbed (the ROS node's map->odom); guided: "
@@ -264,6 +277,42 @@ class GMapping(SlamMethod):
             one = replace(self.params, islands=1)
             self._islands = [GMapping(one, seed=island_seed(self.seed, k), sensor_model=self.sensor_model)
                              for k in range(self.params.islands)]
+
+    def gap_check(self) -> Any:
+        # guided: every scan is matched and its increment replaces the odometry's (see the base class)
+        if self.params.between_updates == "guided":
+            from slam2d.matching.odometry_gaps import GapCheck
+
+            return GapCheck(check_travel=0.0, check_turn=0.0, check_frames=1)
+        return None
+
+    @classmethod
+    def auto_values(cls, params: GMappingParams, profile: Any) -> dict[str, tuple[Any, str]]:
+        out: dict[str, tuple[Any, str]] = {}
+        mode = params.between_updates
+        per_update = profile.scans_per_travel(float(params.linearUpdate), float(params.angularUpdate))
+        if per_update is not None and is_auto(mode):
+            mode = "guided" if per_update >= _GUIDED_SCANS_PER_UPDATE else "matched"
+            out["between_updates"] = (mode, f"{per_update:.1f} scans per filter update (median odometry step "
+                                            f"{profile.step_m:.3f} m, {profile.step_rad:.3f} rad)")
+        srt, stt = profile.odometry_heading_per_m, profile.odometry_heading_per_rad
+        if mode == "guided":  # the motion model moves the particles by scan-matched increments, not odometry
+            for name in ("srt", "stt"):
+                out[name] = (_NOISE_FLOOR, "between_updates is guided: the particles move by the scan matcher's "
+                                           "increments")
+        elif srt is not None and stt is not None:
+            # one number for both: the heading error over a filter update's motion (linearUpdate metres and
+            # angularUpdate radians) per unit of that motion; the split between the two terms is poorly
+            # determined by pairs that mostly travel or mostly turn
+            lin, ang = float(params.linearUpdate), float(params.angularUpdate)
+            per_unit = (srt * lin + stt * ang) / (lin + ang) if lin + ang > 0 else max(srt, stt)
+            value = round(min(max(per_unit, _NOISE_FLOOR), _NOISE_CAP), 4)
+            why = (f"the odometry's heading error measured on {profile.pairs} scan pairs ({srt:.4f} rad/m, "
+                   f"{stt:.4f} rad/rad), {per_unit:.4f} per unit of an update's motion, within "
+                   f"[{_NOISE_FLOOR}, {_NOISE_CAP}]")
+            out["srt"] = (value, why)
+            out["stt"] = (value, why)
+        return out
 
     # ----------------------------------------------------------------- islands
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
@@ -30,7 +31,7 @@ __all__ = ["HectorParams", "Hector"]
 
 
 @dataclass
-class HectorParams(GridParams):
+class HectorParams(GridParams, OdometryGapParams):
     """Hector's defaults (``hector_mapping``'s ROS node) where the original has the parameter.
 
     Except ``resolution`` (0.05 m, not 0.025 m), the map update thresholds (0.1 m / 0.1 rad, not
@@ -96,6 +97,7 @@ class HectorParams(GridParams):
 
 @register
 class Hector(SlamMethod):
+    matches_every_scan = True
     name = "hector"
     Params = HectorParams
     summary = "Hector SLAM: multi-resolution Gauss-Newton scan-to-map matching, odometry optional"

@@ -21,7 +21,7 @@ import platform
 import resource
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib.metadata import PackageNotFoundError, version
@@ -33,8 +33,9 @@ from slam2d.io.base import ProgressCallback, ReadOptions
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import get_method
 from slam2d.params import as_dict, from_mapping
+from slam2d.sensors.recording_profile import measure_profile
 
-__all__ = ["RunSummary", "build_method", "read_params_file", "run_method", "input_digest", "versions"]
+__all__ = ["RunSummary", "build_method", "build_method_for", "read_params_file", "run_method", "input_digest", "versions"]
 
 RUN_FORMAT = 1
 _DEPENDENCIES = ("numpy", "scipy", "numba", "rosbags", "matplotlib", "pyyaml", "pillow", "rich")
@@ -114,6 +115,7 @@ def build_method(
     params_file: str | Path | None = None,
     seed: int | None = None,
     sensor_model: Any = None,
+    profile: Any = None,
 ) -> SlamMethod:
     """Construct a method by name from a parameter file and ``name=value`` settings (settings win).
 
@@ -156,7 +158,24 @@ def build_method(
                 raise
             raise InputError(f"{exc.message} (the model this file recorded)", path=params_file,
                              field="sensor_model.spec") from None
-    return cls(params, seed=chosen_seed, sensor_model=sensor_model)
+    return cls(params, seed=chosen_seed, sensor_model=sensor_model, profile=profile)
+
+
+def build_method_for(method: str, frames: Sequence[Any], **kwargs: Any) -> SlamMethod:
+    """:func:`build_method` with its ``auto`` parameters resolved from ``frames`` (a recording's, in order).
+
+    The recording is measured (:func:`~slam2d.sensors.recording_profile.measure_profile`) only when
+    some parameter is still ``auto``; the profile and the time it took go into the diagnostics' summary.
+    """
+    slam = build_method(method, **kwargs)
+    if not slam.auto:
+        return slam
+    t0 = time.perf_counter()
+    profile = measure_profile(frames)
+    slam = build_method(method, profile=profile, **kwargs)
+    slam.diagnostics.summary["profile_wall_s"] = time.perf_counter() - t0
+    slam.diagnostics.summary["profile"] = profile.as_dict() if profile is not None else None
+    return slam
 
 
 def _rss_mb() -> float:
@@ -195,17 +214,23 @@ def run_method(
     data = Path(data)
     out_dir = Path(out_dir)
     options = read_options if read_options is not None else ReadOptions()
-    slam = method if isinstance(method, SlamMethod) else build_method(
-        method, settings=settings, params_file=params_file, seed=seed, sensor_model=sensor_model
-    )
     recording = open_recording(data, options)
+    source: Any = recording.frames(progress)
+    rss_before = _rss_mb()
+    wall0 = time.perf_counter()  # reading is part of a run's time, and so is measuring the recording
+    if isinstance(method, SlamMethod):
+        slam = method
+    else:
+        slam = build_method(method, settings=settings, params_file=params_file, seed=seed, sensor_model=sensor_model)
+        if slam.auto:  # auto parameters: measure the recording first, then build the method again with them
+            source = list(source)
+            slam = build_method_for(method, source, settings=settings, params_file=params_file, seed=seed,
+                                    sensor_model=sensor_model)
     digest = input_digest(data)
     started = datetime.now(timezone.utc)
-    rss_before = _rss_mb()
-    wall0 = time.perf_counter()
     frames = 0
     first_t = last_t = None
-    for frame in recording.frames(progress):
+    for frame in source:
         try:
             slam.feed(frame)
         except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
@@ -266,7 +291,8 @@ def _write_run(
     written += write_map_outputs(grid, out_dir)
     written += slam.extra_outputs(out_dir)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
-    diag = {"method": slam.name, "descriptions": dict(slam.DIAGNOSTICS), **slam.diagnostics.as_dict()}
+    diag = {"method": slam.name, "descriptions": {**slam.COMMON_DIAGNOSTICS, **slam.DIAGNOSTICS},
+            **slam.diagnostics.as_dict()}
     diag_path = out_dir / "diagnostics.json"
     write_text_atomic(diag_path, json.dumps(diag, default=_json_default) + "\n")
     written.append(diag_path)
@@ -277,6 +303,7 @@ def _write_run(
         "method": slam.name,
         "params": slam.parameters(),
         "seed": slam.seed,
+        "auto": slam.auto,
         "sensor_model": describe_sensor_model(slam.sensor_model),
         "data": {"path": str(data.resolve()), "format": data_format, **digest},
         "read_options": as_dict(options),

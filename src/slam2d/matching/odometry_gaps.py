@@ -1,0 +1,146 @@
+"""Odometry that missed a turn or a shift, caught by the scans and corrected before a method sees it.
+
+Real odometry streams drop messages: a turn in place that was never reported,
+a push the wheels did not feel. Every method then starts its match from a
+prediction tens of degrees or metres off, beyond any search window sized for
+odometry noise, and follows the odometry into a doubled map (csail: six such
+gaps; GMapping and Karto alike end metres off).
+
+The guard keeps a reference scan and checks each new one against it once the
+odometry has moved ``check_travel`` / ``check_turn`` since, or every
+``check_frames`` scans (a turn the odometry did not report moves it not at
+all): it registers the scan on the reference twice, near the odometry's
+increment (:func:`~slam2d.matching.scan_to_scan.consecutive_motion`, a sweep
+of +-0.25 rad) and over every heading. Where the local fit is poor it also
+searches positions ``search_window`` around. A registration that differs
+from the odometry by more than ``gap_turn`` or ``gap_shift`` and fits the
+reference clearly better (``margin`` of the coarse field's mean, 0..1) than
+the best pose near the odometry replaces the increment: the method is fed
+corrected odometry from there on, and the recovery is counted. Costs a few
+hundred microseconds per check; the wide position search only runs where the
+fit near the odometry is poor.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+from slam2d.params import param
+from slam2d.matching.scan_to_scan import _COARSE, _field, _point_to_line, _score, consecutive_motion, registration_fit
+
+__all__ = ["GapCheck", "OdometryGapGuard", "OdometryGapParams"]
+
+
+@dataclass
+class OdometryGapParams:
+    """The guard's switch, shared by every method that reads odometry."""
+
+    odometry_gap_check: bool = param(
+        True, help="check the odometry against scan registration every half metre, 0.35 rad or 8 scans, and "
+        "replace an increment the scans show missed a turn or a shift (over 20 deg or 0.4 m, clearly better "
+        "fit, searched over every heading and 2.5 m) before the method sees it; counted as odometry_recoveries; "
+        "gmapping with between_updates=guided checks every scan against the last instead (not in the originals)")
+
+
+@dataclass(frozen=True)
+class GapCheck:
+    """When and how the guard checks the odometry (see the module's text)."""
+
+    gap_turn: float = math.radians(20.0)  # rad: a registration this far from the odometry's heading is a gap
+    gap_shift: float = 0.4  # m: or this far from its position
+    margin: float = 0.15  # how much better (coarse field mean, 0..1) the gap's registration must fit
+    poor_fit: float = 0.5  # below this fit near the odometry and over every heading, positions are searched too
+    good_fit: float = 0.6  # a correction's registration fits at least this
+    search_window: float = 2.5  # m: half-width of that position search
+    check_travel: float = 0.5  # m of odometry travel between checks
+    check_turn: float = 0.35  # rad of odometry turn between checks
+    check_frames: int = 8  # scans between checks whatever the odometry says
+
+
+@njit(cache=True)
+def _position_search(px, py, qx, qy, gx, gy, headings, half, step):
+    """Best (x, y, theta) of the coarse field over positions ``(gx, gy) +- half`` at each of ``headings``."""
+    field, ox, oy = _field(px, py, _COARSE[0], _COARSE[1])
+    inv = 1.0 / _COARSE[0]
+    n = int(round(half / step))
+    best = -1.0
+    bx, by, bt = gx, gy, headings[0]
+    for h in range(headings.shape[0]):
+        t = headings[h]
+        for i in range(-n, n + 1):
+            for j in range(-n, n + 1):
+                s = _score(field, ox, oy, inv, qx, qy, gx + i * step, gy + j * step, t)
+                if s > best:
+                    best = s
+                    bx, by, bt = gx + i * step, gy + j * step, t
+    return _point_to_line(px, py, qx[::1].copy(), qy[::1].copy(), bx, by, bt)
+
+
+class OdometryGapGuard:
+    """Feed it each frame's scan points and raw odometry; it returns the odometry to use (see the module's text)."""
+
+    def __init__(self, check: GapCheck | None = None) -> None:
+        self.check = check or GapCheck()
+        self.recoveries = 0  # increments replaced
+        self.checks = 0
+        self.last_correction: NDArray[np.float64] | None = None  # the last recovery's change (robot frame)
+        self._ref_points: NDArray[np.float64] | None = None
+        self._ref_raw: NDArray[np.float64] | None = None  # raw odometry at the reference scan
+        self._ref_fixed: NDArray[np.float64] | None = None  # corrected odometry there
+        self._since = 0
+
+    def correct(self, points: NDArray[np.float64], odometry: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+        """``(corrected odometry, recovered here)`` for a scan's base-frame points and its raw odometry pose."""
+        raw = np.asarray(odometry, dtype=np.float64)
+        if self._ref_raw is None:
+            self._set_reference(points, raw, raw.copy())
+            return raw.copy(), False
+        c = self.check
+        increment = se2.relative(self._ref_raw, raw)
+        self._since += 1
+        due = (math.hypot(increment[0], increment[1]) >= c.check_travel or abs(increment[2]) >= c.check_turn
+               or self._since >= c.check_frames)
+        if not due or points.shape[0] < 20 or self._ref_points.shape[0] < 20:
+            return se2.compose(self._ref_fixed, increment), False
+        self.checks += 1
+        chosen, recovered = self._check(points, increment)
+        fixed = se2.compose(self._ref_fixed, chosen)
+        self._set_reference(points, raw, fixed)
+        return fixed, recovered
+
+    def _set_reference(self, points, raw, fixed) -> None:
+        self._ref_points = np.ascontiguousarray(points, dtype=np.float64)
+        self._ref_raw, self._ref_fixed = raw, fixed
+        self._since = 0
+
+    def _check(self, points: NDArray[np.float64], increment: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+        c = self.check
+        ref = self._ref_points
+        local = consecutive_motion(ref, points, increment, half_turn=0.25)
+        wide = consecutive_motion(ref, points, increment, half_turn=math.pi)
+        fit_odometry, fit_local, fit_wide = registration_fit(ref, points, np.stack([increment, local, wide]))
+        best, fit_best = (wide, fit_wide) if fit_wide > fit_local + c.margin else (local, fit_local)
+        if max(fit_local, fit_wide) < c.poor_fit:
+            q = np.ascontiguousarray(points[::2])
+            headings = np.array([increment[2], wide[2], local[2]])
+            found = _position_search(np.ascontiguousarray(ref[:, 0]), np.ascontiguousarray(ref[:, 1]),
+                                     np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1]),
+                                     float(increment[0]), float(increment[1]), headings, c.search_window, 0.1)
+            fit_found = float(registration_fit(ref, points, found)[0])
+            if fit_found > fit_best + c.margin:
+                best, fit_best = found, fit_found
+        off = se2.relative(increment, best)
+        is_gap = abs(float(off[2])) > c.gap_turn or math.hypot(float(off[0]), float(off[1])) > c.gap_shift
+        # a registration far from the odometry must fit clearly better than the odometry does, and fit well:
+        # two scans of a symmetric corridor also fit turned half round, a little
+        if is_gap and fit_best >= fit_odometry + c.margin and fit_best >= c.good_fit:
+            self.recoveries += 1
+            self.last_correction = off
+            return best, True
+        return increment, False

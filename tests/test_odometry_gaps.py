@@ -1,0 +1,139 @@
+"""Odometry that missed a turn or a shift: the guard (matching/odometry_gaps.py) and the methods fed through it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from _room import frame, room_scan
+from conftest import recording_frames
+from slam2d.core import se2
+from slam2d.matching.odometry_gaps import OdometryGapGuard
+
+
+def _room_path():
+    """Poses through the room: forward, a 90 deg turn in place (in 4 scans), forward again."""
+    poses = [np.array([-1.5 + 0.25 * k, -0.5, 0.0]) for k in range(8)]
+    x = poses[-1][0]
+    poses += [np.array([x, -0.5, math.radians(22.5) * (k + 1)]) for k in range(4)]
+    poses += [np.array([x, -0.5 + 0.25 * (k + 1), math.pi / 2]) for k in range(6)]
+    return poses
+
+
+def _miss(odometry, k, missed):
+    """The odometry from scan ``k`` on, as if the increment into ``k`` had not seen ``missed`` (robot frame)."""
+    out = [o.copy() for o in odometry]
+    anchor = odometry[k - 1]
+    wrong = se2.compose(anchor, se2.compose(se2.relative(anchor, odometry[k]), se2.inverse(missed)))
+    for j in range(k, len(odometry)):
+        out[j] = se2.compose(wrong, se2.relative(odometry[k], odometry[j]))
+    return out
+
+
+def _guarded(poses, odometry):
+    guard = OdometryGapGuard()
+    fixed = [guard.correct(room_scan(p, t=i).points_in_base(), o)[0] for i, (p, o) in enumerate(zip(poses, odometry))]
+    return guard, fixed
+
+
+def _worst_increment_error(poses, fixed):
+    worst_xy = worst_t = 0.0
+    for a in range(1, len(poses)):
+        e = se2.relative(se2.relative(fixed[0], fixed[a]), se2.relative(poses[0], poses[a]))
+        worst_xy, worst_t = max(worst_xy, math.hypot(e[0], e[1])), max(worst_t, abs(e[2]))
+    return worst_xy, worst_t
+
+
+def test_an_unreported_turn_in_place_is_put_back():
+    poses = _room_path()
+    # the whole 90 deg turn lands between two checks: the odometry reports none of it
+    odometry = _miss(poses, 12, np.array([0.0, 0.0, math.pi / 2]))
+    guard, fixed = _guarded(poses, odometry)
+    assert guard.recoveries >= 1
+    xy, t = _worst_increment_error(poses, fixed)
+    assert xy < 0.05 and t < math.radians(2.0)
+    # without the guard the odometry ends 90 deg off
+    assert abs(se2.relative(odometry[-1], poses[-1])[2] - se2.relative(odometry[0], poses[0])[2]) > 1.5
+
+
+def test_an_unreported_two_metre_shift_is_put_back():
+    poses = [np.array([-2.0 + 0.25 * k, 0.2 * math.sin(k / 3.0), 0.1]) for k in range(6)]
+    poses += [np.array([poses[-1][0] + 2.0 + 0.25 * k, 0.3, 0.1]) for k in range(1, 5)]  # 2.25 m, one step
+    odometry = _miss(poses, 6, np.array([2.0, 0.0, 0.0]))
+    guard, fixed = _guarded(poses, odometry)
+    assert guard.recoveries == 1
+    xy, t = _worst_increment_error(poses, fixed)
+    assert xy < 0.05 and t < math.radians(2.0)
+
+
+def test_odometry_that_is_right_is_left_alone():
+    poses = _room_path()
+    rng = np.random.default_rng(3)
+    # ordinary noise: a few centimetres and a degree or two per step
+    odometry = [poses[0].copy()]
+    for a, b in zip(poses[:-1], poses[1:]):
+        step = se2.relative(a, b) + rng.normal(0.0, [0.02, 0.02, math.radians(1.5)])
+        odometry.append(se2.compose(odometry[-1], step))
+    guard, fixed = _guarded(poses, odometry)
+    assert guard.recoveries == 0
+    assert all(np.allclose(f, o) for f, o in zip(fixed, odometry))
+
+
+def _with_missed_turn(frames, k, turn):
+    odometry = _miss([f.odometry for f in frames], k, np.array([0.0, 0.0, turn]))
+    return [type(f)(index=f.index, scan=f.scan, odometry=o) for f, o in zip(frames, odometry)]
+
+
+def _ate(slam, sim):
+    from slam2d.eval.trajectory_metrics import absolute_trajectory_error, associate
+    from slam2d.io.tum import read_tum
+
+    t, p = slam.trajectory()
+    rt, rp = read_tum(sim / "truth.tum")
+    return absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
+
+
+@pytest.mark.parametrize("method, settings", [("karto", {}), ("lago", {}), ("gmapping", {"particles": 10})])
+def test_methods_recover_from_a_turn_the_odometry_missed(paper_arena, method, settings):
+    """The issue's case: a simulated recording whose odometry misses one 90 deg turn: under 0.30 m ATE, with
+    the recovery counted; without the guard the same recording is far off."""
+    from slam2d.methods.runner import build_method_for
+
+    frames = recording_frames(paper_arena / "recording.log.gz")
+    broken = _with_missed_turn(frames, len(frames) // 3, math.pi / 2)
+    slam = build_method_for(method, broken, settings=settings, seed=1).run(broken)
+    assert slam.diagnostics.counters["odometry_recoveries"] >= 1
+    assert _ate(slam, paper_arena) < 0.30
+    off = build_method_for(method, broken, settings={**settings, "odometry_gap_check": False}, seed=1).run(broken)
+    assert off.diagnostics.counters["odometry_recoveries"] == 0
+    assert _ate(off, paper_arena) > 0.30
+
+
+def test_the_recovery_is_in_the_run_folder(paper_arena, tmp_path):
+    import json
+
+    from slam2d.io.carmen import write_carmen
+    from slam2d.methods.runner import run_method
+
+    frames = recording_frames(paper_arena / "recording.log.gz")
+    broken = _with_missed_turn(frames, len(frames) // 3, math.pi / 2)
+    log = tmp_path / "broken.log"
+    write_carmen(log, broken)
+    run_method("karto", log, tmp_path / "run")
+    diag = json.loads((tmp_path / "run" / "diagnostics.json").read_text())
+    assert diag["counters"]["odometry_recoveries"] >= 1
+    assert "odometry_recovery" in diag["descriptions"]
+    assert np.nansum(np.array(diag["series"]["odometry_recovery"], dtype=float)) >= 1
+
+
+def test_no_scan_pair_no_correction():
+    guard = OdometryGapGuard()
+    scan = room_scan(np.zeros(3))
+    out, recovered = guard.correct(scan.points_in_base(), np.array([1.0, 2.0, 0.3]))
+    assert not recovered and np.allclose(out, [1.0, 2.0, 0.3])
+    # a scan with too few points is never checked
+    out, recovered = guard.correct(np.zeros((3, 2)), np.array([1.0, 2.0, 2.0]))
+    assert not recovered and np.allclose(out, [1.0, 2.0, 2.0])
+    assert frame(scan, [0, 0, 0]).odometry is not None
