@@ -117,8 +117,9 @@ def markdown(results: list[dict], logs: list[str], methods: list[str]) -> list[s
                 cells.append(f"{ates[0]:.3f}")
         extra = METHODS.get(m, {})
         label = f"`{m}`" + (" (" + ", ".join(f"{k}={v}" for k, v in extra.items()) + ")" if extra else "")
-        if m in STOCHASTIC:
-            label += f" median / worst, seeds {STOCHASTIC[m][0]}-{STOCHASTIC[m][-1]}"
+        seeds = sorted({r["seed"] for r in results if r["method"] == m})
+        if len(seeds) > 1:
+            label += f" median / worst, seeds {', '.join(map(str, seeds))}"
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {cpu:.1f} |")
     return lines
 

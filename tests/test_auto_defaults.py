@@ -101,8 +101,10 @@ def test_gmapping_resolves_from_the_recording_and_an_explicit_value_wins():
     assert "not measured" in live.auto["srt"]["from"]
 
 
-def test_dense_recordings_are_guided():
+def test_dense_recordings_with_a_long_range_laser_are_guided():
+    from slam2d.methods.gmapping import GMapping, GMappingParams
     from slam2d.methods.runner import build_method_for
+    from slam2d.sensors.recording_profile import RecordingProfile
 
     frames = _room_frames(steps=60)
     dense = []
@@ -111,9 +113,27 @@ def test_dense_recordings_are_guided():
         for j in range(10):
             pose = se2.compose(a, se2.relative(a, b) * (j / 10.0))
             dense.append(frame(room_scan(pose, t=k + j / 10.0), pose, index=len(dense)))
+    # the room's walls are all within 7 m: a short reach, so matched however dense
     slam = build_method_for("gmapping", dense)
-    assert slam.params.between_updates == "guided"
+    assert slam.params.between_updates == "matched"
     assert "scans per filter update" in slam.auto["between_updates"]["from"]
+    assert "laser reach" in slam.auto["between_updates"]["from"]
+
+    def profile(step_m, reach):
+        return RecordingProfile(scans=100, beams=360, field_of_view=math.pi, angular_resolution=math.pi / 360,
+                                range_max=80.0, longest_return=reach, rate_hz=4.0, has_odometry=True,
+                                step_m=step_m, step_rad=0.0, pairs=50, odometry_heading_per_m=0.1,
+                                odometry_heading_per_rad=0.1)
+
+    resolved = GMapping.auto_values(GMappingParams(), profile(0.1, 13.0))  # fr079: 0.1 m a scan, 13 m reach
+    assert resolved["between_updates"][0] == "guided" and resolved["srt"][0] == 0.1
+    resolved = GMapping.auto_values(GMappingParams(), profile(0.1, 5.0))  # a URG-04LX, as dense
+    assert resolved["between_updates"][0] == "matched" and resolved["srt"][0] == 0.1
+    resolved = GMapping.auto_values(GMappingParams(), profile(1.0, 13.0))  # a scan a metre
+    assert resolved["between_updates"][0] == "matched"
+    # an explicit between_updates is kept
+    resolved = GMapping.auto_values(GMappingParams(between_updates="guided"), profile(1.0, 13.0))
+    assert "between_updates" not in resolved and resolved["stt"][0] == 0.1
 
 
 def test_a_one_scan_recording_runs_with_the_originals_defaults_and_says_so(tmp_path, capsys):

@@ -123,8 +123,12 @@ class OdometryGapGuard:
         c = self.check
         ref = self._ref_points
         local = consecutive_motion(ref, points, increment, half_turn=0.25)
+        fit_odometry, fit_local = registration_fit(ref, points, np.stack([increment, local]))
+        off = se2.relative(increment, local)
+        if fit_local >= c.good_fit and abs(float(off[2])) <= c.gap_turn and math.hypot(off[0], off[1]) <= c.gap_shift:
+            return increment, False  # the scans fit well near the odometry: no gap (and no wide search to pay)
         wide = consecutive_motion(ref, points, increment, half_turn=math.pi)
-        fit_odometry, fit_local, fit_wide = registration_fit(ref, points, np.stack([increment, local, wide]))
+        fit_wide = float(registration_fit(ref, points, wide)[0])
         best, fit_best = (wide, fit_wide) if fit_wide > fit_local + c.margin else (local, fit_local)
         if max(fit_local, fit_wide) < c.poor_fit:
             q = np.ascontiguousarray(points[::2])

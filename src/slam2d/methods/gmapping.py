@@ -72,12 +72,14 @@ _STEP_FLOOR = np.array([0.01, 0.01, 0.005])  # m, m, rad: loop_correction's smal
 
 # auto defaults (GMappingParams.srt, stt, between_updates; resolved in GMapping.auto_values)
 _GUIDED_SCANS_PER_UPDATE = 3.0  # scans per filter update from which the scan-matched increments drive the motion
+_GUIDED_MIN_REACH = 8.0  # m: and only for a laser that reaches this far (99th percentile of its returns)
 _NOISE_FLOOR = 0.05  # rad/m and rad/rad: the least odometry noise auto resolves to
 _NOISE_CAP = 0.2  # and the most (GMapping's defaults)
 _AUTO_SRT = ("the odometry's heading error per unit of an update's motion (linearUpdate m + angularUpdate rad), "
-             f"measured against scan matching, within [{_NOISE_FLOOR}, {_NOISE_CAP}]; {_NOISE_FLOOR} when guided")
+             f"measured against scan matching, within [{_NOISE_FLOOR}, {_NOISE_CAP}]")
 _AUTO_STT = "the same value as srt"
-_AUTO_BETWEEN = f"the scans per filter update: guided at {_GUIDED_SCANS_PER_UPDATE:g} or more, else matched"
+_AUTO_BETWEEN = (f"the scans per filter update and the laser's reach: guided at {_GUIDED_SCANS_PER_UPDATE:g} or more "
+                 f"scans per update with returns reaching {_GUIDED_MIN_REACH:g} m, else matched")
 
 
 @dataclass
@@ -292,15 +294,16 @@ class GMapping(SlamMethod):
         mode = params.between_updates
         per_update = profile.scans_per_travel(float(params.linearUpdate), float(params.angularUpdate))
         if per_update is not None and is_auto(mode):
-            mode = "guided" if per_update >= _GUIDED_SCANS_PER_UPDATE else "matched"
+            reach = profile.longest_return
+            dense = per_update >= _GUIDED_SCANS_PER_UPDATE
+            # a short-range laser's scan-to-map climb slides along corridors longer than its reach, and guided
+            # makes every particle follow the slide (simulated office, URG-04LX: 6.5 m against 0.34 m matched)
+            mode = "guided" if dense and reach >= _GUIDED_MIN_REACH else "matched"
             out["between_updates"] = (mode, f"{per_update:.1f} scans per filter update (median odometry step "
-                                            f"{profile.step_m:.3f} m, {profile.step_rad:.3f} rad)")
+                                            f"{profile.step_m:.3f} m, {profile.step_rad:.3f} rad), laser reach "
+                                            f"{reach:.1f} m (99th percentile of returns)")
         srt, stt = profile.odometry_heading_per_m, profile.odometry_heading_per_rad
-        if mode == "guided":  # the motion model moves the particles by scan-matched increments, not odometry
-            for name in ("srt", "stt"):
-                out[name] = (_NOISE_FLOOR, "between_updates is guided: the particles move by the scan matcher's "
-                                           "increments")
-        elif srt is not None and stt is not None:
+        if srt is not None and stt is not None:
             # one number for both: the heading error over a filter update's motion (linearUpdate metres and
             # angularUpdate radians) per unit of that motion; the split between the two terms is poorly
             # determined by pairs that mostly travel or mostly turn
