@@ -119,8 +119,6 @@ class SlamMethod(ABC):
     optional_odometry: ClassVar[bool] = False
     #: Whether results depend on the seed.
     stochastic: ClassVar[bool] = False
-    #: Whether every scan is matched (so the odometry's error is taken out scan by scan; see gap_check).
-    matches_every_scan: ClassVar[bool] = False
     #: Per-update values the method reports, name -> "meaning [unit]" (for the docs and the report).
     DIAGNOSTICS: ClassVar[dict[str, str]] = {}
     #: Values every method that reads odometry may report (``odometry_gap_check``).
@@ -149,7 +147,7 @@ class SlamMethod(ABC):
         if self.checks_odometry_gaps():
             from slam2d.matching.odometry_gaps import OdometryGapGuard
 
-            self._gap_guard = OdometryGapGuard(self.gap_check())
+            self._gap_guard = OdometryGapGuard()
 
     # ----------------------------------------------------------------- what a method implements
 
@@ -225,19 +223,6 @@ class SlamMethod(ABC):
     def checks_odometry_gaps(self) -> bool:
         """Whether frames go through the odometry gap guard (``odometry_gap_check``) before :meth:`update`."""
         return bool(getattr(self.params, "odometry_gap_check", False))
-
-    def gap_check(self) -> Any:
-        """When the guard checks (:class:`~slam2d.matching.odometry_gaps.GapCheck`); None: its defaults.
-
-        A method that matches every scan (``matches_every_scan``) takes out the odometry's error scan by
-        scan, so the guard checks every scan against the last: a correction over a longer interval would
-        take that error out a second time.
-        """
-        if self.matches_every_scan:
-            from slam2d.matching.odometry_gaps import GapCheck
-
-            return GapCheck(check_travel=0.0, check_turn=0.0, check_frames=1)
-        return None
 
     def _uses_odometry_now(self) -> bool:
         return self.uses_odometry and (not self.optional_odometry or bool(getattr(self.params, "use_odometry", True)))

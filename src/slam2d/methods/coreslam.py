@@ -111,7 +111,6 @@ def _endpoints(beams: NDArray[np.float64], ranges: NDArray[np.float64]) -> NDArr
 
 @register
 class CoreSlam(SlamMethod):
-    matches_every_scan = True
     name = "coreslam"
     Params = CoreSlamParams
     summary = "tinySLAM/BreezySLAM: hole map + random-mutation hill climbing, odometry optional"

@@ -167,7 +167,6 @@ def ray_points(scan, d: NDArray[np.float64], selected: NDArray[np.int64], resolu
 
 @register
 class Crsm(SlamMethod):
-    matches_every_scan = True
     name = "crsm"
     Params = CrsmParams
     summary = "CRSM SLAM: critical rays + random-restart hill climbing on an 8-bit map, no odometry"

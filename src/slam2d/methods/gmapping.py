@@ -280,14 +280,6 @@ class GMapping(SlamMethod):
             self._islands = [GMapping(one, seed=island_seed(self.seed, k), sensor_model=self.sensor_model)
                              for k in range(self.params.islands)]
 
-    def gap_check(self) -> Any:
-        # guided: every scan is matched and its increment replaces the odometry's (see the base class)
-        if self.params.between_updates == "guided":
-            from slam2d.matching.odometry_gaps import GapCheck
-
-            return GapCheck(check_travel=0.0, check_turn=0.0, check_frames=1)
-        return None
-
     @classmethod
     def auto_values(cls, params: GMappingParams, profile: Any) -> dict[str, tuple[Any, str]]:
         out: dict[str, tuple[Any, str]] = {}

@@ -97,7 +97,6 @@ class HectorParams(GridParams, OdometryGapParams):
 
 @register
 class Hector(SlamMethod):
-    matches_every_scan = True
     name = "hector"
     Params = HectorParams
     summary = "Hector SLAM: multi-resolution Gauss-Newton scan-to-map matching, odometry optional"
