@@ -81,7 +81,6 @@ def _one(task: tuple) -> dict:
     t, p = slam.trajectory()
     rt, rp = read_tum(reference)
     ate = absolute_trajectory_error(associate(t, p, rt, rp))["translation_m"]["rmse"]
-    summary = getattr(slam.diagnostics, "summary", {}) or {}
     recoveries = slam.diagnostics.counters.get("odometry_recoveries", 0)
     return {"method": method, "log": log, "seed": seed, "ate": float(ate), "cpu_s": cpu, "wall_s": wall,
             "scans": len(frames), "recoveries": recoveries, "settings": {k: str(v) for k, v in settings.items()},
