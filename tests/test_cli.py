@@ -54,13 +54,19 @@ def test_info_reports_the_recording(capsys, room):
     assert s["frames_with_odometry"] == n
     assert s["laser_mount"][0] > 0.0  # the youBot's laser sits ahead of its centre
     assert s["problems"] == []
+    # the profile the auto defaults resolve from
+    p = s["profile"]
+    assert p["scans"] == n and p["has_odometry"] and p["pairs"] >= 12
+    assert 0.0 < p["longest_return"] <= 5.6 and p["step_m"] > 0.0
+    assert p["odometry_heading_per_m"] is not None
 
 
 def test_info_table_names_what_matters(capsys, room):
     log, _, _ = room
     code, out, _ = run(capsys, "info", log)
     assert code == 0
-    for word in ("scans", "field of view", "range limits", "rate", "time span", "odometry", "no problems found"):
+    for word in ("scans", "field of view", "range limits", "rate", "time span", "odometry", "no problems found",
+                 "laser reach", "odometry vs scans"):
         assert word in out
 
 

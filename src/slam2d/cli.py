@@ -105,11 +105,15 @@ def cmd_info(args: argparse.Namespace) -> int:
     from slam2d.io import open_recording
     from slam2d.io.inspect import summarize
 
+    from slam2d.sensors.recording_profile import measure_profile
+
     recording = open_recording(args.file, _read_options(args))
     with progress_bar(f"reading {args.file.name}") as progress:
         summary = summarize(recording, progress)
+    # what the auto defaults resolve from: the laser's reach, the step between scans, the odometry against the scans
+    profile = measure_profile(list(recording.frames())) if summary.scans else None
     if args.json:
-        print(json.dumps(summary.as_dict(), indent=2))
+        print(json.dumps({**summary.as_dict(), "profile": profile.as_dict() if profile else None}, indent=2))
         return 0
 
     from rich.table import Table
@@ -133,6 +137,17 @@ def cmd_info(args: argparse.Namespace) -> int:
         ("laser mount", "x {:.3f} m, y {:.3f} m, yaw {:.1f} deg".format(
             summary.laser_mount[0], summary.laser_mount[1], deg(summary.laser_mount[2]))),
     ]
+    if profile is not None:
+        rows.append(("laser reach", f"{profile.longest_return:.1f} m (99th percentile of returns)"))
+        if profile.step_m is not None:
+            rows.append(("step between scans", f"{profile.step_m:.3f} m, {deg(profile.step_rad):.1f} deg (median, "
+                                               "odometry)"))
+        if profile.odometry_heading_per_m is not None:
+            rows.append(("odometry vs scans", f"heading error {profile.odometry_heading_per_m:.3f} rad/m + "
+                         f"{profile.odometry_heading_per_rad:.3f} rad/rad over {profile.pairs} scan pairs; "
+                         f"{profile.odometry_gaps} pairs show a turn or shift it missed"))
+        for note in profile.notes:
+            rows.append(("odometry vs scans", note))
     for k, v in rows:
         t.add_row(k, v)
     out.print(t)
