@@ -104,14 +104,14 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     from slam2d.io import open_recording
     from slam2d.io.inspect import summarize
-
     from slam2d.sensors.recording_profile import measure_profile
 
     recording = open_recording(args.file, _read_options(args))
+    frames: list = []
     with progress_bar(f"reading {args.file.name}") as progress:
-        summary = summarize(recording, progress)
+        summary = summarize(recording, progress, keep=frames)
     # what the auto defaults resolve from: the laser's reach, the step between scans, the odometry against the scans
-    profile = measure_profile(list(recording.frames())) if summary.scans else None
+    profile = measure_profile(frames)
     if args.json:
         print(json.dumps({**summary.as_dict(), "profile": profile.as_dict() if profile else None}, indent=2))
         return 0

@@ -57,12 +57,12 @@ import numpy as np
 from numpy.typing import NDArray
 from numba import njit
 
-from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.core import se2
 from slam2d.core.arrays import grown
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.matching.correlative import COVARIANCE_BAND, CorrelativeMatcher
 from slam2d.matching.grid_cache import GridCache
 from slam2d.params import param

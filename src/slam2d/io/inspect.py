@@ -45,8 +45,11 @@ class RecordingSummary:
         return asdict(self)
 
 
-def summarize(recording: Recording, progress: ProgressCallback | None = None) -> RecordingSummary:
-    """Read the whole recording once and describe it, collecting every problem found."""
+def summarize(recording: Recording, progress: ProgressCallback | None = None,
+              keep: list | None = None) -> RecordingSummary:
+    """Read the whole recording once and describe it, collecting every problem found.
+
+    ``keep``: a list every frame read is appended to, for a caller that needs the frames too."""
     path = recording.path
     size = path.stat().st_size if path.is_file() else sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
     s = RecordingSummary(path=str(path), format=recording.format, file_bytes=size)
@@ -61,6 +64,8 @@ def summarize(recording: Recording, progress: ProgressCallback | None = None) ->
     last_odom = None
     mount = None
     for frame in recording.frames(progress):
+        if keep is not None:
+            keep.append(frame)
         scan = frame.scan
         stamps.append(scan.timestamp)
         n = scan.num_beams

@@ -35,8 +35,8 @@ from numba import njit
 from numpy.typing import NDArray
 
 from slam2d.core import se2
-from slam2d.params import param
 from slam2d.matching.scan_to_scan import _COARSE, _field, _point_to_line, _score, consecutive_motion, registration_fit
+from slam2d.params import param
 
 __all__ = ["GapCheck", "OdometryGapGuard", "OdometryGapParams"]
 
@@ -79,7 +79,7 @@ def _position_search(px, py, qx, qy, gx, gy, headings, half, step):
                 if s > best:
                     best = s
                     bx, by, bt = gx + i * step, gy + j * step, t
-    return _point_to_line(px, py, qx[::1].copy(), qy[::1].copy(), bx, by, bt)
+    return _point_to_line(px, py, qx, qy, bx, by, bt)
 
 
 class OdometryGapGuard:

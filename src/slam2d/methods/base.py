@@ -144,7 +144,7 @@ class SlamMethod(ABC):
         self._poses: list[NDArray[np.float64]] = []
         self.frames_fed = 0
         self._gap_guard = None
-        if self.checks_odometry_gaps():
+        if getattr(self.params, "odometry_gap_check", False):
             from slam2d.matching.odometry_gaps import OdometryGapGuard
 
             self._gap_guard = OdometryGapGuard()
@@ -206,7 +206,7 @@ class SlamMethod(ABC):
         wall0 = time.perf_counter()
         cpu0 = time.process_time()
         recovered = False
-        if self._gap_guard is not None and frame.odometry is not None and self._uses_odometry_now():
+        if self._gap_guard is not None and self._uses_odometry_now():
             frame, recovered = self._check_odometry(frame)
         values = self.update(frame)
         if recovered:
@@ -219,10 +219,6 @@ class SlamMethod(ABC):
             self._times.append(frame.timestamp)
             self._poses.append(np.array(pose, dtype=np.float64).reshape(3))
         self.diagnostics.record(frame.timestamp, wall, cpu, values)
-
-    def checks_odometry_gaps(self) -> bool:
-        """Whether frames go through the odometry gap guard (``odometry_gap_check``) before :meth:`update`."""
-        return bool(getattr(self.params, "odometry_gap_check", False))
 
     def _uses_odometry_now(self) -> bool:
         return self.uses_odometry and (not self.optional_odometry or bool(getattr(self.params, "use_odometry", True)))

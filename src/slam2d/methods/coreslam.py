@@ -16,12 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.hole_map import FREE, HoleMap
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.io.tum import interpolate_poses
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.matching.random_numbers import new_state
 from slam2d.matching.rmhc import rmhc_match
 from slam2d.methods.base import SlamMethod

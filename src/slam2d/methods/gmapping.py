@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.filters import (
@@ -40,6 +39,7 @@ from slam2d.graph.loop_correction import LoopCorrectionParams, correct_path, spr
 from slam2d.graph.wall_refinement import WallRefinementParams, refine_path
 from slam2d.grids.occupancy import OccupancyGrid
 from slam2d.grids.tiled import TiledMaps
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.matching.hill_climb import (
     BeamSet,
     gaussian_proposal,

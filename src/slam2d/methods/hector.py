@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.grids.pyramid import MapPyramid
+from slam2d.matching.odometry_gaps import OdometryGapParams
 from slam2d.matching.gauss_newton import GaussNewtonMatcher, MatchSettings
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register

@@ -168,8 +168,11 @@ def build_method_for(method: str, frames: Sequence[Any], **kwargs: Any) -> SlamM
     some parameter is still ``auto``; the profile and the time it took go into the diagnostics' summary.
     """
     slam = build_method(method, **kwargs)
-    if not slam.auto:
-        return slam
+    return _with_profile(method, frames, kwargs) if slam.auto else slam
+
+
+def _with_profile(method: str, frames: Sequence[Any], kwargs: Mapping[str, Any]) -> SlamMethod:
+    """The method built again with the profile of ``frames`` (its ``auto`` parameters resolved)."""
     t0 = time.perf_counter()
     profile = measure_profile(frames)
     slam = build_method(method, profile=profile, **kwargs)
@@ -221,11 +224,11 @@ def run_method(
     if isinstance(method, SlamMethod):
         slam = method
     else:
-        slam = build_method(method, settings=settings, params_file=params_file, seed=seed, sensor_model=sensor_model)
+        build = {"settings": settings, "params_file": params_file, "seed": seed, "sensor_model": sensor_model}
+        slam = build_method(method, **build)
         if slam.auto:  # auto parameters: measure the recording first, then build the method again with them
             source = list(source)
-            slam = build_method_for(method, source, settings=settings, params_file=params_file, seed=seed,
-                                    sensor_model=sensor_model)
+            slam = _with_profile(method, source, build)
     digest = input_digest(data)
     started = datetime.now(timezone.utc)
     frames = 0

@@ -68,10 +68,6 @@ class RecordingProfile:
         return 1.0 / per_scan if per_scan > 0 else None
 
 
-def _points(scan: Any) -> np.ndarray:
-    return scan.points_in_base()
-
-
 def _pairs(odom: np.ndarray) -> list[tuple[int, int]]:
     """Index pairs ``(i, j)``: j the first scan after i with ``_PAIR_TRAVEL`` or ``_PAIR_TURN`` of odometry."""
     out = []
@@ -112,7 +108,7 @@ def measure_profile(frames: Sequence[Any]) -> RecordingProfile | None:
     res = float(np.median([s.angle_increment for s in scans]))
     range_max = float(np.median([s.range_max for s in scans]))
     step = max(1, len(scans) // 200)
-    returns = np.concatenate([s.ranges[s.valid] for s in scans[::step]]) if scans else np.zeros(0)
+    returns = np.concatenate([s.ranges[s.valid] for s in scans[::step]])
     longest = float(np.percentile(returns, 99)) if returns.size else float("nan")
     times = np.array([s.timestamp for s in scans], dtype=np.float64)
     dt = np.diff(times)
@@ -145,7 +141,7 @@ def measure_profile(frames: Sequence[Any]) -> RecordingProfile | None:
     gaps = 0
     for i, j in pairs:
         a, b = scans[keep[i]], scans[keep[j]]
-        pa, pb = _points(a), _points(b)
+        pa, pb = a.points_in_base(), b.points_in_base()
         if pa.shape[0] < 20 or pb.shape[0] < 20:
             continue
         guess = se2.relative(poses[i], poses[j])
