@@ -10,7 +10,7 @@ import pytest
 from _room import room_scan
 from conftest import recording_frames
 from slam2d.core import se2
-from slam2d.matching.odometry_gaps import OdometryGapGuard
+from slam2d.matching.odometry_gaps import GapCheck, OdometryGapGuard
 
 
 def _room_path():
@@ -32,9 +32,11 @@ def _miss(odometry, k, missed):
     return out
 
 
-def _guarded(poses, odometry):
-    guard = OdometryGapGuard()
-    fixed = [guard.correct(room_scan(p, t=i).points_in_base(), o)[0] for i, (p, o) in enumerate(zip(poses, odometry))]
+def _guarded(poses, odometry, check=None, scan_poses=None):
+    guard = OdometryGapGuard(check)
+    scan_poses = poses if scan_poses is None else scan_poses
+    fixed = [guard.correct(room_scan(p, t=i).points_in_base(), o)[0]
+             for i, (p, o) in enumerate(zip(scan_poses, odometry))]
     return guard, fixed
 
 
@@ -79,6 +81,34 @@ def test_odometry_that_is_right_is_left_alone():
     guard, fixed = _guarded(poses, odometry)
     assert guard.recoveries == 0
     assert all(np.allclose(f, o) for f, o in zip(fixed, odometry))
+
+
+def test_a_late_scan_is_corrected_and_then_taken_back():
+    """One scan taken 45 deg earlier in a turn than its stamp (csail has them): the scans alone say the turn
+    stopped, then doubled. The guard follows the late scan, then takes the correction back at the next one,
+    so the odometry after it is right again (it kept the correction: 45 deg off from there on)."""
+    poses = _room_path()
+    odometry = [p.copy() for p in poses]  # the odometry is right
+    scan_poses = list(poses)
+    scan_poses[10] = poses[8]  # the scan stamped at 10 was taken at 8
+    guard, fixed = _guarded(poses, odometry, scan_poses=scan_poses)
+    assert guard.recoveries == 1 and guard.reverted == 1
+    after = [k for k in range(len(poses)) if k != 10]
+    xy, t = _worst_increment_error([poses[k] for k in after], [fixed[k] for k in after])
+    assert xy < 0.05 and t < math.radians(2.0)
+
+
+def test_refine_heading_takes_a_small_heading_error_out():
+    """A 10 deg heading error of one step is noise to the gap check (under 20 deg: left alone), but with
+    ``refine_heading`` (hector's) the scans' heading replaces the odometry's."""
+    poses = _room_path()
+    odometry = _miss(poses, 5, np.array([0.0, 0.0, math.radians(10.0)]))
+    guard, fixed = _guarded(poses, odometry)
+    assert guard.recoveries == 0 and all(np.allclose(f, o) for f, o in zip(fixed, odometry))
+    guard, fixed = _guarded(poses, odometry, GapCheck(refine_heading=True))
+    assert guard.refined >= 1 and guard.recoveries == 0
+    xy, t = _worst_increment_error(poses, fixed)
+    assert t < math.radians(1.0) and xy < 0.05
 
 
 def _with_missed_turn(frames, k, turn):

@@ -61,6 +61,9 @@ class GapCheck:
     poor_fit: float = 0.5  # below this fit near the odometry and over every heading, positions are searched too
     good_fit: float = 0.6  # a correction's registration fits at least this
     search_window: float = 2.5  # m: half-width of that position search
+    # where the odometry fits poorly and the registration near it well, take the registration's heading even
+    # without a gap (hector: its Gauss-Newton match has no search to find a 10 deg heading error by itself)
+    refine_heading: bool = False
 
 
 @njit(cache=True)
@@ -89,10 +92,13 @@ class OdometryGapGuard:
         self.check = check or GapCheck()
         self.recoveries = 0  # increments replaced
         self.checks = 0
+        self.refined = 0  # headings taken from the scans (refine_heading)
+        self.reverted = 0  # corrections taken back at the next scan (the corrected scan alone was out of place)
         self.last_correction: NDArray[np.float64] | None = None  # the last recovery's change (robot frame)
         self._ref_points: NDArray[np.float64] | None = None
         self._ref_raw: NDArray[np.float64] | None = None  # raw odometry at the reference scan
         self._ref_fixed: NDArray[np.float64] | None = None  # corrected odometry there
+        self._undo: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (raw, fixed) before a recovery
 
     def correct(self, points: NDArray[np.float64], odometry: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
         """``(corrected odometry, recovered here)`` for a scan's base-frame points and its raw odometry pose."""
@@ -107,25 +113,43 @@ class OdometryGapGuard:
                 self._set_reference(points, raw, fixed)
             return fixed, False
         self.checks += 1
-        chosen, recovered = self._check(points, increment)
+        undo = None
+        if self._undo is not None:
+            # the scan before was corrected: perhaps it alone was out of place (a late scan), not the odometry
+            before_raw, before_fixed = self._undo
+            undo = se2.relative(self._ref_fixed, se2.compose(before_fixed, se2.relative(before_raw, raw)))
+        chosen, recovered = self._check(points, increment, undo)
         fixed = se2.compose(self._ref_fixed, chosen)
+        before = (self._ref_raw, self._ref_fixed)
         self._set_reference(points, raw, fixed)
+        self._undo = before if recovered else None
         return fixed, recovered
 
     def _set_reference(self, points, raw, fixed) -> None:
         self._ref_points = np.ascontiguousarray(points, dtype=np.float64)
         self._ref_raw, self._ref_fixed = raw, fixed
+        self._undo = None
 
-    def _check(self, points: NDArray[np.float64], increment: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+    def _check(self, points: NDArray[np.float64], increment: NDArray[np.float64],
+               undo: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], bool]:
         c = self.check
         ref = self._ref_points
         fit_odometry = float(registration_fit(ref, points, increment)[0])
+        if undo is not None:
+            fit_undo = float(registration_fit(ref, points, undo)[0])
+            if fit_undo >= fit_odometry + c.margin:
+                self.reverted += 1
+                increment, fit_odometry = undo, fit_undo
         if fit_odometry >= c.good_fit:
             return increment, False  # the scans fit where the odometry puts them: no gap, nothing to search
         local = consecutive_motion(ref, points, increment, half_turn=0.25)
         fit_local = float(registration_fit(ref, points, local)[0])
         off = se2.relative(increment, local)
         if fit_local >= c.good_fit and abs(float(off[2])) <= c.gap_turn and math.hypot(off[0], off[1]) <= c.gap_shift:
+            if c.refine_heading and fit_local > fit_odometry:
+                self.refined += 1
+                # the heading only: along a corridor the registration's position slides (aces)
+                return np.array([increment[0], increment[1], local[2]]), False
             return increment, False  # the scans fit well near the odometry: no gap (and no wide search to pay)
         wide = consecutive_motion(ref, points, increment, half_turn=math.pi)
         fit_wide = float(registration_fit(ref, points, wide)[0])
@@ -139,6 +163,12 @@ class OdometryGapGuard:
             fit_found = float(registration_fit(ref, points, found)[0])
             if fit_found > fit_best + c.margin:
                 best, fit_best = found, fit_found
+        if math.hypot(*se2.relative(increment, best)[:2]) > c.gap_shift:
+            # a shift the scans do not pin down (along a corridor) is the odometry's to say, not the registration's
+            turned_only = np.array([increment[0], increment[1], best[2]])
+            fit_turned = float(registration_fit(ref, points, turned_only)[0])
+            if fit_turned + c.margin > fit_best:
+                best, fit_best = turned_only, fit_turned
         off = se2.relative(increment, best)
         is_gap = abs(float(off[2])) > c.gap_turn or math.hypot(float(off[0]), float(off[1])) > c.gap_shift
         # a registration far from the odometry must fit clearly better than the odometry does, and fit well:

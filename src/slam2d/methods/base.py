@@ -119,6 +119,8 @@ class SlamMethod(ABC):
     optional_odometry: ClassVar[bool] = False
     #: Whether results depend on the seed.
     stochastic: ClassVar[bool] = False
+    #: How the odometry guard checks (a ``GapCheck``; None: its defaults), when ``odometry_gap_check`` is on.
+    gap_check: ClassVar[Any] = None
     #: Per-update values the method reports, name -> "meaning [unit]" (for the docs and the report).
     DIAGNOSTICS: ClassVar[dict[str, str]] = {}
     #: Values every method that reads odometry may report (``odometry_gap_check``).
@@ -147,7 +149,7 @@ class SlamMethod(ABC):
         if getattr(self.params, "odometry_gap_check", False):
             from slam2d.matching.odometry_gaps import OdometryGapGuard
 
-            self._gap_guard = OdometryGapGuard()
+            self._gap_guard = OdometryGapGuard(self.gap_check)
 
     # ----------------------------------------------------------------- what a method implements
 
@@ -230,7 +232,13 @@ class SlamMethod(ABC):
         odom = self.usable_odometry(frame)
         if odom is None:
             return frame, False
-        corrected, recovered = self._gap_guard.correct(frame.scan.points_in_base(), odom)
+        guard = self._gap_guard
+        refined, reverted = guard.refined, guard.reverted
+        corrected, recovered = guard.correct(frame.scan.points_in_base(), odom)
+        if guard.refined > refined:
+            self.diagnostics.count("odometry_headings_refined")
+        if guard.reverted > reverted:
+            self.diagnostics.count("odometry_corrections_reverted")
         if recovered:
             self.diagnostics.count("odometry_recoveries")
             c = self._gap_guard.last_correction

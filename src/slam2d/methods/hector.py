@@ -20,7 +20,7 @@ from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.grids.pyramid import MapPyramid
-from slam2d.matching.odometry_gaps import OdometryGapParams
+from slam2d.matching.odometry_gaps import GapCheck, OdometryGapParams
 from slam2d.matching.gauss_newton import GaussNewtonMatcher, MatchSettings
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
@@ -102,6 +102,9 @@ class Hector(SlamMethod):
     summary = "Hector SLAM: multi-resolution Gauss-Newton scan-to-map matching, odometry optional"
     uses_odometry = True
     optional_odometry = True
+    # Gauss-Newton finds only what lies in its basin: a 10 deg heading error of one step (intel's odometry, a
+    # scan a metre) is outside it, so the scans' own heading replaces the odometry's where it fits poorly
+    gap_check = GapCheck(refine_heading=True)
     DIAGNOSTICS = {
         "score": "mean occupancy probability at the matched scan points (1 = every point on a wall)",
         "inverse_condition": "smallest / largest eigenvalue of the match Hessian, heading scaled "
