@@ -16,6 +16,13 @@ around. A registration that differs from the odometry by more than
 field's mean, 0..1) and well (``good_fit``) replaces the increment: the method
 is fed corrected odometry from there on, and the recovery is counted.
 
+Two exceptions keep it from correcting what the odometry had right: a shift
+the scans do not pin down (the odometry's position with the registration's
+heading fits about as well: a corridor) stays the odometry's; and a
+correction the next scan shows was one scan out of place (a scan stamped late
+in a turn: the uncorrected odometry fits the next scan clearly better) is
+taken back there (csail has both).
+
 Why scan by scan: a method that matches scans takes out the odometry's error as
 it goes; a correction over a longer interval than one scan would take out again
 what the method already did (on fr079 a check every half metre put hector at
