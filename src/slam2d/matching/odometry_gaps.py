@@ -141,9 +141,10 @@ class OdometryGapGuard:
                undo: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], bool]:
         c = self.check
         ref = self._ref_points
-        fit_odometry = float(registration_fit(ref, points, increment)[0])
-        if undo is not None:
-            fit_undo = float(registration_fit(ref, points, undo)[0])
+        if undo is None:
+            fit_odometry = float(registration_fit(ref, points, increment)[0])
+        else:  # both on one field of the previous scan
+            fit_odometry, fit_undo = (float(f) for f in registration_fit(ref, points, np.stack([increment, undo])))
             if fit_undo >= fit_odometry + c.margin:
                 self.reverted += 1
                 increment, fit_odometry = undo, fit_undo

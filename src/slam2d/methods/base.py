@@ -21,6 +21,7 @@ revise the past override :meth:`~SlamMethod.trajectory` and
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -184,8 +185,6 @@ class SlamMethod(ABC):
     # ----------------------------------------------------------------- what every method gets
 
     def _resolve_auto(self, profile: Any) -> dict[str, dict[str, Any]]:
-        import dataclasses
-
         pending = auto_fields(self.params)
         if not pending:
             return {}
@@ -227,8 +226,6 @@ class SlamMethod(ABC):
 
     def _check_odometry(self, frame: Frame) -> tuple[Frame, bool]:
         """The frame with its odometry corrected where the scans show it missed a turn or a shift."""
-        import dataclasses
-
         odom = self.usable_odometry(frame)
         if odom is None:
             return frame, False
@@ -241,7 +238,7 @@ class SlamMethod(ABC):
             self.diagnostics.count("odometry_corrections_reverted")
         if recovered:
             self.diagnostics.count("odometry_recoveries")
-            c = self._gap_guard.last_correction
+            c = guard.last_correction
             log.info("%s: odometry corrected by %.2f m, %.1f deg at t=%.3f (the scans show a turn or shift it missed)",
                      self.name, math.hypot(c[0], c[1]), math.degrees(c[2]), frame.timestamp)
         return dataclasses.replace(frame, odometry=corrected), recovered
