@@ -263,6 +263,27 @@ def test_deskew_undoes_the_motion_during_the_sweep():
     assert np.allclose(beams[-1], [0.1 * share, 0.0, scan.angles[-1] + 0.3 * share])
 
 
+def test_frames_seconds_apart_are_not_deskewed():
+    """A thinned log (a SICK scan every second): the step between frames is not one sweep's motion.
+
+    The scans are instantaneous; de-skewing them by the whole step between frames (the old rule) skews them.
+    """
+    n = 30
+    poses = [np.array([0.03 * i, 0.01 * i, 0.15 * i]) for i in range(n + 1)]
+    frames = [frame(_swept_scan(poses[i], poses[i], t=1.0 * i), odometry=poses[i], index=i) for i in range(n)]
+    truth = np.stack(poses[:n])
+    m = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(frames)
+    p = m.trajectory()[1]
+    assert np.hypot(*(p[:, :2] - truth[:, :2]).T).max() < 0.05
+    assert np.abs(se2.wrap_angle(p[:, 2] - truth[:, 2])).max() < math.radians(2)
+    assert m.diagnostics.counters["scans_not_deskewed"] == n - 1
+    assert not np.any(m._sweep_step)
+    # the same frames 0.1 s apart are taken for consecutive sweeps: the last step is undone over the sweep
+    fast = [frame(_swept_scan(poses[i], poses[i], t=0.1 * i), odometry=poses[i], index=i) for i in range(n)]
+    q = CoreSlam(CoreSlamParams(use_odometry=True), seed=1).run(fast)
+    assert np.allclose(q._sweep_step, se2.relative(poses[n - 2], poses[n - 1])) and "scans_not_deskewed" not in q.diagnostics.counters
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_coreslam_on_the_simulated_arena_over_seeds(tmp_path, paper_arena, seed):
