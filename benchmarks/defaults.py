@@ -6,6 +6,7 @@
     .venv/bin/python benchmarks/defaults.py --set karto:search_window=0.5   # a candidate, on every log
     .venv/bin/python benchmarks/defaults.py --json out.json       # every run's numbers too
     .venv/bin/python benchmarks/defaults.py --write BENCHMARKS.md # the whole table into its section there
+    .venv/bin/python benchmarks/defaults.py --from-json out.json --write BENCHMARKS.md  # from an earlier --json
 
 A default changes only when the change is measured on every log of this table
 and on the simulated worlds (``--logs sim`` adds them). Each (method, log, seed)
@@ -133,6 +134,8 @@ def main() -> int:
                         help="a setting on top of the defaults ('*:' for every method)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every run's numbers here")
+    parser.add_argument("--from-json", type=Path, metavar="FILE",
+                        help="make the table from an earlier --json file instead of running (--methods, --logs)")
     parser.add_argument("--write", type=Path, metavar="BENCHMARKS.md",
                         help="replace the 'Defaults on every real log' section of this file with the table")
     args = parser.parse_args()
@@ -145,6 +148,14 @@ def main() -> int:
     if args.seeds:
         a, _, b = args.seeds.partition("-")
         seeds = tuple(range(int(a), int(b) + 1)) if b else tuple(int(s) for s in args.seeds.split(","))
+    if args.from_json:
+        results = [r for r in json.loads(args.from_json.read_text())
+                   if r["method"] in methods and r["log"] in logs]
+        table = markdown(results, logs, methods)
+        print("\n".join(table))
+        if args.write:
+            write_section(args.write, table)
+        return 0
     with tempfile.TemporaryDirectory(prefix="slam2d-defaults-") as tmp:
         tasks = []
         for log in logs:

@@ -75,7 +75,8 @@ def test_map_with_true_poses_is_sharp_and_complete(capsys, room, tmp_path):
     out_dir = tmp_path / "map"
     code, out, err = run(capsys, "map", log, "--poses", truth, "--out", out_dir)
     assert code == 0, err
-    assert sorted(p.name for p in out_dir.iterdir()) == ["map.json", "map.pgm", "map.yaml", "preview.png"]
+    assert sorted(p.name for p in out_dir.iterdir()) == [
+        ".slam2d-output.json", "map.json", "map.pgm", "map.yaml", "preview.png"]
     info = json.loads((out_dir / "map.json").read_text())
     assert info["stats"]["scans_used"] == n
     assert info["wall_thickness_cells"]["median"] <= 2
@@ -336,9 +337,10 @@ def test_map_max_pose_gap_must_be_a_time(capsys, room, tmp_path, gap):
 
 
 def test_a_corrupt_odometry_pose_names_the_recording(capsys, tmp_path):
-    log = _flaser_log(tmp_path / "far.log", [0.0, 0.5, 1e300, 1.5])
+    # within the readers' bound (1e7 m) but beyond the map's max_extent: the map refuses to grow there
+    log = _flaser_log(tmp_path / "far.log", [0.0, 0.5, 1e6, 1.5])
     code, _, err = run(capsys, "map", log, "--out", tmp_path / "m")
-    assert_one_line_error(code, err, f"{log}: max_extent: the map would grow to 1e+300 m")
+    assert_one_line_error(code, err, f"{log}: max_extent: the map would grow to 1", "beyond the limit of 2000 m")
     code, _, err = run(capsys, "run", "odometry", log, "--out", tmp_path / "r")
     assert_one_line_error(code, err, f"{log} (scan 3 at t=3.000 s): max_extent:")
     assert not (tmp_path / "m").exists() and not (tmp_path / "r").exists()
@@ -421,9 +423,9 @@ def test_an_output_folder_that_is_a_file_is_said_plainly(capsys, room, tmp_path)
     a_file = tmp_path / "results"
     a_file.write_text("not a folder")
     code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file)
-    assert_one_line_error(code, err, f"{a_file}: exists and is a file; a folder is needed here")
+    assert_one_line_error(code, err, f"{a_file}: --out: exists and is a file; a folder is needed here")
     code, _, err = run(capsys, "run", "odometry", room[0], "--out", a_file / "sub")
-    assert_one_line_error(code, err, f"{a_file / 'sub'}: a part of this path is a file, not a folder")
+    assert_one_line_error(code, err, f"{a_file / 'sub'}: --out: a part of this path is a file, not a folder")
     assert a_file.read_text() == "not a folder"
 
 
@@ -436,3 +438,105 @@ def test_a_recording_without_returns_is_named_and_leaves_no_folder(capsys, tmp_p
     code, _, err = run(capsys, "map", log, "--out", tmp_path / "m")
     assert_one_line_error(code, err, f"{log}: the map is empty")
     assert not (tmp_path / "r").exists() and not (tmp_path / "m").exists()  # not a trajectory without its map
+
+
+# ---------------------------------------------------------------- output folders are written whole
+
+
+def test_a_users_folder_is_not_clobbered_and_overwrite_replaces_it_whole(capsys, room, tmp_path):
+    mine = tmp_path / "u"
+    mine.mkdir()
+    (mine / "map.pgm").write_text("mine")
+    code, _, err = run(capsys, "run", "odometry", room[0], "--out", mine)
+    assert_one_line_error(code, err, f"{mine}: --out: is a folder that is not empty (not an earlier slam2d output)",
+                          "--overwrite")
+    assert (mine / "map.pgm").read_text() == "mine" and len(list(mine.iterdir())) == 1
+    code, out, err = run(capsys, "run", "odometry", room[0], "--out", mine, "--overwrite")
+    assert code == 0, err
+    assert (mine / "map.pgm").read_bytes().startswith(b"P5") and (mine / "run.json").is_file()
+    assert f"wrote {mine / 'run.json'}" in out and ".partial" not in out  # the final paths, not the staging one
+    # an earlier output of another command is not one of this command's either
+    code, _, err = run(capsys, "map", room[0], "--out", mine)
+    assert_one_line_error(code, err, "an earlier 'slam2d run' output", "--overwrite")
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no staging folder left
+
+
+def test_a_rerun_replaces_the_whole_run_folder(capsys, room, tmp_path):
+    out = tmp_path / "r"
+    assert run(capsys, "run", "karto", room[0], "--out", out)[0] == 0
+    assert (out / "graph.g2o").is_file()
+    assert run(capsys, "run", "odometry", room[0], "--out", out)[0] == 0  # an earlier 'run' output: replaced
+    assert not (out / "graph.g2o").exists()  # not karto's graph beside odometry's run.json
+    assert json.loads((out / "run.json").read_text())["method"] == "odometry"
+
+
+def test_a_failure_while_writing_leaves_the_old_folder_as_it_was(capsys, room, tmp_path, monkeypatch):
+    out = tmp_path / "r"
+    assert run(capsys, "run", "odometry", room[0], "--out", out)[0] == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    import slam2d.report.map_outputs as map_outputs
+
+    def full_disk(grid, folder, *args, **kwargs):
+        (Path(folder) / "map.pgm").write_bytes(b"half")
+        raise OSError(28, "No space left on device", str(Path(folder) / "map.pgm"))
+
+    monkeypatch.setattr(map_outputs, "write_map_outputs", full_disk)
+    code, _, err = run(capsys, "run", "karto", room[0], "--out", out)
+    assert_one_line_error(code, err, "No space left on device")
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the old run whole, nothing new in it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]  # and no staging folder beside it
+
+
+def test_run_json_is_strict_json_and_reruns(capsys, room, tmp_path):
+    """No Infinity or NaN (not JSON: jq and browsers reject it); a parameter at infinity is the text "inf"."""
+    out = tmp_path / "r"
+    assert run(capsys, "run", "karto", room[0], "--out", out)[0] == 0
+
+    def refuse(name):
+        raise AssertionError(f"{name} is not JSON")
+
+    for name in ("run.json", "diagnostics.json", "map.json"):
+        json.loads((out / name).read_text(), parse_constant=refuse)
+    record = json.loads((out / "run.json").read_text())
+    assert record["params"]["wall_end_maximum_range"] == "inf"
+    code, _, err = run(capsys, "run", "karto", room[0], "--out", tmp_path / "again", "--params", out / "run.json")
+    assert code == 0, err
+    again = json.loads((tmp_path / "again" / "run.json").read_text())
+    assert again["params"] == record["params"]
+
+
+def test_a_pose_beyond_any_map_is_named_not_a_traceback(capsys, tmp_path):
+    """An odometry x of 1e308 overflowed the map's cell arithmetic (OverflowError traceback in run and map)."""
+    ranges = " ".join(["2.0"] * 180)
+    log = tmp_path / "far.log"
+    x = [1e308 if k == 3 else 0.1 * k for k in range(6)]
+    log.write_text("".join(f"FLASER 180 {ranges} {x[k]} 0 0 {x[k]} 0 0 {k + 1.0} h {k + 1.0}\n" for k in range(6)))
+    for argv in (("run", "odometry", log, "--out", tmp_path / "r"), ("map", log, "--out", tmp_path / "m")):
+        code, _, err = run(capsys, *argv)
+        assert_one_line_error(code, err, f"{log}:4: FLASER odom_x: 1e+308 m is farther than any map")
+    tum = tmp_path / "far.tum"
+    tum.write_text("1.0 0 0 0 0 0 0 1\n2.0 0 -1e300 0 0 0 0 1\n")
+    code, _, err = run(capsys, "map", log, "--poses", tum, "--out", tmp_path / "m")
+    assert_one_line_error(code, err, f"{tum}:2: y: -1e+300 m is farther than any map")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "m").exists()
+
+
+def test_info_counts_nan_infinite_and_negative_ranges(capsys, tmp_path):
+    log = tmp_path / "odd.log"
+    lines = []
+    for k in range(4):
+        r = ["2.0"] * 180
+        r[5], r[6], r[7] = "nan", "inf", "-1.5"
+        lines.append(f"FLASER 180 {' '.join(r)} {0.1 * k} 0 0 {0.1 * k} 0 0 {k + 1.0} h {k + 1.0}\n")
+    log.write_text("".join(lines))
+    code, out, err = run(capsys, "info", log)
+    assert code == 0, err
+    assert "no problems found" not in out
+    assert "4 x ranges NaN, infinite or negative (read as no return)" in out and "line 1: FLASER, 3 of 180" in out
+
+
+def test_a_key_given_twice_in_a_params_file_is_refused(capsys, room, tmp_path):
+    params = tmp_path / "p.yaml"
+    params.write_text("max_range: 10\nresolution: 0.05\nmax_range: 20\n")
+    code, _, err = run(capsys, "run", "gmapping", room[0], "--params", params, "--out", tmp_path / "r")
+    assert_one_line_error(code, err, f"{params}:3:", "'max_range' is given twice (first at line 1)")

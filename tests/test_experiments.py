@@ -157,7 +157,7 @@ def test_command_refuses_bad_input(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
     code = main(["experiment", "can", "--out", str(blocker), "--quick"])
-    assert code != 0 and "not a folder" in capsys.readouterr().err
+    assert code != 0 and "a folder is needed here" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["experiment", "can", "--out", str(tmp_path / "y"), "--seed", "abc"])
 

@@ -454,3 +454,12 @@ def test_a_result_file_that_is_not_a_row_is_redone_not_a_crash(tmp_path):
         assert read_result(tmp_path) is None
     (tmp_path / RESULT).write_text('{"run_id": "x"}\n')
     assert read_result(tmp_path) == {"run_id": "x"}
+
+
+def test_a_dollar_in_a_dataset_name_is_drawn_as_text():
+    """'lab_$A_$B.clf' was read as a formula by matplotlib: the summary plots crashed after every run was done."""
+    from slam2d.sweep.report import plot_metric
+
+    rows = [{"status": "ok", "method": "karto", "dataset": "lab_$A_$B.clf", "swept": {"resolution": r},
+             "metrics": {"ate": 0.1 * r}} for r in (0.05, 0.1)]
+    assert plot_metric(rows, "ate", "param.resolution", "m").startswith(b"\x89PNG")

@@ -9,7 +9,6 @@ status 2; a traceback means a bug in slam2d.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -57,6 +56,32 @@ def progress_bar(description: str) -> Iterator[ProgressCallback]:
             bar.update(task, completed=done, total=total or None)
 
         yield update
+
+
+def _add_out(p: argparse.ArgumentParser, command: str) -> None:
+    """``--out`` and ``--overwrite`` of a command whose output folder is written whole (io.atomic.staged_folder)."""
+    p.add_argument("--out", type=Path, required=True,
+                   help=f"output folder: new, empty, or an earlier 'slam2d {command}' output (replaced whole "
+                   "when the command is done; nothing is written on a failure)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace --out even when it holds other files (they are deleted)")
+    p.set_defaults(staged=command)
+
+
+# Staging folders of the running commands and the --out each becomes (for the paths shown to the user).
+_STAGES: dict[Path, Path] = {}
+
+
+def _shown(path: Path) -> Path:
+    """``path`` as it will be when its command's output folder is in place."""
+    for stage, final in _STAGES.items():
+        if path == stage or stage in path.parents:
+            return final / path.relative_to(stage)
+    return path
+
+
+def _print_written(out: Any, path: Path) -> None:
+    out.print(f"  wrote {_shown(Path(path))}", markup=False)
 
 
 def _report_problems(problems: ProblemLog, what: str) -> None:
@@ -113,7 +138,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     # what the auto defaults resolve from: the laser's reach, the step between scans, the odometry against the scans
     profile = measure_profile(frames)
     if args.json:
-        print(json.dumps({**summary.as_dict(), "profile": profile.as_dict() if profile else None}, indent=2))
+        from slam2d.io.atomic import json_text
+
+        print(json_text({**summary.as_dict(), "profile": profile.as_dict() if profile else None}))
         return 0
 
     from rich.table import Table
@@ -186,7 +213,7 @@ def _add_map(sub: argparse._SubParsersAction) -> None:
         "far the odometry drifts.",
     )
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "map")
     p.add_argument("--poses", type=Path, help="TUM trajectory of the robot base (t x y z qx qy qz qw)")
     p.add_argument(
         "--max-pose-gap", type=float, default=1.0, metavar="S",
@@ -289,7 +316,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         markup=False,
     )
     for path in written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     _report_problems(recording.problems, str(args.data))
     return 0
 
@@ -368,7 +395,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("method", help="method name (see 'slam2d methods')")
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "run")
     p.add_argument("--set", action="append", metavar="NAME=VALUE", dest="settings",
                    help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable)")
     p.add_argument("--params", type=Path, metavar="FILE",
@@ -409,7 +436,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         markup=False,
     )
     for path in summary.written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
@@ -477,7 +504,7 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from slam2d.eval.evaluate import METRIC_COLUMNS, evaluate_run, load_run
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import json_text, write_json_atomic
 
     if args.out is not None and args.out.is_dir():
         raise InputError("is a folder; --out takes the name of the JSON file to write", path=args.out, field="--out")
@@ -490,9 +517,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance)
     target = args.out if args.out is not None else (args.run / "evaluation.json" if args.run.is_dir() else None)
     if target is not None:
-        write_text_atomic(target, json.dumps(evaluation, indent=2) + "\n")
+        write_json_atomic(target, evaluation)
     if args.json:
-        print(json.dumps(evaluation, indent=2))
+        print(json_text(evaluation))
         return 0
     from rich.table import Table
 
@@ -509,7 +536,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if truth is not None and truth.kind == "reference":
         out.print("trajectory errors are against a reference trajectory, not independent ground truth", markup=False)
     if target is not None:
-        out.print(f"  wrote {target}", markup=False)
+        _print_written(out, target)
     return 0
 
 
@@ -526,7 +553,7 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
     p.add_argument("--methods", required=True, help="comma-separated method names (see 'slam2d methods')")
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "compare")
     _add_truth_options(p)
     p.add_argument("--set", action="append", metavar="[METHOD.]NAME=VALUE", dest="settings",
                    help="a parameter for every method that has it, or for one method (repeatable)")
@@ -593,7 +620,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     written = write_report(comparison, args.out)
     out.print(f"report written in {time.perf_counter() - t0:.1f} s", markup=False)
     for path in written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     failed = [o for o in comparison.outcomes if not o.ok]
     return 1 if len(failed) == len(comparison.outcomes) else 0
 
@@ -674,7 +701,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
             out.print(f"  {s.note}", markup=False)
     out.print(f"total: wall {result.wall_s:.1f} s, CPU {result.cpu_s:.1f} s", markup=False)
     for path in result.written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 1 if result.failed else 0
 
 
@@ -696,7 +723,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
         "setting (simulation.json). The same settings and seed give the same bytes.",
     )
     p.add_argument("world", help=f"a built-in world ({', '.join(builtin_world_names())}) or a world YAML file")
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "simulate")
     p.add_argument("--path", type=Path, help="YAML with 'waypoints: [[x, y], ...]' or "
                    "'commands: [[seconds, vx, vy, omega], ...]' (default: the world's own path)")
     p.add_argument("--ros1", action="store_true", help="write a ROS 1 bag instead of a ROS 2 bag")
@@ -727,7 +754,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         markup=False,
     )
     for path in written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
@@ -743,7 +770,7 @@ def _add_repeatability(sub: argparse._SubParsersAction) -> None:
         "(material, angle_deg, distance_m, repetition, range_m), and with --scan-logs one CARMEN log of "
         "full scans per set-up.",
     )
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "repeatability")
     p.add_argument("--materials", default=",".join(_materials()),
                    help="comma-separated materials (default: all five of the study)")
     p.add_argument("--distances", default="1,2,3,3.5,4", help="comma-separated distances [m] (default: 1,2,3,3.5,4)")
@@ -805,7 +832,7 @@ def cmd_repeatability(args: argparse.Namespace) -> int:
     out = _console()
     out.print(format_summary(rows), markup=False)
     for path in written:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
@@ -841,7 +868,7 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
         "cross-validation, residuals and 95 %% bands, sigma at the reference distance) and OUT/model.yaml.",
     )
     laser.add_argument("data", type=Path, nargs="+", help="CSV file(s), or recording(s) of a static laser")
-    laser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(laser, "calibrate laser")
     laser.add_argument("--reference-distance", type=float, default=2.5, metavar="M",
                        help="distance at which to report one sigma [m] (default: 2.5, the study's)")
     laser.add_argument("--degree", default="cv",
@@ -865,7 +892,7 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     )
     verify.add_argument("model", help="a model file, 'study' or 'constant:SIGMA'")
     verify.add_argument("data", type=Path, nargs="+", help="CSV file(s), or recording(s) of a static laser")
-    verify.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(verify, "calibrate verify")
     verify.add_argument("--z", type=float, default=1.96, help="half-width of the band in standard deviations "
                         "(default: 1.96, 95 %%)")
     verify.add_argument("--range-bin", type=float, default=0.25, metavar="M",
@@ -886,7 +913,7 @@ def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     odo.add_argument("data", type=Path, help="a recording with odometry, or a TUM file of odometry poses")
     odo.add_argument("--reference", type=Path, required=True, metavar="POSES.tum",
                      help="reference trajectory (TUM), e.g. a simulation's truth.tum")
-    odo.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(odo, "calibrate odometry")
     odo.add_argument("--linear-update", type=float, default=1.0, metavar="M",
                      help="translation over which srr is the spread per metre (GMapping linearUpdate; the "
                      "simulator's reference_distance) [m] (default: 1.0)")
@@ -949,12 +976,12 @@ def cmd_calibrate_laser(args: argparse.Namespace) -> int:
     out.print(f"{len(data.setups)} set-ups; sigma at {cal.reference_distance:g} m: "
               + ", ".join(f"{k} {1000 * v:.2f} mm" for k, v in ref.items()), markup=False)
     for path in written[:3]:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
 def cmd_calibrate_verify(args: argparse.Namespace) -> int:
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
     from slam2d.sensors.calibration.laser import load_laser_data, verify_model
     from slam2d.sensors.calibration.model import sensor_model_from_spec
     from slam2d.sensors.calibration.report import verify_report
@@ -969,12 +996,12 @@ def cmd_calibrate_verify(args: argparse.Namespace) -> int:
                     "measured_sigma_m": r.setup.sigma, "predicted_sigma_m": r.predicted,
                     "band_half_width_m": r.half_width, "inside": r.inside} for r in ver.rows],
     }
-    write_text_atomic(args.out / "verification.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(args.out / "verification.json", summary)
     out = _console()
     out.print(f"{sum(r.inside for r in ver.rows)} of {len(ver.rows)} set-ups ({100 * ver.share_inside:.1f} %) "
               f"inside the model's band", markup=False)
     for path in [args.out / "verification.json", *written[:2]]:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
@@ -1010,7 +1037,7 @@ def cmd_calibrate_odometry(args: argparse.Namespace) -> int:
     for note in cal.notes:
         out.print(f"  note: {note}", markup=False)
     for path in written[:4]:
-        out.print(f"  wrote {path}", markup=False)
+        _print_written(out, path)
     return 0
 
 
@@ -1018,6 +1045,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
     import math
 
     from slam2d.io import open_recording
+    from slam2d.io.atomic import json_text
     from slam2d.sensors.calibration.odometry_lag import odometry_lag
 
     if not args.data.exists():
@@ -1032,7 +1060,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
     out = _console()
     setting = est.setting()
     if args.json:
-        out.print(json.dumps({**est.as_dict(), "data": str(args.data)}, indent=2), markup=False)
+        out.print(json_text({**est.as_dict(), "data": str(args.data)}), markup=False)
     else:
         lo, hi = est.interval
         word = "leads" if est.lag >= 0 else "lags"
@@ -1118,7 +1146,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               f"({result.executed} run now, {result.reused} reused)", markup=False)
     for path in result.written:
         if path.parent == args.out or path.name == "summary.html":
-            out.print(f"  wrote {path}", markup=False)
+            _print_written(out, path)
     return 1 if result.rows and failed == len(result.rows) else 0
 
 
@@ -1142,7 +1170,7 @@ def _add_experiment(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("experiment", choices=list(EXPERIMENTS), metavar="EXPERIMENT",
                    help="one of: " + ", ".join(EXPERIMENTS))
-    p.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    _add_out(p, "experiment")
     p.add_argument("--quick", action="store_true",
                    help="short recordings, fewer particles, seeds and runs (seconds, not minutes; indicative only)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the recordings and filters (default: 0)")
@@ -1158,7 +1186,7 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     out.print(result.title, markup=False)
     out.print(result.verdict, markup=False)
     for name in ("summary.md", "result.json"):
-        out.print(f"  wrote {args.out / name}", markup=False)
+        _print_written(out, args.out / name)
     return 0
 
 
@@ -1202,8 +1230,26 @@ def _os_error_text(exc: OSError) -> str:
     return str(exc.strerror or exc)
 
 
+def _run_staged(args: argparse.Namespace) -> int:
+    """Run the command into a staging folder that replaces ``--out`` whole when it is done."""
+    from slam2d.io.atomic import check_output_folder, staged_folder
+
+    final = args.out
+    check_output_folder(final, args.staged, overwrite=args.overwrite)
+    with staged_folder(final, args.staged) as stage:
+        _STAGES[stage] = final
+        args.out = stage
+        try:
+            return int(args.handler(args) or 0)
+        finally:
+            args.out = final
+            del _STAGES[stage]
+
+
 def main_args(args: argparse.Namespace) -> int:
     try:
+        if getattr(args, "staged", None):
+            return _run_staged(args)
         return int(args.handler(args) or 0)
     except Slam2dError as exc:
         print(f"slam2d: error: {exc}", file=sys.stderr)

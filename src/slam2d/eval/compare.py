@@ -111,11 +111,10 @@ def _split_settings(
 def _child(method: str, data: str, run_dir: str, settings: dict[str, Any], seed: int | None,
            options: dict[str, Any], command: str, sensor_model: Any = None) -> None:
     """Body of a method's process: run it; on any failure leave ``error.json`` and exit 1."""
-    import json
     import traceback
 
     from slam2d.errors import Slam2dError
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
     from slam2d.io.base import ReadOptions
     from slam2d.methods.runner import run_method
 
@@ -126,7 +125,7 @@ def _child(method: str, data: str, run_dir: str, settings: dict[str, Any], seed:
     except BaseException as exc:  # report everything, bugs included: the others go on
         line = str(exc) if isinstance(exc, Slam2dError) else f"{type(exc).__name__}: {exc}"
         out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(out / "error.json", json.dumps({"error": line, "details": traceback.format_exc()}) + "\n")
+        write_json_atomic(out / "error.json", {"error": line, "details": traceback.format_exc()}, indent=None)
         os._exit(1)
     os._exit(0)
 
@@ -228,10 +227,9 @@ def compare(
     its ``--sensor-model`` text: a model file, ``study``, ``constant:SIGMA``)
     is handed to every method; a text is checked here before anything runs.
     """
-    import json
 
     from slam2d.eval.evaluate import evaluate_run, load_run
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
     from slam2d.io.base import ReadOptions
     from slam2d.methods import get_method
     from slam2d.methods.runner import input_digest
@@ -283,7 +281,7 @@ def compare(
         except InputError as exc:
             outcome.status, outcome.error = "failed", f"evaluation: {exc}"
             continue
-        write_text_atomic(outcome.run_dir / "evaluation.json", json.dumps(outcome.evaluation, indent=2) + "\n")
+        write_json_atomic(outcome.run_dir / "evaluation.json", outcome.evaluation)
     return Comparison(
         data=data, outcomes=outcomes, truth=truth, relations=getattr(relations, "path", None),
         wall_s=time.perf_counter() - started, command=command, recording=recording,

@@ -14,8 +14,6 @@ folder or file is refused.
 from __future__ import annotations
 
 import importlib
-import json
-import math
 import os
 import platform
 import resource
@@ -29,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from slam2d.errors import InputError
+from slam2d.io.atomic import json_text, swap_into_place
 from slam2d.report.paper import SectionRun, write_paper_report
 
 __all__ = ["PaperRun", "run_paper", "check_out_dir", "MARKER", "QUICK_SKIPS"]
@@ -152,9 +151,9 @@ def run_paper(out: Path, *, quick: bool, seed: int = 0, jobs: int | None = None,
         facts = _facts(quick, seed, command, wall, cpu, sections)
         written = write_paper_report(sections, stage, title="The source study, rerun in simulation by slam2d",
                                      facts=facts, intro=_INTRO)
-        (stage / MARKER).write_text(json.dumps(_record(sections, quick, seed, command, wall, cpu), indent=2,
-                                               default=_json_default) + "\n", encoding="utf-8")
-        _swap_into_place(stage, out)
+        (stage / MARKER).write_text(json_text(_record(sections, quick, seed, command, wall, cpu)) + "\n",
+                                    encoding="utf-8")
+        swap_into_place(stage, out)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
         raise
@@ -192,33 +191,15 @@ def _facts(quick: bool, seed: int, command: str, wall: float, cpu: float, sectio
     return facts
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return str(value)
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    return value
-
-
 def _record(sections: list[SectionRun], quick: bool, seed: int, command: str, wall: float, cpu: float) -> dict[str, Any]:
     import slam2d
 
-    return _clean({
+    return {
         "format": 1, "slam2d": slam2d.__version__, "command": command, "quick": quick, "seed": seed,
         "wall_s": wall, "cpu_s": cpu,
         "sections": [{"key": s.key, "title": s.title, "status": s.status, "note": s.note, "wall_s": s.wall_s,
                       "cpu_s": s.cpu_s, "results": [asdict(r) for r in s.results]} for s in sections],
-    })
+    }
 
 
 def _relocated(value: Any, old: str, new: str) -> Any:
@@ -234,21 +215,3 @@ def _relocated(value: Any, old: str, new: str) -> Any:
     if is_dataclass(value) and not isinstance(value, type):
         return replace(value, **{f.name: _relocated(getattr(value, f.name), old, new) for f in fields(value)})
     return value
-
-
-def _swap_into_place(stage: Path, out: Path) -> None:
-    """Move the finished staging folder to ``out``, replacing an earlier paper output there."""
-    target = out.resolve()
-    old = None
-    if target.exists():
-        old = target.parent / f".{target.name}.old-{os.getpid()}"
-        shutil.rmtree(old, ignore_errors=True)
-        target.rename(old)
-    try:
-        stage.rename(target)
-    except BaseException:
-        if old is not None:
-            old.rename(target)
-        raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

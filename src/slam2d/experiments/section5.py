@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -878,21 +877,11 @@ def _markdown(result: ExperimentResult) -> str:
     return "\n".join(out)
 
 
-def _json_ready(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _json_ready(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
 
 
 def write_result(result: ExperimentResult, out_dir: Path) -> list[Path]:
     """Write ``result``: result.json, tables/*.csv, its figures and summary.md, each atomically."""
-    from slam2d.io.atomic import write_bytes_atomic, write_text_atomic
+    from slam2d.io.atomic import write_bytes_atomic, write_json_atomic, write_text_atomic
 
     out = Path(out_dir)
     written = []
@@ -907,7 +896,7 @@ def write_result(result: ExperimentResult, out_dir: Path) -> list[Path]:
         write_text_atomic(path, _csv_text(table))
         written.append(path)
     record = {k: v for k, v in asdict(result).items()}
-    write_text_atomic(out / "result.json", json.dumps(_json_ready(record), indent=2) + "\n")
+    write_json_atomic(out / "result.json", record)
     write_text_atomic(out / "summary.md", _markdown(result) + "\n")
     return [out / "summary.md", out / "result.json", *written]
 

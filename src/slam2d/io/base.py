@@ -15,12 +15,29 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from slam2d.core.frames import Frame, OdometryReading, TimestampCheck, assemble_frames
 from slam2d.core.scan import LaserScan
 from slam2d.errors import ProblemLog
 from slam2d.params import param
 
-__all__ = ["ReadOptions", "Recording", "StreamInfo", "ProgressCallback", "Message"]
+__all__ = ["ReadOptions", "Recording", "StreamInfo", "ProgressCallback", "Message", "MAX_COORDINATE", "pose_problem"]
+
+#: Farther from the origin than any map reaches (the Earth's radius is 6.4e6 m): a pose beyond is corrupt, and
+#: a map or search sized to reach it overflows (an odometry x of 1e308 was an OverflowError traceback).
+MAX_COORDINATE = 1e7  # m
+
+
+def pose_problem(pose) -> str | None:
+    """Why a pose ``[x, y, theta]`` read from a file is unusable (not finite, or beyond MAX_COORDINATE), or None."""
+    pose = np.asarray(pose, dtype=np.float64)
+    if not np.all(np.isfinite(pose)):
+        return f"{pose.tolist()} is not finite"
+    far = float(np.abs(pose[:2]).max())
+    if far > MAX_COORDINATE:
+        return f"{pose.tolist()} is {far:g} m from the origin (over {MAX_COORDINATE:g} m: corrupt)"
+    return None
 
 #: ``progress(done, total)``; units are the reader's own (bytes of the file for
 #: logs, messages for bags); ``total`` is 0 when unknown.

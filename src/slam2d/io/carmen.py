@@ -61,9 +61,9 @@ import slam2d
 from slam2d.core import se2
 from slam2d.core.frames import Frame, OdometryReading
 from slam2d.core.scan import LaserScan, make_scan
-from slam2d.errors import InputError
+from slam2d.errors import InputError, ProblemLog
 from slam2d.io.atomic import atomic_path
-from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo
+from slam2d.io.base import MAX_COORDINATE, Message, ProgressCallback, ReadOptions, Recording, StreamInfo
 
 __all__ = ["CarmenLog", "NoReturnCode", "infer_no_return_code", "write_carmen", "DEFAULT_SICK_MAX_RANGE"]
 
@@ -223,11 +223,26 @@ def _floats(tokens: list[str], start: int, stop: int, name_of: object) -> NDArra
         raise
 
 
+def _count_odd_ranges(problems: ProblemLog, tokens: list[str], first: int, n: int, lineno: int, keyword: str) -> None:
+    """Count a laser line's ranges that are NaN, infinite or negative: no CARMEN writer produces them, and they
+    are read as no return (a file that holds them was made or edited by hand, or is corrupt)."""
+    with np.errstate(invalid="ignore"):
+        r = np.asarray(tokens[first:first + n], dtype=np.float64)
+        odd = int(np.count_nonzero(~np.isfinite(r) | (r < 0.0)))
+    if odd:
+        problems.add("ranges NaN, infinite or negative (read as no return)",
+                     f"line {lineno}: {keyword}, {odd} of {n} beams")
+
+
 def _finite_pose(values: NDArray[np.float64], fields: list[str]) -> NDArray[np.float64]:
     bad = ~np.isfinite(values)
     if bad.any():
         i = int(np.argmax(bad))
         raise _BadLine(fields[i], f"{float(values[i])!r} is not a finite number")
+    far = np.abs(values[:2]) > MAX_COORDINATE
+    if far.any():
+        i = int(np.argmax(far))
+        raise _BadLine(fields[i], f"{float(values[i])!r} m is farther than any map (over {MAX_COORDINATE:g} m: corrupt)")
     return values
 
 
@@ -394,8 +409,10 @@ class CarmenLog(Recording):
                             self._laser_keyword = keyword
                         if keyword == "ROBOTLASER1":
                             scan, pose = self._parse_robotlaser(tokens, params)
+                            _count_odd_ranges(self.problems, tokens, 9, int(float(tokens[8])), lineno, keyword)
                         else:
                             scan, pose = self._parse_flaser(keyword, tokens, params, geometry)
+                            _count_odd_ranges(self.problems, tokens, 2, scan.num_beams, lineno, keyword)
                         if keyword != self._laser_keyword:
                             continue  # another laser: checked like the others, not used
                         if mode == "embedded":
@@ -716,10 +733,8 @@ class CarmenLog(Recording):
         tail = body[n + k + 1 :]
         laser_pose = _finite_pose(tail[0:3], [f"{kw} laser_x", f"{kw} laser_y", f"{kw} laser_theta"])
         robot_pose = tail[3:6]
-        if np.all(np.isfinite(robot_pose)):
-            mount = se2.relative(robot_pose, laser_pose)
-        else:
-            raise _BadLine(f"{kw} robot_x", f"robot pose {robot_pose.tolist()} is not finite")
+        _finite_pose(robot_pose, [f"{kw} robot_x", f"{kw} robot_y", f"{kw} robot_theta"])
+        mount = se2.relative(robot_pose, laser_pose)
         intensities = None
         if k:
             if k == n:

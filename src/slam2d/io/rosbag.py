@@ -32,7 +32,7 @@ from slam2d.core.frames import Frame, OdometryReading
 from slam2d.core.scan import LaserScan, make_scan
 from slam2d.errors import InputError, one_line
 from slam2d.io.atomic import atomic_path
-from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo
+from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo, pose_problem
 from slam2d.io.ros1_fallback import DATA_LOSS, BagDamaged, Ros1SequentialReader
 
 __all__ = ["RosBag", "write_rosbag", "SCAN_TYPE", "ODOMETRY_TYPE", "TF_TYPE"]
@@ -919,8 +919,9 @@ class RosBag(Recording):
                     "orientation is not a valid quaternion", topic, i, "pose.pose.orientation"
                 )
             xy_yaw = _planar(m @ plan.base_offset)
-        if not np.all(np.isfinite(xy_yaw)):
-            return self._bad_record(f"pose {xy_yaw.tolist()} is not finite", topic, i, "pose.pose")
+        problem = pose_problem(xy_yaw)
+        if problem:
+            return self._bad_record(f"pose {problem}", topic, i, "pose.pose")
         return OdometryReading(t, xy_yaw, source)
 
     def _tf_odometry(
@@ -940,10 +941,9 @@ class RosBag(Recording):
                 xy_yaw = _planar(_transform_matrix(ts.transform) @ plan.base_offset)
             except ValueError as exc:
                 return self._bad_record(str(exc), topic, i, "transforms.transform")
-        if not np.all(np.isfinite(xy_yaw)):
-            return self._bad_record(
-                f"transform {xy_yaw.tolist()} is not finite", topic, i, "transforms.transform"
-            )
+        problem = pose_problem(xy_yaw)
+        if problem:
+            return self._bad_record(f"transform {problem}", topic, i, "transforms.transform")
         return OdometryReading(t, xy_yaw, source)
 
 

@@ -16,7 +16,7 @@ A run folder holds
 from __future__ import annotations
 
 import hashlib
-import json
+import math
 import platform
 import resource
 import sys
@@ -274,7 +274,7 @@ def _write_run(
     problems: list[str],
     command: str,
 ) -> RunSummary:
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
     from slam2d.io.tum import write_tum
     from slam2d.report.map_outputs import write_map_outputs
 
@@ -297,14 +297,16 @@ def _write_run(
     diag = {"method": slam.name, "descriptions": {**slam.COMMON_DIAGNOSTICS, **slam.DIAGNOSTICS},
             **slam.diagnostics.as_dict()}
     diag_path = out_dir / "diagnostics.json"
-    write_text_atomic(diag_path, json.dumps(diag, default=_json_default) + "\n")
+    write_json_atomic(diag_path, diag, indent=None)
     written.append(diag_path)
     from slam2d.sensors.calibration.model import describe_sensor_model
 
     record = {
         "format": RUN_FORMAT,
         "method": slam.name,
-        "params": slam.parameters(),
+        # as text where not finite ("inf"): JSON has no infinity, and a rerun with --params run.json reads it back
+        "params": {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v)
+                   for k, v in slam.parameters().items()},
         "seed": slam.seed,
         "auto": slam.auto,
         "sensor_model": describe_sensor_model(slam.sensor_model),
@@ -322,18 +324,6 @@ def _write_run(
         "command": command,
     }
     run_path = out_dir / "run.json"
-    write_text_atomic(run_path, json.dumps(record, indent=2, default=_json_default) + "\n")
+    write_json_atomic(run_path, record)
     written.append(run_path)
     return RunSummary(slam.name, out_dir, written, frames, int(len(times)), seconds, record)
-
-
-def _json_default(value: Any) -> Any:
-    import numpy as np
-
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")

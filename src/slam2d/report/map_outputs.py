@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +16,7 @@ def write_map_outputs(
     The grid is cropped to what was observed first. Every file is written atomically.
     """
     from slam2d.eval.map_metrics import wall_thickness
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
     from slam2d.io.map_server import save_grid
     from slam2d.report.images import save_map_png
 
@@ -34,5 +33,5 @@ def write_map_outputs(
         **(extra or {}),
     }
     json_path = out_dir / "map.json"
-    write_text_atomic(json_path, json.dumps(info, indent=2) + "\n")
+    write_json_atomic(json_path, info)
     return [yaml_path, pgm_path, png_path, json_path]

@@ -51,7 +51,8 @@ _PALETTE = (
     "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd",
     "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f",
 )  # matplotlib's tab10, reordered so the first two differ for colour-blind readers
-_BASE_STYLE = {"font.size": 8, "axes.titlesize": 9, "legend.fontsize": 8, "axes.grid": False}
+# text as it is: a "$" in a file or dataset name ("lab_$A_$B.clf") is not the start of a formula
+_BASE_STYLE = {"font.size": 8, "axes.titlesize": 9, "legend.fontsize": 8, "axes.grid": False, "text.parse_math": False}
 
 
 def method_colours(count: int) -> list[str]:

@@ -10,7 +10,6 @@ bytes.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -234,7 +233,7 @@ def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
     - ``world.yaml``: the world, loadable by ``slam2d simulate``;
     - ``simulation.json``: every setting, the seed and the slam2d version.
     """
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic, write_text_atomic
     from slam2d.io.carmen import write_carmen
     from slam2d.io.map_server import save_grid
     from slam2d.io.rosbag import write_rosbag
@@ -267,14 +266,8 @@ def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
         "duration_s": float(sim.times[-1] - sim.times[0]) if len(sim.times) else 0.0,
     }
     settings_path = out / "simulation.json"
-    write_text_atomic(settings_path, json.dumps(settings, indent=2, default=_jsonable) + "\n")
+    write_json_atomic(settings_path, settings)
     written.append(settings_path)
     return written
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"cannot write {type(value).__name__} to JSON")

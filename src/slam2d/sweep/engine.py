@@ -16,7 +16,6 @@ rows and runs only the rest (``retry_failed`` also reruns the failed ones).
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -120,7 +119,7 @@ def run_sweep(
     is called as each run's row arrives; ``on_note(line)`` for lost workers
     and other events.
     """
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic, write_text_atomic
     from slam2d.sweep.executors import make_executor
     from slam2d.sweep.report import write_outputs
 
@@ -216,6 +215,6 @@ def run_sweep(
         "executor": result.executor, "workers": result.workers, "run_phase_s": result.run_phase_s,
         "task_s": result.task_s, "overhead_per_run_s": result.overhead_per_run_s,
     }
-    write_text_atomic(out_dir / "sweep.json", json.dumps(sweep_doc, indent=2) + "\n")
+    write_json_atomic(out_dir / "sweep.json", sweep_doc)
     result.written.append(out_dir / "sweep.json")
     return result

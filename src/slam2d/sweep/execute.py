@@ -112,20 +112,10 @@ def read_result(run_dir: Path) -> dict[str, Any] | None:
 
 
 def write_result(run_dir: Path, row: dict[str, Any]) -> None:
-    from slam2d.io.atomic import write_text_atomic
+    from slam2d.io.atomic import write_json_atomic
 
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(run_dir / RESULT, json.dumps(row, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(value: Any) -> Any:
-    import numpy as np
-
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+    write_json_atomic(run_dir / RESULT, row)
 
 
 def base_row(task: dict[str, Any]) -> dict[str, Any]:
@@ -190,7 +180,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         return _finish(row, run_dir, t0, c0)
     try:
         from slam2d.eval.evaluate import evaluate_run, load_run
-        from slam2d.io.atomic import write_text_atomic
+        from slam2d.io.atomic import write_json_atomic
         from slam2d.methods.runner import run_method
 
         from slam2d.methods.registry import get_method
@@ -211,7 +201,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         t1 = time.perf_counter()
         truth, relations = _truth(data)
         evaluation = evaluate_run(load_run(run_dir), truth, relations=relations)
-        write_text_atomic(run_dir / "evaluation.json", json.dumps(evaluation, indent=2) + "\n")
+        write_json_atomic(run_dir / "evaluation.json", evaluation)
         from slam2d.sweep.spec import METRICS
 
         row["metrics"] = {m: METRICS[m].value(evaluation) for m in task["metrics"]}
