@@ -463,3 +463,64 @@ def test_a_dollar_in_a_dataset_name_is_drawn_as_text():
     rows = [{"status": "ok", "method": "karto", "dataset": "lab_$A_$B.clf", "swept": {"resolution": r},
              "metrics": {"ate": 0.1 * r}} for r in (0.05, 0.1)]
     assert plot_metric(rows, "ate", "param.resolution", "m").startswith(b"\x89PNG")
+
+
+def _sleep(seconds):
+    import time
+
+    time.sleep(seconds)
+    return seconds
+
+
+def test_workers_exit_when_the_sweep_is_killed(tmp_path):
+    """SIGKILL of the parent left its workers alive forever (parent pid 1, blocked reading their pipe)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import sys, time\n"
+        "sys.path[:0] = [{!r}, {!r}]\n".format(str(Path(__file__).resolve().parents[1]), str(Path(__file__).parent))
+        + "from slam2d.sweep.executors import LocalPool\n"
+        "from test_sweep import _sleep\n"
+        "pool = LocalPool(2)\n"
+        "pool.submit('busy', _sleep, 60.0)\n"  # one worker mid-task
+        "pool.submit('quick', _sleep, 0.0)\n"
+        "pool.next_done()\n"  # the other idle, waiting on its pipe
+        "print(' '.join(map(str, pool.pids())), flush=True)\n"
+        "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    pids = []
+    try:
+        pids = [int(p) for p in parent.stdout.readline().split()]
+        assert len(pids) == 2
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait()
+
+        def alive(pid):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return False
+            # a zombie (exited, not yet reaped by init) is gone for our purpose
+            try:
+                with open(f"/proc/{pid}/stat") as f:
+                    return f.read().split(")")[-1].split()[0] != "Z"
+            except OSError:
+                return False
+
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and any(alive(p) for p in pids):
+            time.sleep(0.2)
+        assert not any(alive(p) for p in pids), "workers outlived their parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+        for pid in pids:  # a failed run leaves no orphans behind on the test machine
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass

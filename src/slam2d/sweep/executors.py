@@ -30,11 +30,32 @@ from slam2d.errors import InputError
 __all__ = ["LocalPool", "DaskExecutor", "make_executor"]
 
 
-def _worker_loop(conn: Any) -> None:
-    """Body of a pool worker: run tasks from the pipe until told to stop."""
+def _die_with_parent() -> None:
+    """Linux: have the kernel send SIGTERM when the parent dies, even by SIGKILL, mid-task (best effort)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _worker_loop(conn: Any, parent_end: Any, parent_pid: int) -> None:
+    """Body of a pool worker: run tasks from the pipe until told to stop, or until the parent is gone.
+
+    A forked worker inherits the parent's end of its own pipe; held open here, it would keep the pipe from
+    ever reporting the parent's death, and a killed sweep left its workers blocked forever (parent pid 1).
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    if parent_end is not None:
+        parent_end.close()
+    _die_with_parent()
     while True:
         try:
+            while not conn.poll(1.0):
+                if os.getppid() != parent_pid:  # orphaned (where the kernel's signal is not available)
+                    os._exit(0)
             message = conn.recv()
         except (EOFError, OSError):
             break
@@ -85,7 +106,9 @@ class LocalPool:
 
             warm_imports()  # once, in the parent: every forked worker starts with it imported
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker_loop, args=(child,), name="slam2d-sweep-worker", daemon=True)
+        forked = self._ctx.get_start_method() == "fork"
+        proc = self._ctx.Process(target=_worker_loop, args=(child, parent if forked else None, os.getpid()),
+                                 name="slam2d-sweep-worker", daemon=True)
         proc.start()
         child.close()
         w = _Worker(proc, parent)
