@@ -526,9 +526,11 @@ def test_timestamps_going_backwards(tmp_path):
 
 
 def test_absurd_timestamp(tmp_path):
-    lines = [_flaser([1.0] * 5, t) for t in (10.0, 1e5)]
-    text = _error(_write_lines(tmp_path / "jump.log", lines))
-    assert "jump.log:2:" in text and "FLASER timestamp" in text and "jumps" in text
+    # time that jumps forward (a pause, a reset clock) goes on, with a warning naming the line
+    lines = [_flaser([1.0] * 5, t) for t in (10.0, 1e5, 1e5 + 0.5)]
+    log = CarmenLog(_write_lines(tmp_path / "jump.log", lines))
+    assert [s.timestamp for s in _scans(log)] == [10.0, 1e5, 1e5 + 0.5]
+    assert log.problems.examples["time jumped forward (kept: a pause or a reset clock)"][0].startswith("2: 99990 s")
     lines = [_flaser([1.0] * 5, t) for t in (10.0, 4.29497e9)]
     text = _error(_write_lines(tmp_path / "wrapped.log", lines))
     assert "wrapped.log:2:" in text and "FLASER timestamp" in text and "2096" in text

@@ -124,9 +124,11 @@ class TimestampCheck:
     """Catches absurd and backwards timestamps as a reader streams a file.
 
     Scans set the timeline. A scan timestamp that is not finite, negative, or
-    jumps forward by more than ``max_jump`` seconds is absurd; one that steps
-    back by more than ``tolerance`` seconds is out of order. Both stop the read
-    (``skip=False``) or drop the record and count it (``skip=True``). A small
+    after 2096 is absurd; one that steps back by more than ``tolerance``
+    seconds is out of order. Both stop the read (``skip=False``) or drop the
+    record and count it (``skip=True``). A jump forward by more than
+    ``max_jump`` seconds (a pause, a clock that was reset or rounded) is kept
+    and counted as a warning: time that goes on is not corrupt. A small
     step back (real logs have them: the Intel log's scans step back up to 0.12 s
     four times) is kept and counted. Odometry out of order is always dropped and
     counted, because it cannot be interpolated (fr079 has 18 such readings).
@@ -153,7 +155,7 @@ class TimestampCheck:
     #: (the corrupt corridor log stamps 1937 scans 4.29497e9, about 2**32)
     LATEST_PLAUSIBLE = 4.0e9
 
-    def _absurd(self, t: float, last: float) -> str | None:
+    def _absurd(self, t: float, last: float, where: int | str) -> str | None:
         if not math.isfinite(t):
             return f"{t} is not a finite time"
         if t < 0.0:
@@ -161,7 +163,8 @@ class TimestampCheck:
         if t > self.LATEST_PLAUSIBLE:
             return f"{t} is after the year 2096 (a wrapped or garbage clock)"
         if math.isfinite(last) and t - last > self.max_jump:
-            return f"{t} jumps {t - last:.6g} s past the previous record ({last})"
+            self.problems.add("time jumped forward (kept: a pause or a reset clock)",
+                              f"{where}: {t - last:.6g} s past the previous record ({last})")
         return None
 
     def _reject(self, why: str, where: int | str, field: str) -> bool:
@@ -177,7 +180,7 @@ class TimestampCheck:
 
     def scan(self, t: float, where: int | str, field: str = "timestamp") -> bool:
         """True to keep a scan stamped ``t``; raises or returns False otherwise."""
-        why = self._absurd(t, self.last_scan)
+        why = self._absurd(t, self.last_scan, where)
         if why:
             return self._reject(why, where, field)
         if t < self.last_scan:
@@ -194,7 +197,7 @@ class TimestampCheck:
 
     def odometry(self, t: float, where: int | str, field: str = "timestamp") -> bool:
         """True to keep an odometry reading stamped ``t``."""
-        why = self._absurd(t, self.last_odom)
+        why = self._absurd(t, self.last_odom, where)
         if why:
             return self._reject(why, where, field)
         if t < self.last_odom:

@@ -75,7 +75,9 @@ class ReadOptions:
         1.0, unit="s", low=0.0, help="how far a scan timestamp may step back before it is an error"
     )
     max_time_jump: float = param(
-        3600.0, unit="s", low=0.0, help="a forward jump in time larger than this is corrupt"
+        3600.0, unit="s", low=0.0,
+        help="a forward jump in time larger than this is reported as a warning (a pause or a reset clock); the "
+        "read goes on"
     )
     max_odometry_gap: float = param(
         0.5,
