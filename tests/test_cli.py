@@ -540,3 +540,42 @@ def test_a_key_given_twice_in_a_params_file_is_refused(capsys, room, tmp_path):
     params.write_text("max_range: 10\nresolution: 0.05\nmax_range: 20\n")
     code, _, err = run(capsys, "run", "gmapping", room[0], "--params", params, "--out", tmp_path / "r")
     assert_one_line_error(code, err, f"{params}:3:", "'max_range' is given twice (first at line 1)")
+
+
+# ---------------------------------------------------------------- memory asked for before it is taken
+
+
+def test_a_setting_that_needs_more_memory_than_the_machine_has_is_refused(capsys, room, tmp_path):
+    """particles=10000 islands=64 allocated until the OOM killer came (64 x 2.5 GB of particle maps)."""
+    code, _, err = run(capsys, "run", "gmapping", room[0], "--set", "particles=10000", "--set", "islands=64",
+                       "--out", tmp_path / "r")
+    assert_one_line_error(code, err, "islands, particles, delta: 64 filter(s) of 10000 particle maps",
+                          "would need 150 GB, more than the", "--max-memory")
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("argv, field", [
+    (("map", "{log}", "--resolution", "0.01"), "resolution: a map of"),
+    (("run", "coreslam", "{log}"), "resolution: a map of"),
+    (("run", "gmapping", "{log}"), "particles, delta:"),
+])
+def test_max_memory_caps_what_a_run_may_hold(capsys, room, tmp_path, argv, field):
+    # 1 MB less what the interpreter already holds leaves nothing: the first map is refused, by name
+    argv = [a.format(log=room[0]) for a in argv]
+    code, _, err = run(capsys, *argv, "--out", tmp_path / "o", "--max-memory", "1M")
+    assert_one_line_error(code, err, field, "--max-memory 1 MB less the")
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(SystemExit) as exit_:  # argparse's usage error
+        run(capsys, *argv, "--out", tmp_path / "o", "--max-memory", "lots")
+    assert exit_.value.code == 2 and "'lots' is not a size" in capsys.readouterr().err
+
+
+def test_sizes_parse():
+    from slam2d.core.memory import format_size, parse_size
+
+    assert parse_size("2G") == 2 * 1024**3 and parse_size("500MB") == 500 * 1024**2 and parse_size("1024") == 1024
+    assert parse_size("1.5 g") == int(1.5 * 1024**3)
+    for bad in ("", "-1G", "2X", "G"):
+        with pytest.raises(ValueError):
+            parse_size(bad)
+    assert format_size(150 * 1024**3) == "150 GB" and format_size(1024**2) == "1 MB"

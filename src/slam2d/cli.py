@@ -66,6 +66,23 @@ def _add_out(p: argparse.ArgumentParser, command: str) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace --out even when it holds other files (they are deleted)")
     p.set_defaults(staged=command)
+    _add_max_memory(p)
+
+
+def _add_max_memory(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--max-memory", type=_size, metavar="SIZE",
+                   help="the most this run may hold, e.g. 2G or 500M (default: a map or particle set may take 75 %% "
+                   "of the memory available when it grows); a setting that needs more stops with an error naming "
+                   "it, before the memory is taken")
+
+
+def _size(text: str) -> int:
+    from slam2d.core.memory import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 # Staging folders of the running commands and the --out each becomes (for the paths shown to the user).
@@ -1248,6 +1265,10 @@ def _run_staged(args: argparse.Namespace) -> int:
 
 def main_args(args: argparse.Namespace) -> int:
     try:
+        if getattr(args, "max_memory", None):
+            from slam2d.core.memory import set_budget
+
+            set_budget(args.max_memory)
         if getattr(args, "staged", None):
             return _run_staged(args)
         return int(args.handler(args) or 0)

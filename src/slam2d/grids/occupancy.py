@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
+from slam2d.core.memory import check_allocation
 from slam2d.core.scan import LaserScan
 from slam2d.errors import InputError
 from slam2d.grids.raycast import HIT_NUDGE, integrate_rays
@@ -322,6 +323,9 @@ class OccupancyGrid:
                 "(poses or ranges are probably corrupt; raise max_extent if they are not)",
                 field="max_extent",
             )
+        check_allocation(new_rows * new_cols * (4 + np.dtype(_STAMP_DTYPE).itemsize),
+                         f"a map of {new_cols * self.resolution:.4g} m x {new_rows * self.resolution:.4g} m in "
+                         f"{self.resolution:g} m cells", "resolution")
         logodds = np.zeros((new_rows, new_cols), dtype=np.float32)
         stamp = np.zeros((new_rows, new_cols), dtype=_STAMP_DTYPE)
         if rows and cols:

@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from slam2d.core.memory import check_allocation
 from slam2d.grids.raycast import trace_ray
 
 __all__ = ["TiledMaps", "TILE_SHIFT", "TILE", "HITS", "VISITS", "SUM_X", "SUM_Y", "FULLNESS"]
@@ -232,6 +233,8 @@ class TiledMaps:
         tx0, ty0 = math.floor(xmin / span), math.floor(ymin / span)
         tx1, ty1 = math.floor(xmax / span), math.floor(ymax / span)
         self.origin = (tx0 * span, ty0 * span)
+        check_allocation(self.estimate_bytes(n, resolution, bounds, capacity),
+                         f"{n} particle maps in {resolution:g} m cells", "particles, delta")
         self.table = np.full((n, ty1 - ty0 + 1, tx1 - tx0 + 1), -1, dtype=np.int32)
         self.pool = np.zeros((capacity, TILE, TILE, 4), dtype=np.float32)
         # occupied flags (hits/visits > FULLNESS) beside the pool: the matcher tests these
@@ -243,6 +246,16 @@ class TiledMaps:
         self._mark = np.zeros(self.table.shape[1:], dtype=np.uint8)
         self._touched = np.zeros((self._mark.size, 2), dtype=np.int64)
         self.peak_tiles = 0
+
+    @staticmethod
+    def estimate_bytes(n: int, resolution: float, bounds: tuple[float, float, float, float],
+                       capacity: int = 256) -> int:
+        """Bytes the maps take at first: each particle's tile table over ``bounds`` and the first tiles."""
+        span = TILE * float(resolution)
+        xmin, ymin, xmax, ymax = bounds
+        cols = math.floor(xmax / span) - math.floor(xmin / span) + 1
+        rows = math.floor(ymax / span) - math.floor(ymin / span) + 1
+        return n * rows * cols * 4 + capacity * TILE * TILE * 17
 
     # ----------------------------------------------------------------- size and sharing
 
@@ -266,6 +279,10 @@ class TiledMaps:
     def _grow_pool(self, at_least: int) -> None:
         cap = self.pool.shape[0]
         extra = max(at_least, cap, 64)
+        per_tile = TILE * TILE * (4 * 4 + 1) + 8
+        check_allocation((cap + extra) * per_tile,
+                         f"{cap + extra} map tiles of {TILE * self.resolution:g} m for {self.n} particles",
+                         "particles, delta")
         # np.zeros takes zero pages the OS maps on first write: the unused part of the new
         # pool costs no memory until tiles are handed out (np.concatenate would write it all)
         pool = np.zeros((cap + extra,) + self.pool.shape[1:], np.float32)
@@ -296,6 +313,10 @@ class TiledMaps:
         below = max(0, -ty0) and max(-ty0, rows // 4 + 1)
         right = max(0, tx1 - cols + 1) and max(tx1 - cols + 1, cols // 4 + 1)
         above = max(0, ty1 - rows + 1) and max(ty1 - rows + 1, rows // 4 + 1)
+        n, rows, cols = self.table.shape
+        check_allocation(n * (rows + below + above) * (cols + left + right) * 4,
+                         f"the tile tables of {n} particles over {(cols + left + right) * span:.4g} m x "
+                         f"{(rows + below + above) * span:.4g} m", "particles, delta")
         self.table = np.pad(self.table, ((0, 0), (below, above), (left, right)), constant_values=-1)
         self.origin = (ox - left * span, oy - below * span)
         self._mark = np.zeros(self.table.shape[1:], dtype=np.uint8)

@@ -19,6 +19,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from slam2d.core.memory import check_allocation
 from slam2d.errors import InputError
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 
@@ -91,6 +92,8 @@ class ValueGrid:
                 f"{self.max_extent:g} m (poses or ranges are probably corrupt; raise max_extent if they are not)",
                 field="max_extent",
             )
+        check_allocation(n_rows * n_cols * self.values.dtype.itemsize,
+                         f"a map of {n_cols * res:.4g} m x {n_rows * res:.4g} m in {res:g} m cells", "resolution")
         values = np.full((n_rows, n_cols), self.fill, dtype=self.values.dtype)
         if rows and cols:
             dr, dc = h0 - n_r0, w0 - n_c0

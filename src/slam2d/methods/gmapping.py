@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from slam2d.core import se2
 from slam2d.core.frames import Frame
+from slam2d.core.memory import check_allocation
 from slam2d.filters import (
     backtrack,
     effective_sample_size,
@@ -275,6 +276,11 @@ class GMapping(SlamMethod):
         self._map_cache: tuple[tuple[int, int], OccupancyGrid] | None = None
         # islands > 1: independent filters fed the same frames; this one only picks among them.
         self._islands: list[GMapping] = []
+        p = self.params
+        # before any work: the particles' maps of every island, at the first map's size (they grow from there)
+        check_allocation(p.islands * TiledMaps.estimate_bytes(p.particles, p.delta, (p.xmin, p.ymin, p.xmax, p.ymax)),
+                         f"{p.islands} filter(s) of {p.particles} particle maps in {p.delta:g} m cells",
+                         "islands, particles, delta")
         if self.params.islands > 1:
             one = replace(self.params, islands=1)
             self._islands = [GMapping(one, seed=island_seed(self.seed, k), sensor_model=self.sensor_model)
