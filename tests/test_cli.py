@@ -579,3 +579,11 @@ def test_sizes_parse():
         with pytest.raises(ValueError):
             parse_size(bad)
     assert format_size(150 * 1024**3) == "150 GB" and format_size(1024**2) == "1 MB"
+
+
+def test_max_memory_holds_for_its_command_only(capsys, room, tmp_path):
+    from slam2d.core.memory import budget_override
+
+    assert budget_override() is None
+    run(capsys, "map", room[0], "--out", tmp_path / "o", "--max-memory", "1M")
+    assert budget_override() is None  # the next command (in this process) has the default again

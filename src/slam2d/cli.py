@@ -1264,11 +1264,20 @@ def _run_staged(args: argparse.Namespace) -> int:
 
 
 def main_args(args: argparse.Namespace) -> int:
-    try:
-        if getattr(args, "max_memory", None):
-            from slam2d.core.memory import set_budget
+    if getattr(args, "max_memory", None):
+        from slam2d.core.memory import budget_override, set_budget
 
-            set_budget(args.max_memory)
+        before = budget_override()
+        set_budget(args.max_memory)
+        try:
+            return _main_args(args)
+        finally:  # for this command only (a test or a script may run several in one process)
+            set_budget(before)
+    return _main_args(args)
+
+
+def _main_args(args: argparse.Namespace) -> int:
+    try:
         if getattr(args, "staged", None):
             return _run_staged(args)
         return int(args.handler(args) or 0)

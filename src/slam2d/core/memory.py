@@ -17,7 +17,7 @@ import re
 
 from slam2d.errors import InputError
 
-__all__ = ["available_bytes", "resident_bytes", "budget_bytes", "set_budget", "parse_size", "format_size", "check_allocation"]
+__all__ = ["budget_override", "available_bytes", "resident_bytes", "budget_bytes", "set_budget", "parse_size", "format_size", "check_allocation"]
 
 #: Share of the available memory a run may take by default.
 DEFAULT_SHARE = 0.75
@@ -42,6 +42,11 @@ def available_bytes() -> int | None:
 
 #: How the budget reaches worker processes a command starts (``compare --jobs``, ``sweep``).
 ENVIRONMENT = "SLAM2D_MAX_MEMORY"
+
+
+def budget_override() -> int | None:
+    """The budget set by :func:`set_budget` or the environment (None: the default share)."""
+    return _set_budget()
 
 
 def _set_budget() -> int | None:

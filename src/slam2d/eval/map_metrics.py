@@ -69,29 +69,36 @@ __all__ = [
 ]
 
 
-def run_lengths(mask: ArrayLike) -> NDArray[np.int64]:
+@njit(cache=True)
+def _row_runs(m, out):
+    rows, cols = m.shape
+    for r in range(rows):
+        c = 0
+        while c < cols:
+            if not m[r, c]:
+                c += 1
+                continue
+            end = c
+            while end < cols and m[r, end]:
+                end += 1
+            for k in range(c, end):
+                out[r, k] = end - c
+            c = end
+
+
+def run_lengths(mask: ArrayLike) -> NDArray[np.int32]:
     """For each True cell, the length of the run of consecutive True cells along its row.
 
-    False cells get 0. Whole-array: one pass of cumulative sums, no loop over cells.
+    False cells get 0. Compiled, one pass, no array but the answer (the cumulative-sum version took five
+    int64 copies of the map: 200 MB at once for fr101's odometry map).
     """
     m = np.asarray(mask, dtype=np.bool_)
     if m.ndim != 2:
         raise ValueError(f"expected a 2D mask, got shape {m.shape}")
-    rows, cols = m.shape
-    out = np.zeros((rows, cols), dtype=np.int64)
-    if m.size == 0 or not m.any():
-        return out
-    # A False column on each side separates the rows, so runs never wrap.
-    padded = np.zeros((rows, cols + 2), dtype=np.bool_)
-    padded[:, 1:-1] = m
-    flat = padded.ravel()
-    edges = np.diff(flat.astype(np.int8))
-    starts = np.flatnonzero(edges == 1) + 1  # first True of each run
-    ends = np.flatnonzero(edges == -1) + 1  # first False after each run
-    lengths = ends - starts
-    run_id = np.cumsum(np.concatenate(([0], edges == 1)))  # 1-based run index per position
-    per_cell = np.where(flat, lengths[np.maximum(run_id - 1, 0)], 0)
-    return per_cell.reshape(rows, cols + 2)[:, 1:-1].copy()
+    out = np.zeros(m.shape, dtype=np.int32)
+    if m.size:
+        _row_runs(m, out)
+    return out
 
 
 def wall_thickness(
@@ -113,9 +120,7 @@ def wall_thickness(
     NaN when nothing is occupied).
     """
     mask = _occupied_mask(occupancy, occupied_threshold)
-    along_x = run_lengths(mask)
-    along_y = run_lengths(mask.T).T
-    thickness = np.minimum(along_x, along_y)[mask]
+    thickness = np.minimum(run_lengths(mask)[mask], run_lengths(mask.T).T[mask])
     if thickness.size == 0:
         nan = float("nan")
         return {"median": nan, "p90": nan, "mean": nan, "occupied_cells": 0}

@@ -158,9 +158,9 @@ class CrsmMap(ValueGrid):
             )
         )
 
-    def occupancy(self) -> NDArray[np.int8]:
+    def occupancy_of(self, values: NDArray) -> NDArray[np.int8]:
         """The original's published map: above 128 free (0), below 126 occupied (100), else unknown (-1)."""
-        v = self.values
+        v = values
         occ = np.full(v.shape, -1, dtype=np.int8)
         occ[v > 128] = 0
         occ[v < 126] = 100

@@ -191,9 +191,9 @@ class HoleMap(ValueGrid):
             )
         )
 
-    def occupancy(self) -> NDArray[np.int8]:
+    def occupancy_of(self, values: NDArray) -> NDArray[np.int8]:
         """Occupancy 0..100 (100 = obstacle value), -1 where no beam ever wrote."""
-        v = self.values.astype(np.int32)
+        v = values.astype(np.int32)
         occ = np.rint(100.0 * (FREE - np.clip(v, 0, FREE)) / FREE).astype(np.int8)
         occ[v == UNKNOWN] = -1
         return occ

@@ -46,6 +46,8 @@ if TYPE_CHECKING:
 __all__ = ["GridParams", "OccupancyGrid", "logit"]
 
 _STAMP_DTYPE = np.uint16
+# Cells converted at a time where a whole-map float copy would be large (occupancy of a 330 m map: 170 MB each).
+_CHUNK_CELLS = 1 << 20
 _STAMP_LIMIT = int(np.iinfo(_STAMP_DTYPE).max)
 
 
@@ -183,8 +185,8 @@ class OccupancyGrid:
         params = _replace(params, resolution=float(resolution))
         grid = cls(params, origin=origin, shape=occ.shape)
         known = (occ >= 0) & (occ <= 100)
-        prob = np.clip(occ.astype(np.float64) / 100.0, params.p_min, params.p_max)
-        grid.logodds[known] = logit(prob[known]).astype(np.float32)
+        prob = np.clip(occ[known].astype(np.float64) / 100.0, params.p_min, params.p_max)  # the known cells only
+        grid.logodds[known] = logit(prob).astype(np.float32)
         grid._stamp[known] = 1
         grid._scan_stamp = 2
         return grid
@@ -466,7 +468,11 @@ class OccupancyGrid:
 
     def occupancy(self) -> NDArray[np.int8]:
         """``nav_msgs/OccupancyGrid`` values: -1 never observed, else ``round(100 * p)``."""
-        occ = np.rint(self.probability() * 100.0).astype(np.int8)
+        occ = np.empty(self.shape, dtype=np.int8)
+        step = max(1, _CHUNK_CELLS // max(1, self.shape[1]))
+        for r in range(0, self.shape[0], step):  # a band of rows at a time: no float copy of a whole big map
+            band = self.logodds[r : r + step]
+            occ[r : r + step] = np.rint((1.0 / (1.0 + np.exp(-band))).astype(np.float32) * 100.0).astype(np.int8)
         occ[self._stamp == 0] = -1
         return occ
 
@@ -478,19 +484,22 @@ class OccupancyGrid:
         """A new grid trimmed to the observed cells plus ``margin`` unknown cells around them.
 
         It keeps this grid's lattice, so cells line up exactly. A grid with
-        nothing observed crops to an empty grid.
+        nothing observed crops to an empty grid; a grid already cropped is
+        returned itself (read the result, do not change it).
         """
         seen = self.observed
         rows_any = np.flatnonzero(seen.any(axis=1))
+        rows, cols = self.shape
         cols_any = np.flatnonzero(seen.any(axis=0))
         if rows_any.size == 0:
             empty = np.zeros((0, 0), dtype=np.float32)
             return self._with_arrays(empty, np.zeros((0, 0), _STAMP_DTYPE), self._row0, self._col0)
-        rows, cols = self.shape
         r0 = int(rows_any[0]) - margin
         r1 = int(rows_any[-1]) + margin + 1
         c0 = int(cols_any[0]) - margin
         c1 = int(cols_any[-1]) + margin + 1
+        if (r0, r1, c0, c1) == (0, rows, 0, cols):
+            return self  # already cropped: no copy of a big map
         logodds = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
         stamp = np.zeros((r1 - r0, c1 - c0), dtype=_STAMP_DTYPE)
         sr0, sr1 = max(r0, 0), min(r1, rows)

@@ -19,6 +19,11 @@ if TYPE_CHECKING:
 
 __all__ = ["GridCache"]
 
+# The drawn grids kept, at most (least recently used dropped first): at 1 cm a near chain's grid of a
+# long-range log is 4-10 MB, and 32 of them held 233 MB of karto's 698 MB peak on fr101 (128 MB: the
+# same matches on every log; 64-96 MB changed one on csail, 0.149 -> 0.168 m).
+_MAX_BYTES = 128 << 20
+
 
 class GridCache:
     """Correlation grids kept between matches, extended scan by scan instead of rebuilt.
@@ -202,15 +207,26 @@ class GridCache:
              "span": (order_nodes[0], order_nodes[-1]) if order_nodes else (0, -1),  # least and most node
              "epoch": self._epoch, "donor": donor}
         self._entries.insert(0, e)
-        if len(self._entries) > self.max_entries:
-            del self._entries[self.max_entries:]
-            # An entry not drawn yet keeps its donor only while the donor is cached (memory).
-            live = {id(x) for x in self._entries}
-            for x in self._entries:
-                if x.get("donor") is not None and id(x["donor"]) not in live:
-                    x["donor"] = None
+        self._evict(e)
         self.builds += 1
         return e
+
+    def _evict(self, keep: dict) -> None:
+        """Drop the least recently used entries beyond ``max_entries`` or _MAX_BYTES of drawn grids."""
+        kept, total = [], 0
+        for k, x in enumerate(self._entries):
+            size = x["grid"][0].nbytes if x["grid"] is not None else 0
+            if x is keep or k == 0 or (len(kept) < self.max_entries and total + size <= _MAX_BYTES):
+                kept.append(x)
+                total += size
+        if len(kept) == len(self._entries):
+            return
+        self._entries[:] = kept
+        # An entry not drawn yet keeps its donor only while the donor is cached (memory).
+        live = {id(x) for x in self._entries}
+        for x in self._entries:
+            if x.get("donor") is not None and id(x["donor"]) not in live:
+                x["donor"] = None
 
     def _donor(self, wanted: set, wmin: int, wmax: int) -> dict | None:
         """A drawn entry of this epoch whose drawn scans are at least half of ``wanted`` (the most shared), or None."""
@@ -293,6 +309,8 @@ class GridCache:
             e["drawn"] = None
             e["n_drawn"] = 0
             self.draws += 1
+            if any(x is e for x in self._entries):
+                self._evict(e)
         old = e["drawn"]
         parts = self._parts(e)
         # (Python floats: the same comparisons as np.all on the 2-vectors, without its per-call cost.)

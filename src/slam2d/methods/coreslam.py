@@ -280,4 +280,4 @@ class CoreSlam(SlamMethod):
         return self._pose
 
     def map(self) -> OccupancyGrid:
-        return self._map.to_occupancy_grid(self._map.occupancy(), GridParams(resolution=self.params.resolution))
+        return self._map.to_occupancy_grid(GridParams(resolution=self.params.resolution))

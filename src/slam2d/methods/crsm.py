@@ -417,4 +417,4 @@ class Crsm(SlamMethod):
         return self._pose
 
     def map(self) -> OccupancyGrid:
-        return self._map.to_occupancy_grid(self._map.occupancy(), GridParams(resolution=self.params.resolution))
+        return self._map.to_occupancy_grid(GridParams(resolution=self.params.resolution))

@@ -33,11 +33,15 @@ def map_image(grid: Any) -> np.ndarray:
     free, its unknown grey where nothing was observed, and a grey ramp for the
     uncertain cells in between, which map_saver would flatten to unknown.
     """
-    occ = np.asarray(grid.occupancy(), dtype=np.float64)
+    return _image_of(np.asarray(grid.occupancy(), dtype=np.float64))[::-1]
+
+
+def _image_of(occ: np.ndarray) -> np.ndarray:
+    """Grey levels in [0, 1] of occupancy values (-1 unknown, 0..100)."""
     img = 1.0 - (occ - FREE_PERCENT) / (OCCUPIED_PERCENT - FREE_PERCENT)
     img = np.clip(img, 0.0, 1.0)
     img[occ < 0] = UNKNOWN_GRAY
-    return img[::-1]
+    return img
 
 
 # The grey levels matplotlib's "gray" colour map gives (its lookup table is i/255 rounded down
@@ -62,7 +66,11 @@ def save_map_png(grid: Any, path: str | Path, *, scale: int | None = None) -> Pa
     from PIL import Image
 
     path = Path(path)
-    pixels = gray_pixels(map_image(grid))
+    # one grey per occupancy value (-1..100), looked up: the same pixels as gray_pixels(map_image(grid)),
+    # without its float64 copies of the map (300 MB at once for fr101's odometry map)
+    levels = gray_pixels(_image_of(np.arange(-1, 101, dtype=np.float64)))
+    occupancy = grid.occupancy()[::-1]
+    pixels = levels[np.clip(occupancy, -1, 100).astype(np.int16) + 1]
     if scale is None:
         scale = max(1, int(np.ceil(MIN_PREVIEW_PIXELS / max(1, max(pixels.shape)))))
     if scale > 1:

@@ -23,7 +23,7 @@ def write_map_outputs(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cropped = grid.crop_to_observed()
-    yaml_path, pgm_path = save_grid(cropped, out_dir / "map.yaml", mode=mode)
+    yaml_path, pgm_path = save_grid(cropped, out_dir / "map.yaml", mode=mode, crop=False)
     png_path = save_map_png(cropped, out_dir / "preview.png")
     info = {
         "resolution_m": cropped.resolution,
