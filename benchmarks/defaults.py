@@ -213,12 +213,17 @@ def section(table: list[str]) -> list[str]:
 
 
 def write_section(path: Path, table: list[str]) -> None:
-    """Replace (or add, before the methods x datasets table) the section in BENCHMARKS.md; atomically."""
+    """Replace (or add) this table's section in BENCHMARKS.md."""
+    replace_section(path, SECTION_BEGIN, SECTION_END, "\n".join(section(table)))
+
+
+def replace_section(path: Path, begin: str, end: str, block: str) -> None:
+    """Replace the text from ``begin`` to ``end`` in BENCHMARKS.md with ``block`` (which holds both markers), or
+    add it before the methods x datasets table; atomically."""
     text = path.read_text() if path.is_file() else "# Benchmarks\n"
-    block = "\n".join(section(table))
-    if SECTION_BEGIN in text and SECTION_END in text:
-        head, rest = text.split(SECTION_BEGIN, 1)
-        text = head + block + rest.split(SECTION_END, 1)[1]
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + block + rest.split(end, 1)[1]
     elif "## Methods x datasets" in text:
         head, rest = text.split("## Methods x datasets", 1)
         text = head + block + "\n\n## Methods x datasets" + rest

@@ -586,3 +586,30 @@ def test_a_map_at_the_true_poses_scores_near_zero_on_a_simulated_floor(laser):
     assert result["truth_to_map_m"]["mean"] < 0.003
     assert result["map_to_truth_m"]["mean"] < 0.003
     assert result["recall"] > 0.99
+
+
+def test_corners_counted_in_bands_equal_the_whole_image_count():
+    """The corner response is computed in overlapping bands of rows (memory); the count must not change."""
+    from scipy import ndimage
+
+    import slam2d.eval.map_metrics as mm
+
+    def whole(occupied):
+        rows = np.flatnonzero(occupied.any(axis=1))
+        cols = np.flatnonzero(occupied.any(axis=0))
+        pad = 2 + int(4.0 * mm._HARRIS_SMOOTHING + 0.5) + int(4.0 * mm._HARRIS_WINDOW + 0.5)
+        image = np.pad(occupied[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1].astype(np.float32), pad)
+        response = mm._harris_response(image)
+        strong = response > mm._HARRIS_RELATIVE_THRESHOLD * float(response.max())
+        return ndimage.label(strong, structure=np.ones((3, 3), dtype=np.bool_))[1]
+
+    rng = np.random.default_rng(1)
+    occ = np.zeros((1300, 900), bool)  # three bands of 512 rows
+    for _ in range(200):
+        r, c = rng.integers(0, 1300), rng.integers(0, 900)
+        occ[r: r + rng.integers(1, 80), c: c + 3] = True
+        r, c = rng.integers(0, 1300), rng.integers(0, 900)
+        occ[r: r + 2, c: c + rng.integers(1, 80)] = True
+    assert mm._count_corners(occ) == whole(occ) > 100
+    blobs = rng.random((300, 400)) > 0.7
+    assert mm._count_blobs(blobs.copy()) == ndimage.label(blobs, structure=np.ones((3, 3)))[1]

@@ -726,6 +726,24 @@ _HARRIS_K = 0.05
 _HARRIS_RELATIVE_THRESHOLD = 0.05
 
 
+_HARRIS_BAND = 512  # rows per band of the corner response
+_CHUNK_CELLS = 1 << 20  # cells counted at a time
+
+
+def _harris_response(image: NDArray[np.float32]) -> NDArray[np.float32]:
+    from scipy import ndimage
+
+    # Without smoothing, the staircase of a rasterised slanted wall is a row of
+    # tiny corners (a room rotated by 10 degrees scored 30 corners instead of 4).
+    image = ndimage.gaussian_filter(image, _HARRIS_SMOOTHING, mode="constant")
+    grad_x = ndimage.sobel(image, axis=1, mode="constant")
+    grad_y = ndimage.sobel(image, axis=0, mode="constant")
+    sxx = ndimage.gaussian_filter(grad_x * grad_x, _HARRIS_WINDOW, mode="constant")
+    syy = ndimage.gaussian_filter(grad_y * grad_y, _HARRIS_WINDOW, mode="constant")
+    sxy = ndimage.gaussian_filter(grad_x * grad_y, _HARRIS_WINDOW, mode="constant")
+    return sxx * syy - sxy * sxy - _HARRIS_K * (sxx + syy) ** 2
+
+
 def _count_corners(occupied: NDArray[np.bool_]) -> int:
     """Harris corners of the occupied-cell image (1 occupied, 0 anything else)."""
     rows_any = np.flatnonzero(occupied.any(axis=1))
@@ -735,24 +753,62 @@ def _count_corners(occupied: NDArray[np.bool_]) -> int:
     # Crop to the walls with enough empty margin that no filter sees the crop edge.
     pad = 2 + int(4.0 * _HARRIS_SMOOTHING + 0.5) + int(4.0 * _HARRIS_WINDOW + 0.5)
     crop = occupied[rows_any[0] : rows_any[-1] + 1, cols_any[0] : cols_any[-1] + 1]
-    image = np.pad(crop.astype(np.float32), pad)
-    # Without smoothing, the staircase of a rasterised slanted wall is a row of
-    # tiny corners (a room rotated by 10 degrees scored 30 corners instead of 4).
-    from scipy import ndimage
+    rows, cols = crop.shape[0] + 2 * pad, crop.shape[1] + 2 * pad
 
-    image = ndimage.gaussian_filter(image, _HARRIS_SMOOTHING, mode="constant")
-    grad_x = ndimage.sobel(image, axis=1, mode="constant")
-    grad_y = ndimage.sobel(image, axis=0, mode="constant")
-    sxx = ndimage.gaussian_filter(grad_x * grad_x, _HARRIS_WINDOW, mode="constant")
-    syy = ndimage.gaussian_filter(grad_y * grad_y, _HARRIS_WINDOW, mode="constant")
-    sxy = ndimage.gaussian_filter(grad_x * grad_y, _HARRIS_WINDOW, mode="constant")
-    response = sxx * syy - sxy * sxy - _HARRIS_K * (sxx + syy) ** 2
-    peak = float(response.max())
+    def bands():
+        """``(r0, r1, response of rows r0:r1)``: bands of rows that overlap by the filters' reach (pad), so each
+        band's own rows come out exactly as from the whole image, with a few float copies of a band in memory
+        instead of eight of the map."""
+        for r0 in range(0, rows, _HARRIS_BAND):
+            lo, hi = max(0, r0 - pad), min(rows, r0 + _HARRIS_BAND + pad)
+            band = np.zeros((hi - lo, cols), dtype=np.float32)
+            c_lo, c_hi = max(lo - pad, 0), min(hi - pad, crop.shape[0])  # the crop rows inside this band
+            if c_hi > c_lo:
+                band[c_lo + pad - lo : c_hi + pad - lo, pad : pad + crop.shape[1]] = crop[c_lo:c_hi]
+            r1 = min(rows, r0 + _HARRIS_BAND)
+            yield r0, r1, _harris_response(band)[r0 - lo : r1 - lo]
+
+    peak = max(float(response.max()) for _, _, response in bands())
     if peak <= 0.0:
         return 0
-    strong = response > _HARRIS_RELATIVE_THRESHOLD * peak
-    _, count = ndimage.label(strong, structure=np.ones((3, 3), dtype=np.bool_))
-    return int(count)
+    strong = np.zeros((rows, cols), dtype=np.bool_)
+    for r0, r1, response in bands():  # computed again: cheaper than holding the whole response
+        strong[r0:r1] = response > _HARRIS_RELATIVE_THRESHOLD * peak
+    return _count_blobs(strong)
+
+
+@njit(cache=True)
+def _count_blobs(mask):
+    """8-connected blobs of True cells, counted by flood fill (``mask`` is cleared; no label image)."""
+    rows, cols = mask.shape
+    n = 0
+    for r in range(rows):
+        for c in range(cols):
+            if mask[r, c]:
+                n += 1
+    stack_r = np.empty(n, np.int64)
+    stack_c = np.empty(n, np.int64)
+    count = 0
+    for r in range(rows):
+        for c in range(cols):
+            if not mask[r, c]:
+                continue
+            count += 1
+            mask[r, c] = False
+            top = 0
+            stack_r[0], stack_c[0] = r, c
+            top = 1
+            while top > 0:
+                top -= 1
+                y, x = stack_r[top], stack_c[top]
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        yy, xx = y + dy, x + dx
+                        if 0 <= yy < rows and 0 <= xx < cols and mask[yy, xx]:
+                            mask[yy, xx] = False  # cleared when pushed: each cell once on the stack
+                            stack_r[top], stack_c[top] = yy, xx
+                            top += 1
+    return count
 
 
 def map_quality(
@@ -831,12 +887,19 @@ def map_quality(
     from scipy import ndimage
 
     labels, n_regions = ndimage.label(free)  # default structure: 4-connected
+    del free, observed  # before the corners: a map of 10^7 cells is 40 MB a copy
     if n_regions:
-        sizes = np.bincount(labels.ravel())[1:]
+        # counted a band of rows at a time: bincount makes an int64 copy of what it counts (220 MB for 27 M cells)
+        sizes = np.zeros(n_regions + 1, dtype=np.int64)
+        step = max(1, _CHUNK_CELLS // max(1, labels.shape[1]))
+        for r0 in range(0, labels.shape[0], step):
+            sizes += np.bincount(labels[r0 : r0 + step].ravel(), minlength=n_regions + 1)
+        sizes = sizes[1:]
         enclosed = int(np.count_nonzero(sizes >= min_area))
         largest = float(sizes.max()) / n_free
     else:
         enclosed, largest = 0, nan
+    del labels
     known = n_occupied + n_free
     return {
         "occupied_fraction": n_occupied / known if known else nan,

@@ -184,10 +184,21 @@ class OccupancyGrid:
         params = params if params is not None else GridParams()
         params = _replace(params, resolution=float(resolution))
         grid = cls(params, origin=origin, shape=occ.shape)
-        known = (occ >= 0) & (occ <= 100)
-        prob = np.clip(occ[known].astype(np.float64) / 100.0, params.p_min, params.p_max)  # the known cells only
-        grid.logodds[known] = logit(prob).astype(np.float32)
-        grid._stamp[known] = 1
+        if not np.issubdtype(occ.dtype, np.integer):
+            known = (occ >= 0) & (occ <= 100)
+            prob = np.clip(occ[known].astype(np.float64) / 100.0, params.p_min, params.p_max)
+            grid.logodds[known] = logit(prob).astype(np.float32)
+            grid._stamp[known] = 1
+            grid._scan_stamp = 2
+            return grid
+        # one log-odds per value 0..100, looked up a band of rows at a time (no float64 copy of a big map)
+        table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max)).astype(np.float32)
+        step = max(1, _CHUNK_CELLS // max(1, occ.shape[1] if occ.ndim == 2 else 1))
+        for r0 in range(0, occ.shape[0], step):
+            band = occ[r0 : r0 + step]
+            known = (band >= 0) & (band <= 100)
+            grid.logodds[r0 : r0 + step][known] = table[band[known]]
+            grid._stamp[r0 : r0 + step][known] = 1
         grid._scan_stamp = 2
         return grid
 

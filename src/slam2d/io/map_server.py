@@ -277,6 +277,11 @@ def occupancy_from_pixels(
     ``channels`` is ``(rows, cols)`` for grey images or ``(rows, cols, 3)``
     for colour; ``alpha`` is ``(rows, cols)`` or None.
     """
+    if alpha is None and np.ndim(channels) == 2 and np.asarray(channels).dtype == np.uint8 and np.size(channels) > 256:
+        # a grey image has 256 values: the rule once per value, looked up (no float copies of a big map)
+        levels = occupancy_from_pixels(np.arange(256, dtype=np.uint8)[None, :], None, mode=mode, negate=negate,
+                                       occupied_thresh=occupied_thresh, free_thresh=free_thresh, loader=loader)
+        return levels[0][channels]
     c = np.asarray(channels, dtype=np.float64)
     color_sum = c.sum(axis=-1) if c.ndim == 3 else c
     n_color = c.shape[-1] if c.ndim == 3 else 1
