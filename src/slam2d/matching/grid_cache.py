@@ -62,7 +62,7 @@ class GridCache:
         self._known = np.zeros(0, dtype=bool)
         # Each node's share of a bound grid (see bound()), its blocks' rows, columns and values in
         # three growing columns; a node's [start, end) in them, or -1 until computed.
-        self._block_store = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.uint8))
+        self._block_store = (np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.uint8))  # int32: half the bytes
         self._block_used = 0
         self._block_span = np.full((0, 2), -1, np.int64)
         self.builds = 0  # entries made (book-keeping; a pruned request may never draw its grid)

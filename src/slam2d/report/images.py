@@ -36,6 +36,11 @@ def map_image(grid: Any) -> np.ndarray:
     return _image_of(np.asarray(grid.occupancy(), dtype=np.float64))[::-1]
 
 
+def grey_levels() -> np.ndarray:
+    """The grey level of each occupancy value -1..100 (index = value + 1)."""
+    return _image_of(np.arange(-1, 101, dtype=np.float64))
+
+
 def _image_of(occ: np.ndarray) -> np.ndarray:
     """Grey levels in [0, 1] of occupancy values (-1 unknown, 0..100)."""
     img = 1.0 - (occ - FREE_PERCENT) / (OCCUPIED_PERCENT - FREE_PERCENT)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
-from slam2d.report.images import UNKNOWN_GRAY, map_image
+from slam2d.report.images import UNKNOWN_GRAY, grey_levels
 
 __all__ = [
     "DPI",
@@ -95,6 +95,32 @@ class MapCanvas:
     @property
     def height(self) -> float:
         return self.extent[3] - self.extent[1]
+
+
+@dataclass
+class MapRaster:
+    """A map as its occupancy values only (int8, -1 unknown, 0..100): a sixth of an OccupancyGrid's memory,
+    all a picture needs (a report of seven methods held seven full grids at once)."""
+
+    values: NDArray[np.int8]
+    resolution: float
+    origin: tuple[float, float]
+
+    @classmethod
+    def of(cls, grid: Any) -> MapRaster:
+        return cls(grid.occupancy(), float(grid.resolution), tuple(grid.origin))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.values.shape  # type: ignore[return-value]
+
+    def occupancy(self) -> NDArray[np.int8]:
+        return self.values
+
+    def extent(self) -> tuple[float, float, float, float]:
+        ox, oy = self.origin
+        rows, cols = self.shape
+        return ox, oy, ox + cols * self.resolution, oy + rows * self.resolution
 
 
 def _grid_corners(grid: Any) -> NDArray[np.float64]:
@@ -165,15 +191,21 @@ def _pooled_grey(grid: Any, metres_per_pixel: float) -> tuple[NDArray[np.float64
     Pooling keeps the darkest cell of each block (occupied over unknown over
     free), so a wall one cell thick survives any reduction.
     """
-    grey = map_image(grid)[::-1]
+    # Each occupancy value's grey, and its rank among the greys (0 = darkest): the darkest cell of a block is
+    # the one of least rank, pooled as one byte a cell (float64 greys of a big map were 220 MB a copy).
+    levels = grey_levels()
+    rank = np.empty(levels.size, dtype=np.uint8)
+    rank[np.argsort(levels, kind="stable")] = np.arange(levels.size, dtype=np.uint8)
+    by_rank = np.sort(levels, kind="stable")
+    ranks = rank[np.clip(grid.occupancy(), -1, 100).astype(np.int16) + 1]  # row 0 = lowest y
     factor = max(1, int(metres_per_pixel / float(grid.resolution) + 1e-9))
     if factor == 1:
-        return grey, float(grid.resolution)
-    rows, cols = grey.shape
-    padded = np.full((-(-rows // factor) * factor, -(-cols // factor) * factor), UNKNOWN_GRAY)
-    padded[:rows, :cols] = grey
+        return by_rank[ranks], float(grid.resolution)
+    rows, cols = ranks.shape
+    padded = np.full((-(-rows // factor) * factor, -(-cols // factor) * factor), rank[0], dtype=np.uint8)
+    padded[:rows, :cols] = ranks
     blocks = padded.reshape(padded.shape[0] // factor, factor, padded.shape[1] // factor, factor)
-    return blocks.min(axis=(1, 3)), float(grid.resolution) * factor
+    return by_rank[blocks.min(axis=(1, 3))], float(grid.resolution) * factor
 
 
 def _lookup(
