@@ -1708,6 +1708,11 @@ class GraphFrontend:
             grid.integrate(scan, pose)
         return grid
 
+    def release_caches(self) -> None:
+        """Drop the correlation grids kept between matches (the run is over; they are rebuilt if it goes on)."""
+        self._seq_cache.release()
+        self._loop_cache.release()
+
     def summary(self) -> Mapping[str, Any]:
         return {
             "nodes": self.graph.num_nodes,

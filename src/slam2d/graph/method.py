@@ -115,6 +115,7 @@ class GraphSlam(SlamMethod):
         if self.params.wall_refinement and fe.num_nodes > 1:
             self.refine_walls()
         s = fe.summary()
+        fe.release_caches()  # the correlation grids (up to 128 MB) are not needed for the map and outputs
         self.diagnostics.summary.update(
             {
                 "nodes": s["nodes"],

@@ -76,6 +76,11 @@ class GridCache:
         self.derived = 0  # new grids started from a drawn one
         self._epoch = 0  # optimisations seen: a grid drawn before one holds scans at old poses
 
+    def release(self) -> None:
+        """Forget everything and give the memory back (the run is over: its map and outputs need it)."""
+        self.invalidate()
+        self._block_store = tuple(np.zeros(0, col.dtype) for col in self._block_store)
+
     def invalidate(self, moved=None) -> None:
         """Forget grids drawn at poses that have changed: all of them, or those holding a ``moved`` node.
 
