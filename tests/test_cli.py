@@ -587,3 +587,15 @@ def test_max_memory_holds_for_its_command_only(capsys, room, tmp_path):
     assert budget_override() is None
     run(capsys, "map", room[0], "--out", tmp_path / "o", "--max-memory", "1M")
     assert budget_override() is None  # the next command (in this process) has the default again
+
+
+def test_files_name_the_final_folder_not_the_staging_one(capsys, room, tmp_path):
+    """compare's report and each run's evaluation.json name the run folders: where they end up."""
+    out = tmp_path / "cmp"
+    code, _, err = run(capsys, "compare", room[0], "--methods", "odometry", "--truth", room[0].parent, "--out", out,
+                       "--jobs", "1")
+    assert code == 0, err
+    for path in out.rglob("*"):
+        if path.suffix in (".json", ".md", ".html"):
+            assert ".partial-" not in path.read_text(encoding="utf-8"), path
+    assert str(out.resolve() / "runs" / "odometry") in (out / "runs" / "odometry" / "evaluation.json").read_text()

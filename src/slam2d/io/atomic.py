@@ -160,6 +160,30 @@ def swap_into_place(stage: Path, out: Path) -> None:
             old.unlink(missing_ok=True)
 
 
+# Files that may name their own folder (a report linking its runs, an evaluation naming its run).
+_TEXT_SUFFIXES = {".json", ".md", ".html", ".yaml", ".yml", ".csv", ".txt"}
+
+
+def _relocate_text(stage: Path, target: Path) -> None:
+    """Where a text file names the staging folder, make it name ``target``, where the folder is going."""
+    import html
+
+    old, new = str(stage), str(target)
+    pairs = {(old, new), (json.dumps(old)[1:-1], json.dumps(new)[1:-1]), (html.escape(old), html.escape(new))}
+    for path in stage.rglob("*"):
+        if path.suffix.lower() not in _TEXT_SUFFIXES or not path.is_file():
+            continue
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (UnicodeDecodeError, OSError):
+            continue
+        if not any(a in text for a, _ in pairs):
+            continue
+        for a, b in pairs:
+            text = text.replace(a, b)
+        path.write_text(text, encoding="utf-8")
+
+
 @contextmanager
 def staged_folder(out: str | Path, command: str) -> Iterator[Path]:
     """Yield an empty staging folder beside ``out``; on success mark it as ``command``'s and put it in place.
@@ -172,6 +196,7 @@ def staged_folder(out: str | Path, command: str) -> Iterator[Path]:
     stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.partial-", dir=target.parent))
     try:
         yield stage
+        _relocate_text(stage, target)
         (stage / OUTPUT_MARKER).write_text(json.dumps({"command": command}) + "\n", encoding="utf-8")
         swap_into_place(stage, target)
     except BaseException:
