@@ -599,3 +599,9 @@ def test_files_name_the_final_folder_not_the_staging_one(capsys, room, tmp_path)
         if path.suffix in (".json", ".md", ".html"):
             assert ".partial-" not in path.read_text(encoding="utf-8"), path
     assert str(out.resolve() / "runs" / "odometry") in (out / "runs" / "odometry" / "evaluation.json").read_text()
+
+
+def test_compare_checks_every_method_name_before_running_any(capsys, room, tmp_path):
+    code, out, err = run(capsys, "compare", room[0], "--methods", "odometry,foo", "--out", tmp_path / "c")
+    assert_one_line_error(code, err, "--methods: unknown method 'foo'; available:")
+    assert "running" not in out and not (tmp_path / "c").exists()

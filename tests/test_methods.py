@@ -230,3 +230,14 @@ def test_known_poses_without_overlap_places_nothing(sim, tmp_path, capsys):
 def test_run_method_on_a_ros2_bag(sim, tmp_path):
     summary = run_method("odometry", sim / "recording", tmp_path / "r")
     assert summary.frames > 100 and summary.record["data"]["format"].startswith("ros2")
+
+
+def test_an_unknown_parameter_suggests_the_closest_names_not_all_85():
+    from slam2d.errors import InputError
+
+    cls = get_method("gmapping")
+    with pytest.raises(InputError, match=r"unknown parameter 'partciles'; did you mean 'particles'\?$"):
+        from_mapping(cls.Params, {"partciles": "3"})
+    with pytest.raises(InputError) as exc:
+        from_mapping(cls.Params, {"qqq": "3"})
+    assert "none of the" in str(exc.value) and "srr" not in str(exc.value)  # not a wall of 85 names

@@ -612,7 +612,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     from slam2d.eval.compare import compare
 
+    from slam2d.methods.registry import get_method
+
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for name in methods:  # every name checked before any method starts
+        try:
+            get_method(name)
+        except InputError as exc:
+            raise InputError(exc.message, field="--methods") from None
     if args.jobs is not None and args.jobs < 1:
         raise InputError(f"{args.jobs} must be at least 1", field="--jobs")
     truth, relations = _load_truth_options(args)

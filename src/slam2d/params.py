@@ -296,6 +296,18 @@ def markdown_table(cls: type, *, names: str = "flags") -> str:
     return "\n".join(rows) + "\n"
 
 
+def _suggest(name: str, valid) -> str:
+    """The closest valid names (a typo), else all of them when few, else where to find them."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(valid), n=3, cutoff=0.6)
+    if close:
+        return "did you mean " + " or ".join(repr(c) for c in close) + "?"
+    if len(valid) <= 20:
+        return "valid: " + ", ".join(sorted(valid))
+    return f"none of the {len(valid)} parameters is close ('slam2d methods METHOD' lists them)"
+
+
 def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None) -> Any:
     """Build and validate an instance of ``cls`` from a mapping of names to values.
 
@@ -313,10 +325,8 @@ def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None)
     for raw_name, raw in values.items():
         name = str(raw_name).replace("-", "_")
         if name not in params:
-            raise InputError(
-                f"unknown parameter {raw_name!r}; valid: {', '.join(sorted(params))}",
-                path=path, where=where, field=str(raw_name),
-            )
+            raise InputError(f"unknown parameter {raw_name!r}; {_suggest(name, params)}",
+                             path=path, where=where, field=str(raw_name))
         try:
             chosen[name] = coerce(params[name], raw)
         except InputError as exc:
