@@ -605,3 +605,24 @@ def test_compare_checks_every_method_name_before_running_any(capsys, room, tmp_p
     code, out, err = run(capsys, "compare", room[0], "--methods", "odometry,foo", "--out", tmp_path / "c")
     assert_one_line_error(code, err, "--methods: unknown method 'foo'; available:")
     assert "running" not in out and not (tmp_path / "c").exists()
+
+
+def test_a_method_that_needs_odometry_warns_when_the_recording_has_none(capsys, room, tmp_path):
+    code, _, err = run(capsys, "run", "karto", room[0], "--odometry", "none", "--out", tmp_path / "k")
+    assert code == 0, err
+    assert "warning: " in err and "scans had no odometry: karto needs it" in err and "hector" in err
+    record = json.loads((tmp_path / "k" / "run.json").read_text())
+    assert len(record["warnings"]) == 1
+    code, _, err = run(capsys, "run", "hector", room[0], "--odometry", "none", "--out", tmp_path / "h")
+    assert code == 0 and "warning" not in err  # hector needs none
+
+
+def test_methods_never_cuts_a_parameter_name(capsys, monkeypatch):
+    from slam2d.methods import get_method
+    from slam2d.params import describe
+
+    monkeypatch.setenv("COLUMNS", "80")
+    code, out, _ = run(capsys, "methods", "karto")
+    assert code == 0 and "…" not in out.split("logged per update")[0]
+    for prm in describe(get_method("karto").Params):
+        assert f" {prm.name} " in out, prm.name

@@ -372,9 +372,12 @@ def cmd_methods(args: argparse.Namespace) -> int:
         return 0
     cls = get_method(args.name)
     t = Table(title=f"{cls.name}: {cls.summary}", title_justify="left")
-    for col in ("parameter", "default", "unit", "meaning"):
-        t.add_column(col)
-    for prm in describe(cls.Params):
+    params = describe(cls.Params)
+    # a name is what the user types: never cut it (the other columns fold instead)
+    t.add_column("parameter", no_wrap=True, min_width=max(len(p.name) for p in params))
+    for col in ("default", "unit", "meaning"):
+        t.add_column(col, overflow="fold")
+    for prm in params:
         t.add_row(prm.name, str(prm.default), prm.unit or "-", prm.help)
     out.print(t)
     if cls.DIAGNOSTICS:
@@ -444,6 +447,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     rec = summary.record
     for name, how in rec.get("auto", {}).items():
         out.print(f"auto {name} = {how['value']}: {how['from']}", markup=False)
+    for warning in rec.get("warnings", []):
+        _console(stderr=True).print(f"warning: {warning}", markup=False)
     span = rec["data_span_s"]
     duration = (span[1] - span[0]) if span[0] is not None else 0.0
     out.print(

@@ -257,6 +257,18 @@ def run_method(
     )
 
 
+def _odometry_warnings(slam: SlamMethod, frames: int) -> list[str]:
+    """A method that needs odometry, run on scans without it: say so (it ran, but on guesses)."""
+    missing = int(slam.diagnostics.counters.get("frames_without_odometry", 0))
+    if slam.odometry_role() != "required" or missing == 0:
+        return []
+    from slam2d.methods.registry import available
+
+    free = [n for n, cls in available().items() if cls.odometry_role() != "required"]
+    return [f"{missing} of {frames} scans had no odometry: {slam.name} needs it and placed them from the last pose "
+            f"(check --odometry and the topics with 'slam2d info'; methods that need none: {', '.join(free)})"]
+
+
 def _write_run(
     slam: SlamMethod,
     out_dir: Path,
@@ -320,6 +332,7 @@ def _write_run(
         "peak_rss_mb": peak,
         "rss_growth_mb": peak - rss_before,
         "input_problems": problems,
+        "warnings": _odometry_warnings(slam, frames),
         "versions": versions(),
         "command": command,
     }
