@@ -802,3 +802,10 @@ def test_a_byte_order_mark_does_not_hide_the_first_line(tmp_path, gz):
     log = CarmenLog(path)
     scans = [m for m in log.messages() if isinstance(m, LaserScan)]
     assert len(scans) == 2 and [s.name for s in log.streams()] == ["FLASER"]
+
+
+def test_a_tum_file_given_as_a_log_is_said_in_one_short_line(tmp_path):
+    """A TUM trajectory read as a CARMEN log listed all its 910 timestamps (a 14 KB error line)."""
+    lines = "".join(f"{10.0 + 0.5 * k:.6f} {0.1 * k} 0 0 0 0 0 1\n" for k in range(900))
+    text = _error(_write_lines(tmp_path / "poses.tum", lines.splitlines()))
+    assert len(text) < 400 and "and 895 other first words" in text and "a TUM trajectory" in text

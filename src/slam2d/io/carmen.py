@@ -223,6 +223,14 @@ def _floats(tokens: list[str], start: int, stop: int, name_of: object) -> NDArra
         raise
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _count_odd_ranges(problems: ProblemLog, tokens: list[str], first: int, n: int, lineno: int, keyword: str) -> None:
     """Count a laser line's ranges that are NaN, infinite or negative: no CARMEN writer produces them, and they
     are read as no return (a file that holds them was made or edited by hand, or is corrupt)."""
@@ -458,9 +466,14 @@ class CarmenLog(Recording):
         if scans == 0:
             if lineno == 0:
                 raise InputError("file is empty", path=self.path)
-            seen = ", ".join(f"{k if k.isprintable() else ascii(k)} x{n}" for k, n in counts.items()) or "nothing readable"
+            words = sorted(counts.items(), key=lambda kv: -kv[1])
+            seen = ", ".join(f"{k[:20] if k.isprintable() else ascii(k[:20])} x{n}" for k, n in words[:5])
+            if len(words) > 5:
+                seen += f" and {len(words) - 5} other first words"
+            if words and all(_is_number(k) for k, _ in words[:5]):
+                seen += " (lines that start with a number: a TUM trajectory or another table, not a CARMEN log?)"
             raise InputError(
-                f"no laser scans found (FLASER, RLASER or ROBOTLASER1 lines); the log holds: {seen}",
+                f"no laser scans found (FLASER, RLASER or ROBOTLASER1 lines); the log holds: {seen or 'nothing readable'}",
                 path=self.path,
             )
         if mode == "odom" and odoms == 0:
