@@ -626,3 +626,17 @@ def test_methods_never_cuts_a_parameter_name(capsys, monkeypatch):
     assert code == 0 and "…" not in out.split("logged per update")[0]
     for prm in describe(get_method("karto").Params):
         assert f" {prm.name} " in out, prm.name
+
+
+def test_the_command_listing_is_the_full_parsers(capsys):
+    """`slam2d --help` builds only a line per command (fast); it must list what the full parser has."""
+    from slam2d.cli import build_parser
+
+    def commands(parser):
+        action = parser._subparsers._group_actions[0]
+        return [(c.dest, c.help) for c in action._choices_actions]
+
+    assert commands(build_parser(listing=True)) == commands(build_parser())
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    assert "rerun the source study end to end" in capsys.readouterr().out

@@ -22,6 +22,23 @@ from slam2d.params import add_arguments, from_arguments
 
 __all__ = ["main", "build_parser"]
 
+# One line per command: `slam2d --help` lists these without building (and importing) every command.
+_HELP = {
+    "info": "describe a recording and every problem found in it",
+    "map": "build an occupancy map from a recording and known poses",
+    "methods": "list the SLAM methods, or one method's parameters",
+    "run": "run one SLAM method on a recording",
+    "evaluate": "measure a run's trajectory error, map quality and cost",
+    "compare": "run several methods on the same data and write a comparison report",
+    "simulate": "simulate a recording with exact ground truth in a built-in or custom world",
+    "repeatability": "simulate the study's repeated static range measurements",
+    "demo": "simulate the study's test space and compare the methods on it",
+    "paper": "rerun the source study end to end in simulation and write one report",
+    "calibrate": "calibrate the laser's range noise, the odometry's noise or its timing from data",
+    "sweep": "run a parameter study (methods x parameters x datasets x seeds) on a local pool or a Dask cluster",
+    "experiment": "rerun the source study's Section V experiments in simulation, with numbers",
+}
+
 EXIT_USER_ERROR = 2
 
 
@@ -130,7 +147,7 @@ def _seed(text: str) -> int:
 def _add_info(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "info",
-        help="describe a recording and every problem found in it",
+        help=_HELP["info"],
         description="Read a CARMEN log (plain or gzipped), a ROS 1 bag or a ROS 2 bag once and report "
         "its scans, beams, field of view, range limits, rate, time span, odometry source, topics, "
         "and every problem found (gaps, time going backwards, corrupt records).",
@@ -223,7 +240,7 @@ def _add_map(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "map",
-        help="build an occupancy map from a recording and known poses",
+        help=_HELP["map"],
         description="Build a map_server map (PGM + YAML, plus a PNG preview) from the scans of DATA "
         "placed at the poses of a TUM trajectory (one pose per scan, or interpolated between poses). "
         "Without --poses the scans are placed along the recording's raw odometry, which shows how "
@@ -344,7 +361,7 @@ def cmd_map(args: argparse.Namespace) -> int:
 def _add_methods(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "methods",
-        help="list the SLAM methods, or one method's parameters",
+        help=_HELP["methods"],
         description="Without a name: every registered method with a one-line summary. With a name: the "
         "method's parameters (name, default, unit, meaning) as 'slam2d run' and 'slam2d compare' take them "
         "with --set NAME=VALUE, and the values it logs per update.",
@@ -407,7 +424,7 @@ def _settings(items: list[str] | None) -> dict[str, str]:
 def _add_run(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run",
-        help="run one SLAM method on a recording",
+        help=_HELP["run"],
         description="Run METHOD (see 'slam2d methods') over every scan of DATA and write OUT/trajectory.tum, "
         "OUT/map.yaml + map.pgm + preview.png, OUT/diagnostics.json (time and values per update) and "
         "OUT/run.json (method, every parameter, seed, input SHA-256, versions, peak memory). "
@@ -510,7 +527,7 @@ def _load_truth_options(args: argparse.Namespace) -> tuple[Any, Any]:
 def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "evaluate",
-        help="measure a run's trajectory error, map quality and cost",
+        help=_HELP["evaluate"],
         description="Evaluate RUN (a folder 'slam2d run' wrote, or a TUM trajectory): ATE after the best SE(2) "
         "alignment and RPE per frame and per metre against --truth or --reference; the Kümmerle et al. 2009 "
         "relation metric with --relations; map error against a ground-truth map in both directions, with "
@@ -568,7 +585,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def _add_compare(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
-        help="run several methods on the same data and write a comparison report",
+        help=_HELP["compare"],
         description="Run every method of --methods on DATA in parallel processes, evaluate each run the same "
         "way (see 'slam2d evaluate') and write OUT/report.html (self-contained), OUT/report.md and "
         "OUT/runs/METHOD/ (each run's files). A method that fails is reported as failed; the others go on.",
@@ -660,7 +677,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def _add_demo(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="simulate the study's test space and compare the methods on it",
+        help=_HELP["demo"],
         description="Simulate a youBot with a Hokuyo URG-04LX driving through paper-arena (the source "
         "study's rectangular-walled room), write the recording and its ground truth, run 'info' on it, "
         "then 'compare' every method on it against the truth and write the report "
@@ -696,7 +713,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def _add_paper(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "paper",
-        help="rerun the source study end to end in simulation and write one report",
+        help=_HELP["paper"],
         description="Rerun the source study in simulation: Section III (paper-arena with a youBot and a "
         "URG-04LX at limited speed, every method on the same recording, maps side by side, ATE, map error, "
         "Filatov metrics, speed, memory, and the study's ranking tested by stated rules), Section IV (the "
@@ -744,7 +761,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "simulate",
-        help="simulate a recording with exact ground truth in a built-in or custom world",
+        help=_HELP["simulate"],
         description="Drive a simulated robot along a path in WORLD (a built-in name or a YAML world file) "
         "and write what it recorded: a CARMEN log (recording.log.gz), a ROS 2 bag (recording/; "
         "recording.bag with --ros1) with /scan, /odom, /tf and /tf_static, the true trajectory "
@@ -793,7 +810,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def _add_repeatability(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "repeatability",
-        help="simulate the study's repeated static range measurements",
+        help=_HELP["repeatability"],
         description="The source study's repeatability experiment in simulation: a laser facing a flat target "
         "of each material at each distance and angle, measured N times. Writes repeatability.csv "
         "(material, angle_deg, distance_m, repetition, range_m), and with --scan-logs one CARMEN log of "
@@ -878,7 +895,7 @@ def _add_sensor_model_option(p: argparse.ArgumentParser) -> None:
 def _add_calibrate(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="calibrate the laser's range noise, the odometry's noise or its timing from data",
+        help=_HELP["calibrate"],
         description="Estimate sensor and motion models from data: 'laser' fits sigma against distance (and "
         "incidence) from repeated range measurements and writes a model file every method accepts "
         "(--sensor-model); 'verify' checks a model against new measurements; 'odometry' estimates GMapping's "
@@ -1115,7 +1132,7 @@ def cmd_calibrate_odometry_lag(args: argparse.Namespace) -> int:
 def _add_sweep(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sweep",
-        help="run a parameter study (methods x parameters x datasets x seeds) on a local pool or a Dask cluster",
+        help=_HELP["sweep"],
         description="Run every run a sweep spec (YAML: methods with parameter grids or seeded random ranges, "
         "datasets as files or simulated worlds with seeds, metrics) describes, evaluate each, and write "
         "OUT/results.parquet and OUT/results.csv (one row per run), OUT/plots/ (each metric against each swept "
@@ -1187,7 +1204,7 @@ def _add_experiment(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "experiment",
-        help="rerun the source study's Section V experiments in simulation, with numbers",
+        help=_HELP["experiment"],
         description="The source study's Section V in simulation with exact ground truth: GMapping with and without "
         "the laser model (the study's constant 0.0041 m, a sigma(range, incidence) calibrated from simulated "
         "repeated measurements, and 0.0041 set as GMapping's own sigma parameter). can, broken-wall, rebound: "
@@ -1227,7 +1244,7 @@ _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
 ]
 
 
-def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+def build_parser(command: str | None = None, *, listing: bool = False) -> argparse.ArgumentParser:
     """The command line; with ``command`` (a command's name) only that command's parser.
 
     Each command's options come from parameter classes whose modules take time to import (the
@@ -1241,6 +1258,10 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"slam2d {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     by_name = {add.__name__.removeprefix("_add_"): add for add in _COMMANDS}
+    if listing and command not in by_name:  # `slam2d --help`: the commands, a line each, nothing imported
+        for name, text in _HELP.items():
+            sub.add_parser(name, help=text)
+        return parser
     for add in [by_name[command]] if command in by_name else _COMMANDS:
         add(sub)
     return parser
@@ -1307,6 +1328,6 @@ def _main_args(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv[0] if argv else None)
+    parser = build_parser(argv[0] if argv else None, listing=True)
     args = parser.parse_args(argv)
     return main_args(args)
