@@ -640,3 +640,15 @@ def test_the_command_listing_is_the_full_parsers(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     assert "rerun the source study end to end" in capsys.readouterr().out
+
+
+def test_progress_off_a_terminal_is_a_plain_line_every_tenth_after_a_quiet_start(capsys):
+    import slam2d.cli as cli
+
+    clock = iter([0.0, 0.5, 3.0, 3.1, 3.2, 15.0, 16.0])
+    update = cli._plain_progress("karto on intel", quiet_for=2.0, every=10.0, clock=lambda: next(clock))
+    for done in (10, 300, 310, 320, 330, 600):  # t = 0.5 (quiet), 3.0, 3.1, 3.2 (same tenth), 15.0 (10 s), 16.0
+        update(done, 910)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["karto on intel: 33 % (300 of 910), 3 s", "karto on intel: 36 % (330 of 910), 15 s",
+                     "karto on intel: 66 % (600 of 910), 16 s"]

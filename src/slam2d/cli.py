@@ -53,9 +53,10 @@ def _console(stderr: bool = False):
 
 @contextmanager
 def progress_bar(description: str) -> Iterator[ProgressCallback]:
-    """A rich progress bar on a terminal; silent when stderr is not one (logs, CI)."""
+    """A rich progress bar on a terminal; when stderr is not one (a log, a pipe), a plain line every 10 % or
+    10 s once the phase has taken 2 s (a short one prints nothing), so a long command is never silent."""
     if not sys.stderr.isatty():
-        yield lambda done, total: None  # (rich's progress module is not even imported)
+        yield _plain_progress(description)  # (rich's progress module is not even imported)
         return
     from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
 
@@ -73,6 +74,31 @@ def progress_bar(description: str) -> Iterator[ProgressCallback]:
             bar.update(task, completed=done, total=total or None)
 
         yield update
+
+
+def _plain_progress(description: str, *, quiet_for: float = 2.0, every: float = 10.0,
+                    clock: Callable[[], float] | None = None) -> ProgressCallback:
+    import time
+
+    clock = clock or time.monotonic
+    start = clock()
+    state = {"said_at": None, "tenth": -1, "total": None}
+
+    def update(done: int, total: int) -> None:
+        now = clock()
+        if now - start < quiet_for:
+            return
+        if total != state["total"]:  # another phase (bytes read, then frames run): count its tenths afresh
+            state["tenth"], state["total"] = -1, total
+        tenth = int(10 * done / total) if total else -1
+        said = state["said_at"]
+        if said is not None and tenth <= state["tenth"] and now - said < every:
+            return
+        state["said_at"], state["tenth"] = now, tenth
+        share = f"{100 * done / total:.0f} % ({done} of {total})" if total else f"{done} done"
+        print(f"{description}: {share}, {now - start:.0f} s", file=sys.stderr, flush=True)
+
+    return update
 
 
 def _add_out(p: argparse.ArgumentParser, command: str) -> None:

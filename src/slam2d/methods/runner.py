@@ -233,12 +233,16 @@ def run_method(
     started = datetime.now(timezone.utc)
     frames = 0
     first_t = last_t = None
+    # read already (to measure it for the auto parameters): the progress is the frames run, not the bytes read
+    count = len(source) if isinstance(source, list) and progress is not None else 0
     for frame in source:
         try:
             slam.feed(frame)
         except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
             raise exc.in_file(data, f"scan {frames + 1} at t={frame.timestamp:.3f} s") from None
         frames += 1
+        if count:
+            progress(frames, count)
         if first_t is None:
             first_t = frame.timestamp
         last_t = frame.timestamp
