@@ -43,3 +43,22 @@ def test_readme_opens_with_the_two_commands():
     head = "\n".join((ROOT / "README.md").read_text().splitlines()[:20])
     assert "make demo" in head and "make test" in head
     assert "make test" in (ROOT / ".ci" / "run").read_text()
+
+
+def test_the_readme_python_examples_run_as_written(tmp_path, monkeypatch):
+    """Every ```python block of README.md runs (from the repository root, as the paths in it assume)."""
+    import re
+
+    from tests.conftest import dataset_file
+
+    dataset_file("intel/intel.clf.gz")  # the examples read the shared logs: skip without them
+    dataset_file("mines-exp1/mines-exp1.clf.gz")
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert len(blocks) >= 2
+    monkeypatch.chdir(ROOT)
+    for block in blocks:
+        # the files an example writes go to the test's folder, not the repository
+        namespace: dict = {}
+        exec(compile(block.replace('"intel-karto.yaml"', repr(str(tmp_path / "intel-karto.yaml"))), "README", "exec"),
+             namespace)
+    assert (tmp_path / "intel-karto.yaml").is_file() and len(namespace["times"]) == 910
