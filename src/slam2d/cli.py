@@ -500,6 +500,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"peak memory {rec['peak_rss_mb']:.0f} MB, seed {slam.seed}",
         markup=False,
     )
+    if rec.get("compile_s"):
+        out.print(f"  (and {rec['compile_s']:.1f} s compiling kernels on their first use: once per install, "
+                  "not counted above)", markup=False)
     for path in summary.written:
         _print_written(out, path)
     return 0
