@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -62,3 +64,38 @@ def test_the_readme_python_examples_run_as_written(tmp_path, monkeypatch):
         exec(compile(block.replace('"intel-karto.yaml"', repr(str(tmp_path / "intel-karto.yaml"))), "README", "exec"),
              namespace)
     assert (tmp_path / "intel-karto.yaml").is_file() and len(namespace["times"]) == 910
+
+
+@pytest.mark.slow
+def test_the_readme_usage_lines_run_as_written(tmp_path):
+    """Every line of README.md's Usage block, in order, from a folder laid out like the clone's (../shared beside
+    it, params/ in it), but the hour-long sweep and the `<command> --help` template."""
+    import os
+    import re
+    import shlex
+
+    from tests.conftest import DATASETS
+
+    if not DATASETS.is_dir():
+        pytest.skip(f"real datasets not found at {DATASETS}")
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"## Usage\n\n```bash\n(.*?)```", text, re.S).group(1).replace("\\\n", " ")
+    lines = [shlex.split(ln, comments=True) for ln in block.splitlines() if "<command>" not in ln]
+    lines = [argv for argv in lines if argv and argv[:2] != ["slam2d", "sweep"]]
+    assert len(lines) >= 19
+    work = tmp_path / "clone"
+    work.mkdir()
+    (tmp_path / "shared").symlink_to(DATASETS.parent)
+    (work / "params").symlink_to(ROOT / "params")
+    import time
+
+    took = []
+    for argv in lines:
+        line = " ".join(argv)
+        assert argv[0] == "slam2d", line
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-m", "slam2d", *argv[1:]], cwd=work, capture_output=True, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+        took.append((round(time.perf_counter() - t0, 1), line))
+        assert proc.returncode == 0, f"{line}\n{proc.stderr[-2000:]}"
+    print("\n".join(f"{t:7.1f} s  {line}" for t, line in took))  # (pytest -s): which lines cost the time
