@@ -662,7 +662,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     import time
 
     from slam2d.eval.compare import compare
-
     from slam2d.methods.registry import get_method
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]

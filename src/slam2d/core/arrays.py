@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["grown"]
+__all__ = ["grown", "row_bands"]
+
+#: Cells a band of :func:`row_bands` holds: a float copy of it is 4-8 MB, where one of a 330 m map is 170 MB.
+BAND_CELLS = 1 << 20
 
 
 def grown(arr: NDArray, needed: int, *, fill: float = 0, minimum: int = 0) -> NDArray:
@@ -18,3 +21,12 @@ def grown(arr: NDArray, needed: int, *, fill: float = 0, minimum: int = 0) -> ND
     out = np.full((max(needed, 2 * arr.shape[0], minimum),) + arr.shape[1:], fill, dtype=arr.dtype)
     out[: arr.shape[0]] = arr
     return out
+
+
+def row_bands(shape: tuple[int, ...], cells: int = BAND_CELLS) -> list[slice]:
+    """Slices of rows of an array of ``shape`` that hold about ``cells`` cells each (at least one row): work on a
+    big map a band at a time instead of making whole-map copies."""
+    rows = shape[0]
+    cols = shape[1] if len(shape) > 1 else 1
+    step = max(1, cells // max(1, cols))
+    return [slice(r, r + step) for r in range(0, rows, step)]

@@ -17,12 +17,13 @@ import re
 
 from slam2d.errors import InputError
 
-__all__ = ["budget_override", "available_bytes", "resident_bytes", "budget_bytes", "set_budget", "parse_size", "format_size", "check_allocation"]
+__all__ = [
+    "available_bytes", "resident_bytes", "budget_override", "budget_bytes", "set_budget", "parse_size", "format_size",
+    "check_allocation",
+]
 
 #: Share of the available memory a run may take by default.
 DEFAULT_SHARE = 0.75
-
-_budget: int | None = None  # bytes; None: DEFAULT_SHARE of the available memory
 
 
 def available_bytes() -> int | None:
@@ -40,18 +41,13 @@ def available_bytes() -> int | None:
         return None
 
 
-#: How the budget reaches worker processes a command starts (``compare --jobs``, ``sweep``).
+#: Where ``--max-memory`` is kept (bytes): in the environment, so worker processes a command starts
+#: (``compare --jobs``, ``sweep``) hold to it too.
 ENVIRONMENT = "SLAM2D_MAX_MEMORY"
 
 
 def budget_override() -> int | None:
-    """The budget set by :func:`set_budget` or the environment (None: the default share)."""
-    return _set_budget()
-
-
-def _set_budget() -> int | None:
-    if _budget is not None:
-        return _budget
+    """The limit ``--max-memory`` set (bytes), or None for the default share of the available memory."""
     text = os.environ.get(ENVIRONMENT)
     try:
         return parse_size(text) if text else None
@@ -59,13 +55,13 @@ def _set_budget() -> int | None:
         return None
 
 
-def resident_bytes() -> int:
-    """This process's resident memory now (Linux), or 0 when unknown."""
+def resident_bytes() -> int | None:
+    """This process's resident memory now (Linux), or None when unknown."""
     try:
         with open("/proc/self/statm", encoding="ascii") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError, IndexError, AttributeError):
-        return 0
+        return None
 
 
 def budget_bytes() -> int | None:
@@ -74,17 +70,15 @@ def budget_bytes() -> int | None:
     With ``--max-memory``: that total less what the process already holds. Without: DEFAULT_SHARE of the
     memory available now, so allocations add up (64 filters of particles each fit alone, not together).
     """
-    limit = _set_budget()
+    limit = budget_override()
     if limit is not None:
-        return max(0, limit - resident_bytes())
+        return max(0, limit - (resident_bytes() or 0))
     free = available_bytes()
     return None if free is None else int(DEFAULT_SHARE * free)
 
 
 def set_budget(limit: int | None) -> None:
     """Set the budget in bytes (``--max-memory``); None restores the default share of the available memory."""
-    global _budget
-    _budget = limit
     if limit is None:
         os.environ.pop(ENVIRONMENT, None)
     else:
@@ -115,8 +109,8 @@ def check_allocation(nbytes: float, what: str, field: str) -> None:
     """Raise :class:`InputError` naming ``field`` when ``what`` needs more than the budget allows now."""
     limit = budget_bytes()
     if limit is not None and nbytes > limit:
-        total = _set_budget()
-        how = (f"--max-memory {format_size(total)} less the {format_size(resident_bytes())} this run holds"
+        total = budget_override()
+        how = (f"--max-memory {format_size(total)} less the {format_size(resident_bytes() or 0)} this run holds"
                if total is not None else f"{DEFAULT_SHARE:.0%} of the memory available; --max-memory sets it")
         raise InputError(f"{what} would need {format_size(nbytes)}, more than the {format_size(limit)} allowed "
                          f"({how})", field=field)

@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam2d.errors import InputError
+from slam2d.io.atomic import json_ready
 
 __all__ = ["MetricColumn", "METRIC_COLUMNS", "GroundTruth", "RunFiles", "load_truth", "load_reference", "load_run", "evaluate_run", "cost_metrics"]
 
@@ -355,19 +356,4 @@ def evaluate_run(
         except (TypeError, ValueError, AttributeError) as exc:  # a hand-edited or foreign file
             raise InputError(f"unexpected content, not what 'slam2d run' writes ({exc})",
                              path=run.folder / "diagnostics.json") from None
-    return _plain(result)
-
-
-def _plain(value: Any) -> Any:
-    """numpy scalars and arrays to JSON-friendly Python values; NaN and infinity become None."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None  # JSON has no NaN: "no value" (no pairs, no obstacle cells...)
-    return value
+    return json_ready(result)  # NaN ("no value": no pairs, no obstacle cells...) as null

@@ -44,6 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 from numba import njit
 
 from slam2d.core import se2
+from slam2d.core.arrays import row_bands
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.raycast import cast_rays
@@ -727,7 +728,6 @@ _HARRIS_RELATIVE_THRESHOLD = 0.05
 
 
 _HARRIS_BAND = 512  # rows per band of the corner response
-_CHUNK_CELLS = 1 << 20  # cells counted at a time
 
 
 def _harris_response(image: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -891,9 +891,8 @@ def map_quality(
     if n_regions:
         # counted a band of rows at a time: bincount makes an int64 copy of what it counts (220 MB for 27 M cells)
         sizes = np.zeros(n_regions + 1, dtype=np.int64)
-        step = max(1, _CHUNK_CELLS // max(1, labels.shape[1]))
-        for r0 in range(0, labels.shape[0], step):
-            sizes += np.bincount(labels[r0 : r0 + step].ravel(), minlength=n_regions + 1)
+        for rows in row_bands(labels.shape):
+            sizes += np.bincount(labels[rows].ravel(), minlength=n_regions + 1)
         sizes = sizes[1:]
         enclosed = int(np.count_nonzero(sizes >= min_area))
         largest = float(sizes.max()) / n_free

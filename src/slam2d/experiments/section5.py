@@ -877,8 +877,6 @@ def _markdown(result: ExperimentResult) -> str:
     return "\n".join(out)
 
 
-
-
 def write_result(result: ExperimentResult, out_dir: Path) -> list[Path]:
     """Write ``result``: result.json, tables/*.csv, its figures and summary.md, each atomically."""
     from slam2d.io.atomic import write_bytes_atomic, write_json_atomic, write_text_atomic

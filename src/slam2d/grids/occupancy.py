@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
+from slam2d.core.arrays import row_bands
 from slam2d.core.memory import check_allocation
 from slam2d.core.scan import LaserScan
 from slam2d.errors import InputError
@@ -46,9 +47,12 @@ if TYPE_CHECKING:
 __all__ = ["GridParams", "OccupancyGrid", "logit"]
 
 _STAMP_DTYPE = np.uint16
-# Cells converted at a time where a whole-map float copy would be large (occupancy of a 330 m map: 170 MB each).
-_CHUNK_CELLS = 1 << 20
 _STAMP_LIMIT = int(np.iinfo(_STAMP_DTYPE).max)
+
+
+def _probability(logodds: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Occupancy probability of log-odds, as float32."""
+    return (1.0 / (1.0 + np.exp(-logodds))).astype(np.float32)
 
 
 def logit(p: ArrayLike) -> NDArray[np.float64]:
@@ -184,21 +188,20 @@ class OccupancyGrid:
         params = params if params is not None else GridParams()
         params = _replace(params, resolution=float(resolution))
         grid = cls(params, origin=origin, shape=occ.shape)
-        if not np.issubdtype(occ.dtype, np.integer):
+        if np.issubdtype(occ.dtype, np.integer):
+            # one log-odds per value 0..100, looked up a band of rows at a time (no float64 copy of a big map)
+            table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max))
+            table = table.astype(np.float32)
+            for rows in row_bands(occ.shape):
+                band = occ[rows]
+                known = (band >= 0) & (band <= 100)
+                grid.logodds[rows][known] = table[band[known]]
+                grid._stamp[rows][known] = 1
+        else:
             known = (occ >= 0) & (occ <= 100)
             prob = np.clip(occ[known].astype(np.float64) / 100.0, params.p_min, params.p_max)
             grid.logodds[known] = logit(prob).astype(np.float32)
             grid._stamp[known] = 1
-            grid._scan_stamp = 2
-            return grid
-        # one log-odds per value 0..100, looked up a band of rows at a time (no float64 copy of a big map)
-        table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max)).astype(np.float32)
-        step = max(1, _CHUNK_CELLS // max(1, occ.shape[1] if occ.ndim == 2 else 1))
-        for r0 in range(0, occ.shape[0], step):
-            band = occ[r0 : r0 + step]
-            known = (band >= 0) & (band <= 100)
-            grid.logodds[r0 : r0 + step][known] = table[band[known]]
-            grid._stamp[r0 : r0 + step][known] = 1
         grid._scan_stamp = 2
         return grid
 
@@ -475,15 +478,13 @@ class OccupancyGrid:
 
     def probability(self) -> NDArray[np.float32]:
         """Occupancy probability per cell in ``[0, 1]``; 0.5 where unknown."""
-        return (1.0 / (1.0 + np.exp(-self.logodds))).astype(np.float32)
+        return _probability(self.logodds)
 
     def occupancy(self) -> NDArray[np.int8]:
         """``nav_msgs/OccupancyGrid`` values: -1 never observed, else ``round(100 * p)``."""
         occ = np.empty(self.shape, dtype=np.int8)
-        step = max(1, _CHUNK_CELLS // max(1, self.shape[1]))
-        for r in range(0, self.shape[0], step):  # a band of rows at a time: no float copy of a whole big map
-            band = self.logodds[r : r + step]
-            occ[r : r + step] = np.rint((1.0 / (1.0 + np.exp(-band))).astype(np.float32) * 100.0).astype(np.int8)
+        for rows in row_bands(self.shape):  # a band of rows at a time: no float copy of a whole big map
+            occ[rows] = np.rint(_probability(self.logodds[rows]) * 100.0).astype(np.int8)
         occ[self._stamp == 0] = -1
         return occ
 

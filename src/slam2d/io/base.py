@@ -22,11 +22,21 @@ from slam2d.core.scan import LaserScan
 from slam2d.errors import ProblemLog
 from slam2d.params import param
 
-__all__ = ["ReadOptions", "Recording", "StreamInfo", "ProgressCallback", "Message", "MAX_COORDINATE", "pose_problem"]
+__all__ = [
+    "ReadOptions", "Recording", "StreamInfo", "ProgressCallback", "Message", "MAX_COORDINATE", "far_coordinate",
+    "pose_problem",
+]
 
 #: Farther from the origin than any map reaches (the Earth's radius is 6.4e6 m): a pose beyond is corrupt, and
 #: a map or search sized to reach it overflows (an odometry x of 1e308 was an OverflowError traceback).
 MAX_COORDINATE = 1e7  # m
+
+
+def far_coordinate(value: float) -> str | None:
+    """What is wrong with a position coordinate (m) read from a file beyond MAX_COORDINATE, or None."""
+    if abs(value) > MAX_COORDINATE:
+        return f"{float(value)!r} m is farther than any map (over {MAX_COORDINATE:g} m: corrupt)"
+    return None
 
 
 def pose_problem(pose) -> str | None:
@@ -34,9 +44,10 @@ def pose_problem(pose) -> str | None:
     pose = np.asarray(pose, dtype=np.float64)
     if not np.all(np.isfinite(pose)):
         return f"{pose.tolist()} is not finite"
-    far = float(np.abs(pose[:2]).max())
-    if far > MAX_COORDINATE:
-        return f"{pose.tolist()} is {far:g} m from the origin (over {MAX_COORDINATE:g} m: corrupt)"
+    for name, value in zip("xy", pose[:2]):
+        problem = far_coordinate(value)
+        if problem:
+            return f"{name}: {problem}"
     return None
 
 #: ``progress(done, total)``; units are the reader's own (bytes of the file for

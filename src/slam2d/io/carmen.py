@@ -61,9 +61,9 @@ import slam2d
 from slam2d.core import se2
 from slam2d.core.frames import Frame, OdometryReading
 from slam2d.core.scan import LaserScan, make_scan
-from slam2d.errors import InputError, ProblemLog
+from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
-from slam2d.io.base import MAX_COORDINATE, Message, ProgressCallback, ReadOptions, Recording, StreamInfo
+from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo, far_coordinate
 
 __all__ = ["CarmenLog", "NoReturnCode", "infer_no_return_code", "write_carmen", "DEFAULT_SICK_MAX_RANGE"]
 
@@ -231,15 +231,11 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _count_odd_ranges(problems: ProblemLog, tokens: list[str], first: int, n: int, lineno: int, keyword: str) -> None:
-    """Count a laser line's ranges that are NaN, infinite or negative: no CARMEN writer produces them, and they
-    are read as no return (a file that holds them was made or edited by hand, or is corrupt)."""
+def _odd_ranges(ranges: NDArray[np.float64]) -> int:
+    """A laser line's ranges that are NaN, infinite or negative: no CARMEN writer produces them, and they are read
+    as no return (a file that holds them was made or edited by hand, or is corrupt)."""
     with np.errstate(invalid="ignore"):
-        r = np.asarray(tokens[first:first + n], dtype=np.float64)
-        odd = int(np.count_nonzero(~np.isfinite(r) | (r < 0.0)))
-    if odd:
-        problems.add("ranges NaN, infinite or negative (read as no return)",
-                     f"line {lineno}: {keyword}, {odd} of {n} beams")
+        return int(np.count_nonzero(~np.isfinite(ranges) | (ranges < 0.0)))
 
 
 def _finite_pose(values: NDArray[np.float64], fields: list[str]) -> NDArray[np.float64]:
@@ -247,10 +243,10 @@ def _finite_pose(values: NDArray[np.float64], fields: list[str]) -> NDArray[np.f
     if bad.any():
         i = int(np.argmax(bad))
         raise _BadLine(fields[i], f"{float(values[i])!r} is not a finite number")
-    far = np.abs(values[:2]) > MAX_COORDINATE
-    if far.any():
-        i = int(np.argmax(far))
-        raise _BadLine(fields[i], f"{float(values[i])!r} m is farther than any map (over {MAX_COORDINATE:g} m: corrupt)")
+    for field, value in zip(fields[:2], values[:2]):  # the position; the heading wraps
+        problem = far_coordinate(value)
+        if problem:
+            raise _BadLine(field, problem)
     return values
 
 
@@ -416,11 +412,12 @@ class CarmenLog(Recording):
                         if self._laser_keyword is None:
                             self._laser_keyword = keyword
                         if keyword == "ROBOTLASER1":
-                            scan, pose = self._parse_robotlaser(tokens, params)
-                            _count_odd_ranges(self.problems, tokens, 9, int(float(tokens[8])), lineno, keyword)
+                            scan, pose, odd = self._parse_robotlaser(tokens, params)
                         else:
-                            scan, pose = self._parse_flaser(keyword, tokens, params, geometry)
-                            _count_odd_ranges(self.problems, tokens, 2, scan.num_beams, lineno, keyword)
+                            scan, pose, odd = self._parse_flaser(keyword, tokens, params, geometry)
+                        if odd:
+                            self.problems.add("ranges NaN, infinite or negative (read as no return)",
+                                              f"line {lineno}: {keyword}, {odd} of {scan.num_beams} beams")
                         if keyword != self._laser_keyword:
                             continue  # another laser: checked like the others, not used
                         if mode == "embedded":
@@ -673,7 +670,8 @@ class CarmenLog(Recording):
         tokens: list[str],
         params: dict[str, float],
         geometry: dict[tuple[str, int], tuple[float, float, float, float, NDArray[np.float64]]],
-    ) -> tuple[LaserScan, NDArray[np.float64]]:
+    ) -> tuple[LaserScan, NDArray[np.float64], int]:
+        """The scan, the odometry pose and how many ranges were odd (:func:`_odd_ranges`)."""
         if len(tokens) < 2:
             raise _BadLine(keyword, "the line ends after its keyword (truncated line?)")
         n = _count(tokens[1], f"{keyword} num_readings")
@@ -701,11 +699,12 @@ class CarmenLog(Recording):
             )
         except ValueError as exc:
             raise _BadLine(keyword, str(exc)) from None
-        return scan, values[n + 3 : n + 6]
+        return scan, values[n + 3 : n + 6], _odd_ranges(values[:n])
 
     def _parse_robotlaser(
         self, tokens: list[str], params: dict[str, float]
-    ) -> tuple[LaserScan, NDArray[np.float64]]:
+    ) -> tuple[LaserScan, NDArray[np.float64], int]:
+        """The scan, the robot pose and how many ranges were odd (:func:`_odd_ranges`)."""
         kw = "ROBOTLASER1"
         if len(tokens) < 10:
             raise _BadLine(kw, f"line has {len(tokens)} fields, at least 24 expected (truncated line?)")
@@ -770,7 +769,7 @@ class CarmenLog(Recording):
             )
         except ValueError as exc:
             raise _BadLine(kw, str(exc)) from None
-        return scan, robot_pose
+        return scan, robot_pose, _odd_ranges(body[:n])
 
     @staticmethod
     def _parse_odom(tokens: list[str]) -> tuple[float, NDArray[np.float64]]:

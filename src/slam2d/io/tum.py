@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
-from slam2d.io.base import MAX_COORDINATE
+from slam2d.io.base import far_coordinate
 from slam2d.io.numeric_text import numeric_rows
 
 __all__ = ["read_tum", "write_tum", "by_time", "interpolate_poses", "poses_at_scans"]
@@ -52,9 +52,9 @@ def read_tum(
     for lineno, values in numeric_rows(path, _COLUMNS, "TUM trajectory file"):
         t, x, y, _z, qx, qy, qz, qw = values
         for name, v in (("x", x), ("y", y)):
-            if abs(v) > MAX_COORDINATE:
-                raise InputError(f"{v!r} m is farther than any map (over {MAX_COORDINATE:g} m: corrupt)",
-                                 path=path, where=lineno, field=name)
+            problem = far_coordinate(v)
+            if problem:
+                raise InputError(problem, path=path, where=lineno, field=name)
         norm = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         if abs(norm - 1.0) > _UNIT_TOLERANCE:
             raise InputError(

@@ -28,9 +28,10 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from slam2d.core.compile_time import compile_clock
+from slam2d.core.memory import resident_bytes
 from slam2d.errors import InputError
 from slam2d.io.base import ProgressCallback, ReadOptions
-from slam2d.core.compile_time import compile_clock
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import get_method
 from slam2d.params import as_dict, from_mapping
@@ -184,11 +185,8 @@ def _with_profile(method: str, frames: Sequence[Any], kwargs: Mapping[str, Any])
 
 def _rss_mb() -> float:
     """Resident memory now (MB), from /proc; NaN where there is none."""
-    try:
-        pages = int(Path("/proc/self/statm").read_text().split()[1])
-    except (OSError, ValueError, IndexError):
-        return float("nan")
-    return pages * resource.getpagesize() / 1e6
+    resident = resident_bytes()
+    return float("nan") if resident is None else resident / 1e6
 
 
 def _peak_rss_mb() -> float:

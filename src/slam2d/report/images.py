@@ -41,6 +41,11 @@ def grey_levels() -> np.ndarray:
     return _image_of(np.arange(-1, 101, dtype=np.float64))
 
 
+def by_occupancy(table: np.ndarray, occupancy: np.ndarray) -> np.ndarray:
+    """``table[value + 1]`` for each occupancy value (-1..100) of a map: a lookup, no float copy of the map."""
+    return table[np.clip(occupancy, -1, 100).astype(np.int16) + 1]
+
+
 def _image_of(occ: np.ndarray) -> np.ndarray:
     """Grey levels in [0, 1] of occupancy values (-1 unknown, 0..100)."""
     img = 1.0 - (occ - FREE_PERCENT) / (OCCUPIED_PERCENT - FREE_PERCENT)
@@ -73,9 +78,7 @@ def save_map_png(grid: Any, path: str | Path, *, scale: int | None = None) -> Pa
     path = Path(path)
     # one grey per occupancy value (-1..100), looked up: the same pixels as gray_pixels(map_image(grid)),
     # without its float64 copies of the map (300 MB at once for fr101's odometry map)
-    levels = gray_pixels(_image_of(np.arange(-1, 101, dtype=np.float64)))
-    occupancy = grid.occupancy()[::-1]
-    pixels = levels[np.clip(occupancy, -1, 100).astype(np.int16) + 1]
+    pixels = by_occupancy(gray_pixels(grey_levels()), grid.occupancy()[::-1])
     if scale is None:
         scale = max(1, int(np.ceil(MIN_PREVIEW_PIXELS / max(1, max(pixels.shape)))))
     if scale > 1:

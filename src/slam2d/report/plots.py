@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
-from slam2d.report.images import UNKNOWN_GRAY, grey_levels
+from slam2d.report.images import UNKNOWN_GRAY, by_occupancy, grey_levels
 
 __all__ = [
     "DPI",
@@ -197,7 +197,7 @@ def _pooled_grey(grid: Any, metres_per_pixel: float) -> tuple[NDArray[np.float64
     rank = np.empty(levels.size, dtype=np.uint8)
     rank[np.argsort(levels, kind="stable")] = np.arange(levels.size, dtype=np.uint8)
     by_rank = np.sort(levels, kind="stable")
-    ranks = rank[np.clip(grid.occupancy(), -1, 100).astype(np.int16) + 1]  # row 0 = lowest y
+    ranks = by_occupancy(rank, grid.occupancy())  # row 0 = lowest y
     factor = max(1, int(metres_per_pixel / float(grid.resolution) + 1e-9))
     if factor == 1:
         return by_rank[ranks], float(grid.resolution)
