@@ -12,12 +12,14 @@ PYTEST_ARGS ?=
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 HAVE_APT := $(shell command -v apt-get >/dev/null 2>&1 && echo 1)
 
-# An install is redone whenever pyproject.toml changes.
+# An install is redone whenever pyproject.toml changes. `slam2d compile` then compiles every
+# method's numba kernels into their on-disk cache, so that no first run pays for it (about a minute).
 $(VENV)/.installed: pyproject.toml
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "slam2d needs Python >= 3.11")'
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --quiet --upgrade pip
 	$(PIP) install --quiet -e '.[test]'
+	$(VENV)/bin/slam2d compile
 	@touch $@
 
 ## demo: set up and rerun the source study in simulation, quick version (writes demo-out/report.html)

@@ -24,16 +24,9 @@ SHARED = ROOT.parent / "shared" / "datasets"
 
 def missed_turn(frames, k, turn):
     """The frames with the odometry from frame ``k`` on missing a turn of ``turn`` rad."""
-    from slam2d.core import se2
+    from slam2d.sim.faults import frames_with_odometry_missing
 
-    odo = [f.odometry for f in frames]
-    anchor = odo[k - 1]
-    wrong = se2.compose(anchor, se2.compose(se2.relative(anchor, odo[k]), np.array([0.0, 0.0, -turn])))
-    out = list(frames[:k])
-    for j in range(k, len(frames)):
-        out.append(type(frames[j])(index=frames[j].index, scan=frames[j].scan,
-                                   odometry=se2.compose(wrong, se2.relative(odo[k], odo[j]))))
-    return out
+    return frames_with_odometry_missing(frames, k, np.array([0.0, 0.0, turn]))
 
 
 def main() -> int:

@@ -11,6 +11,7 @@ from _room import room_scan
 from conftest import recording_frames
 from slam2d.core import se2
 from slam2d.matching.odometry_gaps import GapCheck, OdometryGapGuard
+from slam2d.sim.faults import frames_with_odometry_missing, odometry_missing
 
 
 def _room_path():
@@ -20,16 +21,6 @@ def _room_path():
     poses += [np.array([x, -0.5, math.radians(22.5) * (k + 1)]) for k in range(4)]
     poses += [np.array([x, -0.5 + 0.25 * (k + 1), math.pi / 2]) for k in range(6)]
     return poses
-
-
-def _miss(odometry, k, missed):
-    """The odometry from scan ``k`` on, as if the increment into ``k`` had not seen ``missed`` (robot frame)."""
-    out = [o.copy() for o in odometry]
-    anchor = odometry[k - 1]
-    wrong = se2.compose(anchor, se2.compose(se2.relative(anchor, odometry[k]), se2.inverse(missed)))
-    for j in range(k, len(odometry)):
-        out[j] = se2.compose(wrong, se2.relative(odometry[k], odometry[j]))
-    return out
 
 
 def _guarded(poses, odometry, check=None, scan_poses=None):
@@ -51,7 +42,7 @@ def _worst_increment_error(poses, fixed):
 def test_an_unreported_turn_in_place_is_put_back():
     poses = _room_path()
     # the whole 90 deg turn lands between two checks: the odometry reports none of it
-    odometry = _miss(poses, 12, np.array([0.0, 0.0, math.pi / 2]))
+    odometry = odometry_missing(poses, 12, np.array([0.0, 0.0, math.pi / 2]))
     guard, fixed = _guarded(poses, odometry)
     assert guard.recoveries >= 1
     xy, t = _worst_increment_error(poses, fixed)
@@ -63,7 +54,7 @@ def test_an_unreported_turn_in_place_is_put_back():
 def test_an_unreported_two_metre_shift_is_put_back():
     poses = [np.array([-2.0 + 0.25 * k, 0.2 * math.sin(k / 3.0), 0.1]) for k in range(6)]
     poses += [np.array([poses[-1][0] + 2.0 + 0.25 * k, 0.3, 0.1]) for k in range(1, 5)]  # 2.25 m, one step
-    odometry = _miss(poses, 6, np.array([2.0, 0.0, 0.0]))
+    odometry = odometry_missing(poses, 6, np.array([2.0, 0.0, 0.0]))
     guard, fixed = _guarded(poses, odometry)
     assert guard.recoveries == 1
     xy, t = _worst_increment_error(poses, fixed)
@@ -102,7 +93,7 @@ def test_refine_heading_takes_a_small_heading_error_out():
     """A 10 deg heading error of one step is noise to the gap check (under 20 deg: left alone), but with
     ``refine_heading`` (hector's) the scans' heading replaces the odometry's."""
     poses = _room_path()
-    odometry = _miss(poses, 5, np.array([0.0, 0.0, math.radians(10.0)]))
+    odometry = odometry_missing(poses, 5, np.array([0.0, 0.0, math.radians(10.0)]))
     guard, fixed = _guarded(poses, odometry)
     assert guard.recoveries == 0 and all(np.allclose(f, o) for f, o in zip(fixed, odometry))
     guard, fixed = _guarded(poses, odometry, GapCheck(refine_heading=True))
@@ -112,8 +103,7 @@ def test_refine_heading_takes_a_small_heading_error_out():
 
 
 def _with_missed_turn(frames, k, turn):
-    odometry = _miss([f.odometry for f in frames], k, np.array([0.0, 0.0, turn]))
-    return [type(f)(index=f.index, scan=f.scan, odometry=o) for f, o in zip(frames, odometry)]
+    return frames_with_odometry_missing(frames, k, np.array([0.0, 0.0, turn]))
 
 
 def _ate(slam, sim):

@@ -37,6 +37,7 @@ _HELP = {
     "calibrate": "calibrate the laser's range noise, the odometry's noise or its timing from data",
     "sweep": "run a parameter study (methods x parameters x datasets x seeds) on a local pool or a Dask cluster",
     "experiment": "rerun the source study's Section V experiments in simulation, with numbers",
+    "compile": "compile every method's kernels now, so the first run is as fast as the second",
 }
 
 EXIT_USER_ERROR = 2
@@ -1266,9 +1267,35 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------- entry point
 
+# --------------------------------------------------------------------------- compile
+
+
+def _add_compile(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "compile",
+        help=_HELP["compile"],
+        description="numba compiles each kernel on its first use and keeps it on disk. This runs every method "
+        "once on a short simulated recording (with and without odometry where it is optional) so that "
+        "compilation happens now, not in your first run. 'make' runs it after installing; run it again after "
+        "upgrading slam2d or numba. Takes a few minutes.",
+    )
+    p.add_argument("--jobs", type=int, default=None, help="runs at a time (default: the CPUs, at most 4)")
+    p.set_defaults(handler=cmd_compile)
+
+
+def cmd_compile(args: argparse.Namespace) -> int:
+    from slam2d.methods.warm_up import warm_up
+
+    if args.jobs is not None and args.jobs < 1:
+        raise InputError(f"must be 1 or more, got {args.jobs}", field="--jobs")
+    took = warm_up(args.jobs, say=lambda line: print(line, flush=True))
+    print(f"every kernel compiled and cached ({took:.0f} s)")
+    return 0
+
+
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
-    _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep, _add_experiment,
+    _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep, _add_experiment, _add_compile,
 ]
 
 

@@ -1,0 +1,41 @@
+"""Faults put into a recording on purpose: odometry that missed a motion.
+
+Real odometry streams drop messages (a turn in place never reported, a push the
+wheels did not feel). These make such recordings from good ones, for tests,
+benchmarks and the compile warm-up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+
+__all__ = ["odometry_missing", "frames_with_odometry_missing"]
+
+
+def odometry_missing(odometry: Sequence[NDArray[np.float64]], k: int,
+                     missed: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """The odometry poses from ``k`` on, as if the increment into ``k`` had not seen ``missed`` (robot frame).
+
+    Every later increment stays right; the pose from ``k`` on is turned and shifted about the pose
+    at ``k - 1``, as when one message was lost.
+    """
+    if not 1 <= k < len(odometry):
+        raise ValueError(f"k: {k} must be between 1 and {len(odometry) - 1}")
+    out = [np.array(o, dtype=np.float64) for o in odometry]
+    anchor = out[k - 1]
+    wrong = se2.compose(anchor, se2.compose(se2.relative(anchor, out[k]), se2.inverse(np.asarray(missed, float))))
+    for j in range(k, len(out)):
+        out[j] = se2.compose(wrong, se2.relative(np.asarray(odometry[k], float), np.asarray(odometry[j], float)))
+    return out
+
+
+def frames_with_odometry_missing(frames: Sequence, k: int, missed: NDArray[np.float64]) -> list:
+    """``frames`` (each with odometry) with :func:`odometry_missing` applied to their odometry."""
+    odometry = odometry_missing([f.odometry for f in frames], k, missed)
+    return [dataclasses.replace(f, odometry=o) for f, o in zip(frames, odometry)]
