@@ -1277,7 +1277,7 @@ def _add_compile(sub: argparse._SubParsersAction) -> None:
         description="numba compiles each kernel on its first use and keeps it on disk. This runs every method "
         "once on a short simulated recording (with and without odometry where it is optional) so that "
         "compilation happens now, not in your first run. 'make' runs it after installing; run it again after "
-        "upgrading slam2d or numba. Takes a few minutes.",
+        "upgrading slam2d or numba. Takes about a minute on two cores.",
     )
     p.add_argument("--jobs", type=int, default=None, help="runs at a time (default: the CPUs, at most 4)")
     p.set_defaults(handler=cmd_compile)
