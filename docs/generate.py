@@ -9,6 +9,7 @@ parameter tables cannot drift from what the program does:
   of ``slam2d calibrate laser --help``);
 * ``params:module:Class`` — the parameter table of a parameter dataclass;
 * ``method:NAME`` — a registered method's parameter table and the values it logs;
+* ``ros-params:ORIGIN:METHOD`` — how a slam_toolbox or slam_gmapping YAML is read for METHOD;
 * ``example:NAME`` — the output of an example command on a shared dataset
   (left as it is when ``../shared/datasets`` is absent).
 
@@ -103,6 +104,12 @@ def render(key: str, old: str) -> str:
         return _params(arg)
     if kind == "method":
         return _method(arg)
+    if kind == "ros-params":  # ros-params:slam_toolbox:karto
+        from slam2d.io.ros_params import mapping_table
+        from slam2d.methods import get_method
+
+        origin, _, method = arg.partition(":")
+        return mapping_table(origin, get_method(method).Params)
     if kind == "example":
         new = _example(arg)
         return old if new is None else new

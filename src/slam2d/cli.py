@@ -463,7 +463,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", action="append", metavar="NAME=VALUE", dest="settings",
                    help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable)")
     p.add_argument("--params", type=Path, metavar="FILE",
-                   help="YAML file of parameters (name: value), or a run.json to repeat; --set wins")
+                   help="YAML file of parameters (name: value), a slam_toolbox or slam_gmapping YAML (read "
+                   "under slam2d's names and units), or a run.json to repeat; --set wins")
     p.add_argument("--seed", type=_seed, help="random seed (default: the --params file's, else 0)")
     _add_sensor_model_option(p)
     add_arguments(p.add_argument_group("reading"), ReadOptions)

@@ -149,6 +149,8 @@ class SlamMethod(ABC):
         self._times: list[float] = []
         self._poses: list[NDArray[np.float64]] = []
         self.frames_fed = 0
+        # what reading the parameters said (a ROS node's file: keys dropped or converted), for run.json's warnings
+        self.param_notes: list[str] = []
         self._gap_guard = None
         if getattr(self.params, "odometry_gap_check", False):
             from slam2d.matching.odometry_gaps import OdometryGapGuard

@@ -130,8 +130,15 @@ def build_method(
     values: dict[str, Any] = {}
     extras: dict[str, Any] = {}
     file_seed = None
+    notes: list[str] = []
     if params_file is not None:
         values, extras = read_params_file(params_file)
+        if not extras:  # a slam_toolbox or slam_gmapping YAML: under slam2d's names and units
+            from slam2d.io.ros_params import ros_params
+
+            ros = ros_params(values, params_file, cls.Params, cls.name)
+            if ros is not None:
+                values, notes = ros.values, ros.notes
         if extras.get("method") not in (None, cls.name):
             raise InputError(
                 f"this file is for method {extras['method']!r}, not {cls.name!r}", path=params_file, field="method"
@@ -160,7 +167,9 @@ def build_method(
                 raise
             raise InputError(f"{exc.message} (the model this file recorded)", path=params_file,
                              field="sensor_model.spec") from None
-    return cls(params, seed=chosen_seed, sensor_model=sensor_model, profile=profile)
+    slam = cls(params, seed=chosen_seed, sensor_model=sensor_model, profile=profile)
+    slam.param_notes = notes
+    return slam
 
 
 def build_method_for(method: str, frames: Sequence[Any], **kwargs: Any) -> SlamMethod:
@@ -337,7 +346,7 @@ def _write_run(
         "peak_rss_mb": peak,
         "rss_growth_mb": peak - rss_before,
         "input_problems": problems,
-        "warnings": _odometry_warnings(slam, frames),
+        "warnings": slam.param_notes + _odometry_warnings(slam, frames),
         "versions": versions(),
         "command": command,
     }
