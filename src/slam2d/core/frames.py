@@ -31,12 +31,18 @@ class OdometryReading:
     """The robot's pose in the odometry frame at ``timestamp`` (seconds).
 
     ``source`` names where it came from (``ODOM``, ``FLASER``, ``/odom``,
-    ``/tf``...), which ``slam2d info`` reports.
+    ``/tf``...), which ``slam2d info`` reports. ``twist`` (``vx, vy, wz`` in
+    the robot frame, m/s and rad/s) and the variances of the pose and the twist
+    (``x, y, heading`` and ``vx, vy, wz``) are None where the source does not
+    say (a bag writer then writes zeros: "unknown" in nav_msgs/Odometry).
     """
 
     timestamp: float
     pose: NDArray[np.float64]
     source: str = ""
+    twist: NDArray[np.float64] | None = None
+    pose_variance: NDArray[np.float64] | None = None
+    twist_variance: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -45,7 +45,7 @@ BAD_CHUNK = "damaged chunk: rest of it skipped"
 UNREADABLE_CHUNK = "unreadable chunk skipped"
 BAD_CONNECTION = "unreadable connection record skipped"
 BAD_MESSAGE = "message with unknown connection or time skipped"
-INDEX_LENGTH = "bag index record length inconsistent (ignored)"
+INDEX_LENGTH = "bag index record states a wrong length (read by its entry count, as rosbag does)"
 DATA_LOSS = frozenset({SKIPPED_BYTES, BAD_CHUNK, UNREADABLE_CHUNK, BAD_CONNECTION, BAD_MESSAGE})
 
 _UINT32 = struct.Struct("<I")
@@ -259,6 +259,31 @@ class Ros1SequentialReader:
         self.connections = connections
         self.counts = counts
         return True
+
+    def only_index_lengths_wrong(self) -> bool:
+        """True when the bag is whole and its one defect is index data records stating a wrong length.
+
+        rosbag reads those records by their entry count and the bag plays; an indexed reader that trusts
+        the length fails on them. Walks the record headers up to the index section (chunks are skipped,
+        not read): cheap.
+        """
+        if not (len(MAGIC) < self.index_pos < self.size):
+            return False
+        wrong = 0
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self.data_start)
+                while f.tell() < self.index_pos:
+                    fields, _, data_len = self._record_header(f)
+                    if _op(fields) == OP_INDEX_DATA and _uint32(fields, "ver") == 1:
+                        count = _uint32(fields, "count")
+                        if data_len != 12 * count:
+                            wrong += 1
+                            data_len = 12 * count
+                    f.seek(data_len, os.SEEK_CUR)
+                return wrong > 0 and f.tell() == self.index_pos
+        except (BagDamaged, ValueError, KeyError, OSError):
+            return False
 
     # -- records --------------------------------------------------------------------
 

@@ -201,11 +201,16 @@ class _Ros1Sequential(_Backend):
         except (BagDamaged, OSError) as exc:
             raise InputError(f"cannot be read as a ROS 1 bag: {one_line(exc)}", path=path) from None
         # index_pos 0 is what a recorder killed before closing the bag leaves.
-        reason = "no index" if self.reader.index_pos == 0 else "index damaged"
-        self.format = f"ROS 1 bag v2.0 ({reason}: read sequentially)"
-        bag.problems.add(
-            f"bag {'has no index' if reason == 'no index' else 'index damaged'}; read sequentially", failure
-        )
+        if self.reader.index_pos == 0:
+            self.format = "ROS 1 bag v2.0 (no index: read sequentially)"
+            bag.problems.add("bag has no index; read sequentially", failure)
+        elif self.reader.only_index_lengths_wrong():
+            # rosbag plays such a bag: it reads index records by their counts. The data is whole.
+            # (each such record is in the problem log, from the read itself)
+            self.format = "ROS 1 bag v2.0 (index records state wrong lengths: read sequentially, nothing lost)"
+        else:
+            self.format = "ROS 1 bag v2.0 (index damaged: read sequentially)"
+            bag.problems.add("bag index damaged; read sequentially", failure)
         try:
             self.reader.read_metadata()
         except (BagDamaged, OSError) as exc:
@@ -456,8 +461,10 @@ class RosBag(Recording):
             used[self.tf_static_topic] = "laser mount"
         if plan.odometry == "tf" and self.tf_topic:
             used[self.tf_topic] = "odometry"
+        # each bag in its own ROS's spelling: sensor_msgs/LaserScan in a ROS 1 bag, sensor_msgs/msg/LaserScan in ROS 2
+        spell = _short_type if self._backend.ros_version == 1 else str
         return [
-            StreamInfo(t.name, t.msgtype, t.count, used.get(t.name, ""))
+            StreamInfo(t.name, spell(t.msgtype), t.count, used.get(t.name, ""))
             for t in sorted(self._backend.topics.values(), key=lambda t: t.name)
         ]
 
@@ -985,6 +992,7 @@ class _BagWriter:
         self.topics = topics
         self.frames = frames
         self.write_tf = write_tf
+        self.scan_timing = (0.0, 0.0)  # LaserScan scan_time, time_increment (s); 0: unknown
         if self.ros1:
             from rosbags.rosbag1 import Writer as Writer1
 
@@ -1117,8 +1125,8 @@ class _BagWriter:
             angle_min=float(scan.angle_min),
             angle_max=float(scan.angle_max),
             angle_increment=float(scan.angle_increment),
-            time_increment=0.0,
-            scan_time=0.0,
+            time_increment=self.scan_timing[1],
+            scan_time=self.scan_timing[0],
             range_min=float(scan.range_min),
             range_max=float(scan.range_max),
             ranges=ranges,
@@ -1126,8 +1134,9 @@ class _BagWriter:
         )
         self._write(self.topics["scan"], SCAN_TYPE, msg, time_ns)
 
-    def odometry(self, t: float, pose: NDArray[np.float64], where: str) -> None:
-        pose = np.asarray(pose, dtype=np.float64)
+    def odometry(self, reading: OdometryReading, where: str) -> None:
+        t = reading.timestamp
+        pose = np.asarray(reading.pose, dtype=np.float64)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise InputError(
                 f"{pose.tolist()} is not a finite pose [x, y, theta]",
@@ -1140,8 +1149,13 @@ class _BagWriter:
         self._note_time(time_ns)
         ty = self.types
         q = se2.yaw_to_quaternion(pose[2])
-        zeros36 = np.zeros(36, dtype=np.float64)
-        vec0 = ty["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        twist = np.zeros(3) if reading.twist is None else np.asarray(reading.twist, dtype=np.float64)
+        # 6x6 row-major (x, y, z, roll, pitch, yaw): the planar variances on x, y and yaw; zeros: unknown
+        pose_cov, twist_cov = np.zeros(36, dtype=np.float64), np.zeros(36, dtype=np.float64)
+        for cov, var in ((pose_cov, reading.pose_variance), (twist_cov, reading.twist_variance)):
+            if var is not None:
+                cov[[0, 7, 35]] = np.asarray(var, dtype=np.float64)
+        vec3 = ty["geometry_msgs/msg/Vector3"]
         msg = ty[ODOMETRY_TYPE](
             header=self._header(sec, nsec, self.frames["odom"]),
             child_frame_id=self.frames["base"],
@@ -1152,11 +1166,12 @@ class _BagWriter:
                         x=0.0, y=0.0, z=float(q[2]), w=float(q[3])
                     ),
                 ),
-                covariance=zeros36,
+                covariance=pose_cov,
             ),
             twist=ty["geometry_msgs/msg/TwistWithCovariance"](
-                twist=ty["geometry_msgs/msg/Twist"](linear=vec0, angular=vec0),
-                covariance=zeros36.copy(),
+                twist=ty["geometry_msgs/msg/Twist"](linear=vec3(x=float(twist[0]), y=float(twist[1]), z=0.0),
+                                                    angular=vec3(x=0.0, y=0.0, z=float(twist[2]))),
+                covariance=twist_cov,
             ),
         )
         self._write(self.topics["odom"], ODOMETRY_TYPE, msg, time_ns)
@@ -1177,6 +1192,8 @@ def write_rosbag(
     base_frame: str = "base_link",
     laser_frame: str = "laser",
     write_tf: bool = True,
+    scan_time: float = 0.0,
+    time_increment: float = 0.0,
 ) -> Path:
     """Write scans and odometry as a ROS bag; returns ``path``.
 
@@ -1209,18 +1226,22 @@ def write_rosbag(
             target = tmp / (out.name or "bag")
         else:
             target = tmp
+        for name, value in (("scan_time", scan_time), ("time_increment", time_increment)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise InputError(f"{value} must be a finite time >= 0", path=out, field=name)
         writer = _BagWriter(target, out, version, storage, topics, frames, write_tf)
+        writer.scan_timing = (float(scan_time), float(time_increment))
         try:
             for k, item in enumerate(frames_or_messages):
                 where = f"item {k}"
                 if isinstance(item, Frame):
                     writer.scan(item.scan, where)
                     if item.odometry is not None:
-                        writer.odometry(item.scan.timestamp, item.odometry, where)
+                        writer.odometry(OdometryReading(item.scan.timestamp, item.odometry), where)
                 elif isinstance(item, LaserScan):
                     writer.scan(item, where)
                 elif isinstance(item, OdometryReading):
-                    writer.odometry(item.timestamp, item.pose, where)
+                    writer.odometry(item, where)
                 else:
                     raise InputError(
                         f"cannot write a {type(item).__name__}; expected Frame, LaserScan or OdometryReading",

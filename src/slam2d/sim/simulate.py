@@ -50,6 +50,11 @@ class SimulationParams:
         None, unit="rad/s", low=0.0, help="cap the robot's turn rate; default: the preset's",
     )
     seed: int = param(0, low=0, help="random seed of odometry and range noise; the same seed gives the same bytes")
+    start_time: float = param(
+        1767225600.0, unit="s", low=0.0,
+        help="stamp of the first message, seconds since 1970 (default: 2026-01-01 00:00 UTC; ROS tf takes "
+        "a stamp of 0 for 'not yet valid')",
+    )
     odometry_rate: float = param(
         50.0, unit="Hz", low=0.1,
         help="odometry rate, rounded to a whole multiple of the laser rate (truth is sampled at it too)",
@@ -85,11 +90,31 @@ class Simulation:
         return [Frame(k, s, self.odometry[i].copy()) for k, (i, s) in enumerate(zip(self.scan_indices, self.scans, strict=True))]
 
     def messages(self) -> Iterator[LaserScan | OdometryReading]:
-        """Odometry at its own rate with the scans in between, as a robot records them."""
+        """Odometry at its own rate with the scans in between, as a robot records them.
+
+        Each odometry reading carries what a driver publishes with it: the twist (its last increment over the
+        sample period) and the variances of the noise model, the pose's summed over the drive so far (dead
+        reckoning only grows less certain), the twist's of the last increment over the period squared.
+        """
+        from slam2d.sensors.motion_noise import odometry_increments, step_variances
+
+        steps = step_variances(odometry_increments(self.truth), self.noise)
+        dt = np.diff(self.times)
+        # each step's variance in the odometry frame (the heading's effect on position is left out)
+        c, s = np.cos(self.odometry[:-1, 2]), np.sin(self.odometry[:-1, 2])
+        world = np.stack([c * c * steps[:, 0] + s * s * steps[:, 1], s * s * steps[:, 0] + c * c * steps[:, 1],
+                          steps[:, 2]], axis=1)
+        pose_variance = np.vstack([np.zeros((1, 3)), np.cumsum(world, axis=0)])
+        increments = odometry_increments(self.odometry)
         k = 0
         n_scans = len(self.scans)
         for i, t in enumerate(self.times):
-            yield OdometryReading(float(t), self.odometry[i].copy(), source="odom")
+            if i == 0 or not dt[i - 1] > 0.0:
+                twist, twist_variance = np.zeros(3), np.zeros(3)
+            else:
+                twist, twist_variance = increments[i - 1] / dt[i - 1], steps[i - 1] / (dt[i - 1] * dt[i - 1])
+            yield OdometryReading(float(t), self.odometry[i].copy(), source="odom", twist=twist,
+                                  pose_variance=pose_variance[i].copy(), twist_variance=twist_variance)
             if k < n_scans and self.scan_indices[k] == i:
                 yield self.scans[k]
                 k += 1
@@ -204,16 +229,18 @@ def simulate(
     # The last sweeps end after the last sample: held at it.
     sweep_end_poses, _ = interpolate_poses(times, truth, np.minimum(sweep_end_times, times[-1]), math.inf)
     laser_end = se2.compose(sweep_end_poses, mount)
+    # everything above runs on times from 0 (the same noise and bytes whatever the start); stamped from start_time
+    t0 = float(params.start_time)
     scans = []
     for k, i in enumerate(scan_indices):
         ranges = lidar.measure(laser_start[k], laser_end[k] if params.distortion else None, scan_rng)
         scans.append(
             make_scan(
-                float(times[i]), ranges, laser.angle_min, laser.angle_increment, laser.range_min, laser.range_max,
+                t0 + float(times[i]), ranges, laser.angle_min, laser.angle_increment, laser.range_min, laser.range_max,
                 mount=mount, frame_id="laser",
             )
         )
-    return Simulation(world, params, noise, robot, laser, times, truth, odometry, scan_indices, scans)
+    return Simulation(world, params, noise, robot, laser, t0 + times, truth, odometry, scan_indices, scans)
 
 
 #: The true map's cell size: finer than the 0.05 m maps it usually judges, so that map error is
@@ -244,10 +271,13 @@ def write_outputs(sim: Simulation, out_dir: str | Path, *, ros1: bool = False,
     truth_map = rasterize(sim.world, resolution=map_resolution)  # a map too large fails before anything is written
     out.mkdir(parents=True, exist_ok=True)
     written = [write_carmen(out / "recording.log.gz", sim.messages())]
+    # the laser's timing as its driver states it: a sweep per period, beam to beam a mirror step apart
+    timing = {"scan_time": 1.0 / sim.laser.rate,
+              "time_increment": sim.laser.sweep_duration / max(1, sim.scans[0].num_beams - 1) if sim.scans else 0.0}
     if ros1:
-        written.append(write_rosbag(out / "recording.bag", sim.messages(), version="ros1"))
+        written.append(write_rosbag(out / "recording.bag", sim.messages(), version="ros1", **timing))
     else:
-        written.append(write_rosbag(out / "recording", sim.messages(), version="ros2"))
+        written.append(write_rosbag(out / "recording", sim.messages(), version="ros2", **timing))
     written.append(write_tum(out / "truth.tum", sim.scan_times, sim.scan_truth))
     yaml_path, image_path = save_grid(truth_map, out / "truth-map.yaml")
     written += [yaml_path, image_path]
