@@ -40,15 +40,19 @@ def chromium_or_skip() -> str:
     return binary
 
 
-def dump_dom(html_path: str | Path, *, timeout: float = TIMEOUT_S) -> str:
-    """The DOM of a local HTML file after it loaded and ran its scripts, as headless Chromium serialises it."""
+def dump_dom(html_path: str | Path, *, timeout: float = TIMEOUT_S, width: int = 1280) -> str:
+    """The DOM of a local HTML file after it loaded and ran its scripts, as headless Chromium serialises it.
+
+    The window is ``width`` pixels wide (a laptop's 1280 by default), so layout checks see that width.
+    """
     binary = chromium_or_skip()
     url = Path(html_path).resolve().as_uri()
     with tempfile.TemporaryDirectory(prefix="slam2d-chromium-", ignore_cleanup_errors=True) as profile:
         command = [
             binary, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-            f"--user-data-dir={profile}", "--virtual-time-budget=10000", "--dump-dom", url,
+            f"--user-data-dir={profile}", f"--window-size={width},900", "--virtual-time-budget=10000",
+            "--dump-dom", url,
         ]
         try:
             result = subprocess.run(command, capture_output=True, text=True, timeout=timeout)

@@ -387,6 +387,12 @@ def test_quick_run_report_in_the_browser(quick_run) -> None:
     assert f'data-images-loaded="{total}/{total}"' in dom
     assert 'data-console-errors="0"' in dom
     assert "Section V was not run." in dom
+    # at 1280 px the page does not scroll sideways (wide tables scroll in their own box), figures keep their size
+    assert 'data-page-overflow="0"' in dom or re.search(r'data-page-overflow="-\d+"', dom)
+    scale = re.search(r'data-smallest-figure-scale="(\d+)"', dom)
+    assert scale and int(scale.group(1)) >= 50
+    # every-run tables have headers a reader reads, not snake_case keys
+    assert "<th>ate_m</th>" not in html and "<th>cpu_s</th>" not in html
 
 
 def test_rerun_replaces_an_earlier_output(quick_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

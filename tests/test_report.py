@@ -173,7 +173,42 @@ def test_reference_is_not_called_ground_truth(comparison: Comparison, sim: Path,
     for name in ("report.html", "report.md"):
         text = (tmp_path / name).read_text()
         assert "NOT independent ground truth" in text
-    assert (tmp_path / "report.html").read_text().count('class="map-panel"') == 2  # no reference map given
+    html = (tmp_path / "report.html").read_text()
+    assert html.count('class="map-panel"') == 2  # no reference map given
+    # every caption, title and fact says what the runs were aligned to: a reference, not the truth
+    assert "aligned to the reference" in html and "Alignment to the reference" in html
+    assert "to the truth" not in html and "truth's frame" not in html
+    assert 'id="error-along-run"' in html
+
+
+def test_the_error_along_the_run_is_drawn_only_against_a_trajectory(report: Path, comparison: Comparison,
+                                                                    tmp_path: Path) -> None:
+    html = (report / "report.html").read_text()
+    assert 'id="error-along-run"' in html and "aligned to the truth" in html
+    outcomes = [copy.deepcopy(o) for o in comparison.outcomes]
+    for o in outcomes:
+        if o.evaluation:
+            o.evaluation = {k: v for k, v in o.evaluation.items() if k in ("map_quality", "cost")}
+    write_report(dataclasses.replace(comparison, truth=None, outcomes=outcomes), tmp_path)
+    assert 'id="error-along-run"' not in (tmp_path / "report.html").read_text()
+
+
+def test_a_long_summary_list_is_counted_not_printed(comparison: Comparison, tmp_path: Path) -> None:
+    # karto's loop_attempts: a list of dicts, 1070 characters in a cell made the page scroll sideways
+    import json
+
+    run = comparison.outcomes[0].run_dir
+    diagnostics = json.loads((run / "diagnostics.json").read_text())
+    diagnostics["summary"]["loop_attempts"] = [{"to": k, "response_coarse": 0.5, "chain": [0, 12]} for k in range(19)]
+    copied = tmp_path / "run"
+    import shutil
+
+    shutil.copytree(run, copied)
+    (copied / "diagnostics.json").write_text(json.dumps(diagnostics))
+    outcomes = [dataclasses.replace(copy.deepcopy(comparison.outcomes[0]), run_dir=copied)]
+    write_report(dataclasses.replace(comparison, outcomes=outcomes), tmp_path / "out")
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "19 entries (summary.loop_attempts in" in html and "response_coarse" not in html
 
 
 def test_without_truth_maps_in_own_frames(comparison: Comparison, tmp_path: Path) -> None:
@@ -195,7 +230,7 @@ def test_without_truth_maps_in_own_frames(comparison: Comparison, tmp_path: Path
 def test_markdown_images_exist_and_are_png(report: Path) -> None:
     md = (report / "report.md").read_text()
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
-    assert len(links) == 7  # 3 maps, trajectories, time per scan, 2 diagnostics
+    assert len(links) == 8  # 3 maps, trajectories, error along the run, time per scan, 2 diagnostics
     for link in links:
         assert not link.startswith(("/", "http")), link
         path = report / link
@@ -209,7 +244,7 @@ def test_html_is_self_contained(report: Path) -> None:
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//)""", html, re.I)
     assert "<link" not in html and "@import" not in html and "url(" not in html
     sources = re.findall(r'<img [^>]*src="([^"]+)"', html)
-    assert len(sources) == 7
+    assert len(sources) == 8
     for src in sources:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1])[:8] == PNG_SIGNATURE
@@ -218,8 +253,17 @@ def test_html_is_self_contained(report: Path) -> None:
 
 def test_browser_loads_every_image(report: Path) -> None:
     loaded, total = browser.images_loaded(report / "report.html")
-    assert total == 7
+    assert total == 8
     assert loaded == total
+
+
+def test_browser_page_does_not_scroll_sideways_at_1280_px(report: Path) -> None:
+    dom = browser.dump_dom(report / "report.html", width=1280)
+    overflow = re.search(r'data-page-overflow="(-?\d+)"', dom)
+    scale = re.search(r'data-smallest-figure-scale="(\d+)"', dom)
+    assert overflow and scale, "the report's load script did not record the layout"
+    assert int(overflow.group(1)) <= 0
+    assert int(scale.group(1)) >= 50  # no figure shrunk below half its size: its type stays readable
 
 
 def test_browser_flags_a_broken_image(report: Path, tmp_path: Path) -> None:
@@ -230,7 +274,7 @@ def test_browser_flags_a_broken_image(report: Path, tmp_path: Path) -> None:
     assert broken != html
     (tmp_path / "broken.html").write_text(broken)
     loaded, total = browser.images_loaded(tmp_path / "broken.html")
-    assert (loaded, total) == (6, 7)
+    assert (loaded, total) == (7, 8)
 
 
 # --------------------------------------------------------------------------- the common canvas

@@ -335,7 +335,7 @@ def _map_panels_png(panels: list[tuple[str, Any, NDArray[np.float64]]], world: A
 
 def _strip_png(groups: list[tuple[str, list[float]]], ylabel: str, lines: list[tuple[str, float]] = (),
                log: bool = False) -> bytes:
-    from slam2d.report.plots import _new_figure, _png, _style
+    from slam2d.report.plots import _new_figure, _png, _style, log_scale
 
     with _style():
         fig = _new_figure(5.5, 3.2, layout="constrained")
@@ -351,7 +351,7 @@ def _strip_png(groups: list[tuple[str, list[float]]], ylabel: str, lines: list[t
         ax.set_xticks(range(len(groups)), [g[0] for g in groups], fontsize=7)
         ax.set_ylabel(ylabel)
         if log:
-            ax.set_yscale("log")
+            log_scale(ax)
         return _png(fig)
 
 

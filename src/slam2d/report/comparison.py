@@ -115,6 +115,7 @@ class _Report:
     maps_note: str
     trajectories: _Image | None
     trajectories_note: str
+    error: _Image | None
     timing: _Image | None
     sections: list[_MethodSection]
     failures: list[_Entry]
@@ -132,7 +133,7 @@ def write_report(comparison: Comparison, out_dir: Path) -> list[Path]:
     """
     out_dir = Path(out_dir)
     report = _build(comparison)
-    images = [*report.maps, report.trajectories, report.timing, *(s.figure for s in report.sections)]
+    images = [*report.maps, report.trajectories, report.error, report.timing, *(s.figure for s in report.sections)]
     images = [im for im in images if im is not None]
     written: list[Path] = []
     for image in images:
@@ -205,6 +206,15 @@ def _fmt_number(value: Any) -> str:
     return str(value)
 
 
+def _summary_value(value: Any, entry: _Entry, key: str) -> str:
+    """A summary value for a table cell: a long list or mapping (karto's loop attempts) is counted, not printed."""
+    text = _fmt_number(value)
+    if isinstance(value, (list, tuple, dict)) and len(text) > 80:
+        kind = "entries" if isinstance(value, (list, tuple)) else "keys"
+        return f"{len(value)} {kind} (summary.{key} in {entry.outcome.run_dir}/diagnostics.json)"
+    return text
+
+
 def _build(comparison: Comparison) -> _Report:
     import slam2d
 
@@ -258,8 +268,9 @@ def _build(comparison: Comparison) -> _Report:
         maps_note=maps_note,
         trajectories=trajectories,
         trajectories_note=trajectories_note,
+        error=_error_image(entries, truth, t0),
         timing=_timing_image(entries, t0),
-        sections=[_method_section(e, t0) for e in entries if e.outcome.ok],
+        sections=[_method_section(e, t0, truth) for e in entries if e.outcome.ok],
         failures=[e for e in entries if not e.outcome.ok],
     )
 
@@ -272,6 +283,11 @@ def _judged_short(truth: Any) -> str:
     if truth.map_path is not None:
         text += f"; map {truth.map_path}"
     return text
+
+
+def _word(truth: Any) -> str:
+    """What the runs are judged against, in one word: a reference (a method's result) is not the truth."""
+    return "truth" if truth is not None and truth.kind == "truth" else "reference"
 
 
 def _judged_long(truth: Any, relations: Path | None) -> str:
@@ -288,8 +304,9 @@ def _judged_long(truth: Any, relations: Path | None) -> str:
             "GMapping's corrected poses), and a method more accurate than the reference would score worse."
         )
     if truth is not None and (truth.has_trajectory or truth.map is not None):
-        parts.append("Each run is brought into the truth's frame by the SE(2) alignment of its trajectory to the "
-                     "truth's (ATE alignment), or, without a truth trajectory, by aligning its map to the truth map.")
+        w = _word(truth)
+        parts.append(f"Each run is brought into the {w}'s frame by the SE(2) alignment of its trajectory to the "
+                     f"{w}'s (ATE alignment), or, without a {w} trajectory, by aligning its map to the {w} map.")
     if relations is not None:
         parts.append(f"Relation errors use {relations} (Kümmerle et al. 2009).")
     return " ".join(parts)
@@ -340,11 +357,14 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
     grids: list[Any] = []
     transforms: list[Any] = []
     titles: list[tuple[str, str, str, str]] = []  # name, title, colour, caption
+    tracks: list[NDArray[np.float64] | None] = []  # each map's trajectory, drawn on it
+    word = _word(truth)
     if truth is not None and truth.map is not None:
         grids.append(truth.map)
         transforms.append(None)
-        word = "truth map" if truth.kind == "truth" else "reference map"
-        titles.append(("map-truth.png", word, plots.TRUTH_COLOUR, word))
+        titles.append(("map-truth.png", f"{word} map", plots.TRUTH_COLOUR, f"{word} map"
+                       + (f" and the {word} trajectory" if truth.has_trajectory else "")))
+        tracks.append(np.asarray(truth.poses) if truth.has_trajectory else None)
     aligned_any = unaligned_any = False
     have_truth = truth is not None
     for entry in entries:
@@ -353,12 +373,15 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
         alignment = _alignment(entry)
         grids.append(entry.run.map)
         transforms.append(alignment)
+        poses = entry.run.poses if alignment is None else se2.compose(alignment, entry.run.poses)
+        tracks.append(poses if len(poses) else None)
         if alignment is not None:
             aligned_any = True
-            caption = f"{entry.label}, aligned to the truth"
+            caption = f"{entry.label} with its trajectory, aligned to the {word}"
         else:
             unaligned_any = True
-            caption = f"{entry.label}, in its own frame" + (" (no alignment to the truth)" if have_truth else "")
+            caption = (f"{entry.label} with its trajectory, in its own frame"
+                       + (f" (no alignment to the {word})" if have_truth else ""))
         titles.append((f"map-{entry.slug}.png", entry.label, entry.colour, caption))
     if not grids:
         return [], "No map to show."
@@ -366,12 +389,12 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
     if not canvas.images:
         return [], "Every map is empty."
     images = [
-        _Image(name, f"map: {title}", plots.map_panel_png(canvas, k, title, colour=colour), caption)
+        _Image(name, f"map: {title}", plots.map_panel_png(canvas, k, title, colour=colour, track=tracks[k]), caption)
         for k, (name, title, colour, caption) in enumerate(titles)
     ]
     if len(images) == 1 and titles[0][0] == "map-truth.png":
-        return images, "No run produced a map: only the truth's is shown."
-    frame = "the truth's frame" if aligned_any else "each run's own frame"
+        return images, f"No run produced a map: only the {word}'s is shown."
+    frame = f"the {word}'s frame" if aligned_any else "each run's own frame"
     note = (f"All maps are drawn on one canvas in {frame}, at the same scale and orientation "
             f"({canvas.metres_per_pixel:.3g} m per pixel, {canvas.width:.1f} m x {canvas.height:.1f} m).")
     if aligned_any and unaligned_any:
@@ -395,11 +418,12 @@ def _trajectory_image(entries: list[_Entry], truth: Any) -> tuple[_Image | None,
         return None, "No trajectory to show."
     if not tracks:
         png = plots.trajectories_png([], truth_track, title=f"{truth_track[0]} trajectory")
-        return _Image("trajectories.png", "trajectories", png), "No run produced a trajectory: only the truth's is shown."
+        return (_Image("trajectories.png", "trajectories", png),
+                f"No run produced a trajectory: only the {_word(truth)}'s is shown.")
     aligned = truth_track is not None and any(_alignment(e) is not None for e in entries if e.shown)
-    title = "Trajectories aligned to the truth" if aligned else "Trajectories, each in its own frame"
+    title = f"Trajectories aligned to the {_word(truth)}" if aligned else "Trajectories, each in its own frame"
     png = plots.trajectories_png(tracks, truth_track, title=title)
-    note = ("Each trajectory moved into the truth's frame by its alignment; the wide grey line is the "
+    note = (f"Each trajectory moved into the {_word(truth)}'s frame by its alignment; the wide grey line is the "
             + ("truth." if truth is not None and truth.kind == "truth" else "reference, which is not ground truth.")
             if aligned else "No alignment: each trajectory is drawn in its own frame, starting where its odometry starts.")
     return _Image("trajectories.png", "trajectories", png, title), note
@@ -418,6 +442,32 @@ def _time_origin(entries: list[_Entry]) -> float:
             if np.isfinite(t).any():
                 starts.append(float(np.nanmin(t)))
     return min(starts) if starts else 0.0
+
+
+def _error_image(entries: list[_Entry], truth: Any, t0: float) -> _Image | None:
+    """Each aligned run's distance from the truth (or reference) pose at the same time, along the run."""
+    from slam2d.eval.trajectory_metrics import associate
+
+    if truth is None or not truth.has_trajectory:
+        return None
+    series = []
+    for entry in entries:
+        alignment = _alignment(entry)
+        if not entry.shown or alignment is None or len(entry.run.poses) < 2:
+            continue
+        try:
+            pairs = associate(entry.run.times, se2.compose(alignment, entry.run.poses), truth.times, truth.poses)
+        except (InputError, ValueError):  # no overlap in time: nothing to draw
+            continue
+        error = np.hypot(*(pairs.estimate[:, :2] - pairs.reference[:, :2]).T)
+        series.append((entry.label, pairs.times - t0, error, entry.colour))
+    if not series:
+        return None
+    word = _word(truth)
+    return _Image("error-along-run.png", f"position error along the run against the {word}",
+                  plots.error_along_run_png(series, word),
+                  f"Where in the run each method's error arises: the distance between its aligned pose and the "
+                  f"{word}'s at the same time.")
 
 
 def _timing_image(entries: list[_Entry], t0: float) -> _Image | None:
@@ -445,7 +495,7 @@ def _descriptions(entry: _Entry) -> dict[str, str]:
         return dict(recorded)
 
 
-def _method_section(entry: _Entry, t0: float) -> _MethodSection:
+def _method_section(entry: _Entry, t0: float, truth: Any) -> _MethodSection:
     outcome = entry.outcome
     facts = [("Run folder", str(outcome.run_dir)), ("Seed", str(outcome.seed))]
     params = outcome.params or (entry.run.run.get("params", {}) if entry.run is not None else {})
@@ -458,12 +508,12 @@ def _method_section(entry: _Entry, t0: float) -> _MethodSection:
     alignment = _alignment(entry)
     if alignment is not None:
         source = evaluation.get("alignment_source", "")
-        facts.append(("Alignment to the truth",
+        facts.append((f"Alignment to the {_word(truth)}",
                       f"x {alignment[0]:+.3f} m, y {alignment[1]:+.3f} m, θ {math.degrees(alignment[2]):+.2f}°"
                       + (f" (from the {source})" if source else "")))
     traj = evaluation.get("trajectory")
     if isinstance(traj, dict) and "pairs" in traj:
-        facts.append(("Poses matched to the truth", f"{traj.get('pairs')} ({traj.get('unmatched', 0)} unmatched)"))
+        facts.append((f"Poses matched to the {_word(truth)}", f"{traj.get('pairs')} ({traj.get('unmatched', 0)} unmatched)"))
     cost = evaluation.get("cost")
     if isinstance(cost, dict) and isinstance(cost.get("total_wall_s"), (int, float)):
         facts.append(("Processing time",
@@ -489,7 +539,7 @@ def _method_section(entry: _Entry, t0: float) -> _MethodSection:
     else:
         no_series = "This method reports no series of its own (only the time per update)."
     counters = [(str(k), _fmt_number(v)) for k, v in sorted(diag.get("counters", {}).items())]
-    summary = [(str(k), _fmt_number(v)) for k, v in diag.get("summary", {}).items()]
+    summary = [(str(k), _summary_value(v, entry, str(k))) for k, v in diag.get("summary", {}).items()]
     return _MethodSection(entry, facts, figure, no_series, counters, summary, param_rows)
 
 
@@ -529,10 +579,19 @@ dl.legend dd { margin: 0 0 0.2em 0; }
 
 _SCRIPT = """
 document.addEventListener("click", function (event) {
-  var maps = document.getElementById("maps");
-  if (maps && event.target.tagName === "IMG" && maps.contains(event.target)) { maps.classList.toggle("wide"); }
+  // a map or a figure of a grid: click for one per row, larger; click again to go back
+  var box = event.target.tagName === "IMG" ? event.target.closest(".maps, .figures") : null;
+  if (box) { box.classList.toggle("wide"); }
 });
 window.addEventListener("load", function () {
+  var root = document.documentElement;
+  // for the browser check: how far the page scrolls sideways, and the most shrunken figure (shown width as a
+  // percentage of its own; its type was drawn to be read at its own size)
+  root.dataset.pageOverflow = String(root.scrollWidth - root.clientWidth);
+  var scales = Array.prototype.slice.call(document.querySelectorAll("img.plot, .maps img, .figures img"))
+    .filter(function (img) { return img.naturalWidth > 0; })
+    .map(function (img) { return Math.round(100 * img.getBoundingClientRect().width / img.naturalWidth); });
+  root.dataset.smallestFigureScale = String(scales.length ? Math.min.apply(null, scales) : 0);
   var images = Array.prototype.slice.call(document.images);
   var failed = images.filter(function (img) { return !(img.complete && img.naturalWidth > 0); });
   document.documentElement.dataset.imagesLoaded = (images.length - failed.length) + "/" + images.length;
@@ -615,7 +674,7 @@ def _html(report: _Report) -> str:
     if not report.columns:
         out.append('<p class="note">No metric could be computed for any method.</p>')
 
-    out.append('<h2 id="maps">Maps</h2>')
+    out.append('<h2 id="maps-heading">Maps</h2>')
     out.append(f'<p class="note">{_e(report.maps_note)}</p>')
     if report.maps:
         out.append('<p class="note">Click a map to show the maps one per row, larger; click again to go back.</p>')
@@ -629,6 +688,8 @@ def _html(report: _Report) -> str:
     out.append(f'<p class="note">{_e(report.trajectories_note)}</p>')
     if report.trajectories is not None:
         out.append(f"<figure>{_img_html(report.trajectories)}</figure>")
+    if report.error is not None:
+        out.append(f"<figure>{_img_html(report.error)}<figcaption>{_e(report.error.caption)}</figcaption></figure>")
 
     out.append('<h2 id="timing">Time per scan</h2>')
     if report.timing is not None:
@@ -723,6 +784,8 @@ def _markdown(report: _Report) -> str:
     out += ["## Trajectories", "", report.trajectories_note, ""]
     if report.trajectories is not None:
         out += [_md_image(report.trajectories), ""]
+    if report.error is not None:
+        out += [_md_image(report.error), "", report.error.caption, ""]
     out += ["## Time per scan", ""]
     out += [_md_image(report.timing), "", report.timing.caption, ""] if report.timing is not None else ["No timing recorded.", ""]
     out += ["## Methods", ""] if report.sections else []

@@ -76,9 +76,21 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+_UNIT_SUFFIXES = {"m": "m", "mm": "mm", "s": "s", "ms": "ms", "deg": "deg", "pct": "%", "mb": "MB"}
+_ACRONYMS = {"ate": "ATE", "rpe": "RPE", "cpu": "CPU", "rmse": "RMSE"}
+
+
 def _header(table: Table, column: str) -> str:
+    """A column's header as a reader wants it: ``can.map_to_shape_mean_m`` -> ``can: map to shape mean [m]``."""
     unit = table.units.get(column)
-    return f"{column} [{unit}]" if unit else column
+    *groups, name = column.split(".")
+    words = name.split("_")
+    if unit is None and len(words) > 1 and words[-1] in _UNIT_SUFFIXES:
+        unit = _UNIT_SUFFIXES[words.pop()]
+    text = " ".join(_ACRONYMS.get(w, w) for w in words)
+    if groups:
+        text = f"{'.'.join(groups)}: {text}"
+    return f"{text} [{unit}]" if unit else text
 
 
 def _flatten(doc: Any, prefix: str = "") -> list[tuple[str, str]]:
@@ -127,6 +139,15 @@ def write_paper_report(
     return [html_path, md_path]
 
 
+def _brief(text: str, limit: int = 220) -> str:
+    """A verdict's first sentence (or ``limit`` characters) for the summary table; the section has it whole."""
+    end = text.find(". ", 40)
+    short = text if end < 0 else text[: end + 1]
+    if len(short) > limit:
+        short = short[:limit].rsplit(" ", 1)[0] + " ..."
+    return short + (" (more in its section)" if short != text else "")
+
+
 def _verdict_rows(sections: Sequence[SectionRun]) -> list[tuple[str, str, str]]:
     rows = []
     for s in sections:
@@ -135,7 +156,7 @@ def _verdict_rows(sections: Sequence[SectionRun]) -> list[tuple[str, str, str]]:
                          else f"FAILED: {s.note}"))
             continue
         for r in s.results:
-            rows.append((f"Section {s.key}", r.title, r.verdict or "(no verdict given)"))
+            rows.append((f"Section {s.key}", r.title, _brief(r.verdict) if r.verdict else "(no verdict given)"))
     return rows
 
 
@@ -154,7 +175,8 @@ _CSS = _BASE_CSS + """
 .verdict { background: #eef6ee; border-left: 4px solid #2e7d32; padding: 0.5em 0.8em; max-width: 75em; }
 .notrun { background: #fdecea; border-left: 4px solid #c62828; padding: 0.5em 0.8em; max-width: 75em; }
 .figures { display: grid; grid-template-columns: repeat(auto-fill, minmax(420px, 1fr)); gap: 1em; }
-.figures figure { margin: 0; } .figures img { width: 100%; height: auto; border: 1px solid #ddd; }
+.figures figure { margin: 0; } .figures img { width: 100%; height: auto; border: 1px solid #ddd; cursor: zoom-in; }
+.figures.wide { grid-template-columns: 1fr; } .figures.wide img { max-width: 1100px; cursor: zoom-out; }
 td.text { max-width: 40em; }
 """
 

@@ -246,6 +246,17 @@ def _style() -> Any:
     return matplotlib.rc_context(_BASE_STYLE)
 
 
+def log_scale(ax: Any, axis: str = "y") -> None:
+    """A log axis whose ticks read 0.1, 1, 10: the report style turns mathtext off (a '$' in a file name must
+    print as itself), and matplotlib's own log labels are mathtext ($10^{-1}$)."""
+    from matplotlib import ticker
+
+    getattr(ax, f"set_{axis}scale")("log")
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    target.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    target.set_minor_formatter(ticker.NullFormatter())
+
+
 def scale_bar_length(width_m: float) -> float:
     """A round length (1, 2, 5 x 10^k m) of at most a fifth of the width."""
     target = width_m / 5.0
@@ -268,8 +279,12 @@ def map_panel_size(canvas: MapCanvas) -> tuple[float, float, tuple[float, float,
     return fig_w, fig_h, (left / fig_w, bottom / fig_h, axes_w / fig_w, axes_h / fig_h)
 
 
-def map_panel_png(canvas: MapCanvas, index: int, title: str, *, colour: str = TRUTH_COLOUR) -> bytes:
-    """One map of a canvas as a PNG: title, axes in metres, a scale bar; every panel of a canvas has one size."""
+def map_panel_png(canvas: MapCanvas, index: int, title: str, *, colour: str = TRUTH_COLOUR,
+                  track: NDArray[np.float64] | None = None) -> bytes:
+    """One map of a canvas as a PNG: title, axes in metres, a scale bar; every panel of a canvas has one size.
+
+    ``track`` (poses ``(N, 3)`` in the canvas frame) is drawn over the map in ``colour``, its start as a dot.
+    """
     from matplotlib.font_manager import FontProperties
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
@@ -280,6 +295,9 @@ def map_panel_png(canvas: MapCanvas, index: int, title: str, *, colour: str = TR
         ax = fig.add_axes(box)
         ax.imshow(canvas.images[index], cmap="gray", vmin=0.0, vmax=1.0, extent=(xmin, xmax, ymin, ymax),
                   interpolation="antialiased", origin="upper")
+        if track is not None and len(track):
+            ax.plot(track[:, 0], track[:, 1], color=colour, lw=1.0, alpha=0.85)
+            ax.plot(track[:1, 0], track[:1, 1], "o", color=colour, ms=4)
         ax.set_xlim(xmin, xmax)
         ax.set_ylim(ymin, ymax)
         # Panels are shown at about 80 % of their size, side by side: larger type than the other figures.
@@ -325,6 +343,25 @@ def trajectories_png(
         return _png(fig)
 
 
+def error_along_run_png(series: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64], str]],
+                        against: str) -> bytes:
+    """Position error (m) against time in the recording, ``(label, t (s), error (m), colour)`` per method."""
+    with _style():
+        fig = _new_figure(7.5, 3.4)
+        ax = fig.add_axes((0.09, 0.15, 0.88, 0.75))
+        for label, t, err, colour in series:
+            # a log axis: a diverged method (metres) and good ones (centimetres) stay readable on one plot
+            ax.plot(t, np.maximum(err, 1e-3), color=colour, lw=1.0, label=f"{label} (max {np.nanmax(err):.3g} m)")
+        ax.set_xlabel("time in the recording [s]")
+        ax.set_ylabel("position error [m] (log)")
+        ax.set_title(f"Distance from the {against} along the run, after the alignment")
+        log_scale(ax)
+        ax.grid(True, which="major", lw=0.3, alpha=0.5)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper left", framealpha=0.85)
+        return _png(fig)
+
+
 def time_per_scan_png(series: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64], str]]) -> bytes:
     """Wall time per scan (ms) against time in the recording, ``(label, t (s), wall (s), colour)`` per method.
 
@@ -345,7 +382,7 @@ def time_per_scan_png(series: Sequence[tuple[str, NDArray[np.float64], NDArray[n
             ax.plot(t[finite], ms[finite], color=colour, lw=0.7, alpha=0.8, label=f"{label} (median {median:.3g} ms)")
             ax.axhline(median, color=colour, lw=1.2, ls="--")
         if positive and ax.lines:
-            ax.set_yscale("log")
+            log_scale(ax)
         ax.set_xlabel("time in the recording [s]")
         ax.set_ylabel("wall time per scan [ms]")
         ax.set_title("Time per scan (dashed: median)")

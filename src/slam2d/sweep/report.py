@@ -118,7 +118,7 @@ def _numeric(values: list[Any]) -> bool:
 def plot_metric(rows: list[dict[str, Any]], metric: str, column: str, unit: str = "") -> bytes | None:
     """PNG of ``metric`` against one swept value (``param.NAME`` or ``data.NAME``): every ok run as a dot,
     a line through the median at each value, one colour per method and dataset. None if nothing to draw."""
-    from slam2d.report.plots import _new_figure, _png, _style, method_colours
+    from slam2d.report.plots import _new_figure, _png, _style, log_scale, method_colours
 
     kind, name = column.split(".", 1)
     source = "swept" if kind == "param" else "data_settings"
@@ -153,7 +153,7 @@ def plot_metric(rows: list[dict[str, Any]], metric: str, column: str, unit: str 
         if numeric:
             positive = [float(x) for x in all_x if x is not None and float(x) > 0]
             if positive and len(positive) == len(all_x) and max(positive) / min(positive) > 20:
-                ax.set_xscale("log")
+                log_scale(ax, "x")
         else:
             ax.set_xticks(range(len(categories)), categories)
         xunit = f" [{unit}]" if unit else ""
