@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import math
 
 import numpy as np
@@ -318,6 +319,14 @@ def test_cli_calibrate_laser_and_verify_end_to_end(capsys, study_csv, tmp_path):
     md = (out / "report.md").read_text()
     assert "Table I form" in md and "![" in md and "figures/fits.png" in md
     assert "data:image/png;base64," in (out / "report.html").read_text()
+    # in a 1280 px browser: every picture loads, the page does not scroll sideways, no figure shrunk below half
+    from tests import browser
+
+    dom = browser.dump_dom(out / "report.html")
+    loaded = re.search(r'data-images-loaded="(\d+)/(\d+)"', dom)
+    assert loaded and loaded.group(1) == loaded.group(2) and int(loaded.group(2)) >= 2
+    assert int(re.search(r'data-page-overflow="(-?\d+)"', dom).group(1)) <= 0
+    assert int(re.search(r'data-smallest-figure-scale="(\d+)"', dom).group(1)) >= 50
     model = load_sensor_model(out / "model.yaml")
     assert model.kind == "range-incidence"
     code, text, err = run(capsys, "calibrate", "verify", out / "model.yaml", study_csv, "--out", tmp_path / "ver")

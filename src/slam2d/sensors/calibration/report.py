@@ -26,7 +26,8 @@ _CSS = (
     "body{font-family:system-ui,sans-serif;max-width:70rem;margin:2rem auto;padding:0 1rem;color:#222}"
     "table{border-collapse:collapse;margin:.5rem 0 1rem}td,th{border:1px solid #ccc;padding:.2rem .5rem}"
     "td.num{text-align:right;font-variant-numeric:tabular-nums}img{max-width:100%}"
-    "code{background:#f3f3f3;padding:0 .2rem}"
+    "code{background:#f3f3f3;padding:0 .2rem}.scroll{overflow-x:auto}"
+    "#image-check{background:#c62828;color:white;font-weight:bold;padding:.8em 1em}"
 )
 
 
@@ -69,8 +70,12 @@ class Report:
 
     def html(self) -> str:
         e = html.escape
+        from slam2d.report.comparison import _SCRIPT  # image and layout checks the browser tests read
+
         out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-               f"<title>{e(self.title)}</title><style>{_CSS}</style></head><body>", f"<h1>{e(self.title)}</h1>"]
+               '<meta name="viewport" content="width=device-width, initial-scale=1">',
+               f"<title>{e(self.title)}</title><style>{_CSS}</style><script>{_SCRIPT}</script></head><body>",
+               '<div id="image-check" role="alert" hidden></div>', f"<h1>{e(self.title)}</h1>"]
         for kind, value in self.blocks:
             if kind == "h2":
                 out.append(f"<h2>{e(value)}</h2>")
@@ -78,15 +83,15 @@ class Report:
                 out.append(f"<p>{e(value)}</p>")
             elif kind == "table":
                 head, rows = value
-                out.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>")
+                out.append('<div class="scroll"><table><tr>' + "".join(f"<th>{e(h)}</th>" for h in head) + "</tr>")
                 for r in rows:
                     out.append("<tr>" + "".join(
                         f'<td class="num">{e(c)}</td>' if _numeric(c) else f"<td>{e(c)}</td>" for c in r) + "</tr>")
-                out.append("</table>")
+                out.append("</table></div>")
             else:
                 name, alt = value
                 data = base64.b64encode(self.images[name]).decode("ascii")
-                out.append(f'<p><img alt="{e(alt, quote=True)}" src="data:image/png;base64,{data}"></p>')
+                out.append(f'<p><img class="plot" alt="{e(alt, quote=True)}" src="data:image/png;base64,{data}"></p>')
         out.append("</body></html>")
         return "\n".join(out) + "\n"
 
