@@ -3,6 +3,7 @@
 
     .venv/bin/python benchmarks/first_run.py                    # the table on stdout
     .venv/bin/python benchmarks/first_run.py --write BENCHMARKS.md
+    .venv/bin/python benchmarks/first_run.py --make-demo        # `make demo` in a fresh clone, timed
 
 Clones this repository's HEAD into a temporary folder (so numba's on-disk cache
 starts empty), runs ``slam2d compile`` there as ``make`` does after installing,
@@ -41,13 +42,42 @@ def _timed(clone: Path, args: list[str]) -> float:
     return took
 
 
+def _make_demo() -> int:
+    """Wall time of `make demo` in a fresh clone, and of its three steps (install, compile, the paper)."""
+    with tempfile.TemporaryDirectory(prefix="slam2d-make-demo-") as tmp:
+        clone = Path(tmp) / "clone"
+        subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+        env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
+        start = time.perf_counter()
+        marks: dict[str, float] = {}
+        proc = subprocess.Popen(["make", "demo"], cwd=clone, env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True)
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            for step in ("slam2d compile", "slam2d paper"):
+                if step in line and step not in marks:
+                    marks[step] = time.perf_counter() - start
+        if proc.wait():
+            raise SystemExit("make demo failed")
+        total = time.perf_counter() - start
+    install = marks.get("slam2d compile", float("nan"))
+    compile_s = marks.get("slam2d paper", float("nan")) - install
+    print(f"make demo in a fresh clone: {total:.0f} s (install {install:.0f} s, compile {compile_s:.0f} s, "
+          f"paper --quick {total - install - compile_s:.0f} s)")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--log", default="intel", help="a shared log (default: intel)")
     parser.add_argument("--no-compile", action="store_true", help="skip 'slam2d compile' (the cost without it)")
     parser.add_argument("--write", type=Path, metavar="BENCHMARKS.md")
+    parser.add_argument("--make-demo", action="store_true",
+                        help="instead: time `make demo` in a fresh clone (its own .venv; pip's cache is used)")
     args = parser.parse_args()
+    if args.make_demo:
+        return _make_demo()
     log = SHARED / args.log / f"{args.log}.clf.gz"
     if not log.is_file():
         raise SystemExit(f"{log}: not found (the shared datasets are beside the clone)")
