@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 PIP    := $(PY) -m pip --disable-pip-version-check
 PYTEST_ARGS ?=
 
-.PHONY: demo test check bench docs clean browser
+.PHONY: demo test check bench docs clean browser ros1
 
 # The report test renders report.html in Debian's Chromium. Where apt-get exists
 # it is installed when missing and the test must run; elsewhere it skips.
@@ -34,9 +34,21 @@ ifeq ($(HAVE_APT),1)
 	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium >/dev/null; }
 endif
 
+## ros1: install Debian's ROS 1 (roscore, rosbag, rospy, tf2) for the live node's tests when it is missing
+ROS1_PACKAGES := ros-core python3-rospy python3-tf2-ros python3-sensor-msgs python3-nav-msgs \
+                 python3-geometry-msgs python3-std-srvs python3-diagnostic-msgs python3-tf2-msgs
+ros1:
+ifeq ($(HAVE_APT),1)
+	@command -v roscore >/dev/null 2>&1 || { \
+	  echo "installing Debian's ROS 1 (the live node's tests run a real roscore and rosbag play)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $(ROS1_PACKAGES) \
+	    >/dev/null || echo "ROS 1 could not be installed: the live node's tests will skip"; }
+endif
+
 ## test: set up and run the whole test suite (slow cases included)
-test: $(VENV)/.installed browser
-	SLAM2D_REQUIRE_BROWSER=$(HAVE_APT) $(PY) -m pytest -n 2 $(PYTEST_ARGS)
+test: $(VENV)/.installed browser ros1
+	SLAM2D_REQUIRE_BROWSER=$(HAVE_APT) SLAM2D_REQUIRE_ROS=$$(command -v roscore >/dev/null 2>&1 && echo 1) \
+	  $(PY) -m pytest -n 2 $(PYTEST_ARGS)
 
 ## check: the quick loop: everything but the cases marked slow
 check: $(VENV)/.installed

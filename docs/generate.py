@@ -7,7 +7,8 @@ parameter tables cannot drift from what the program does:
 
 * ``help:COMMAND`` — the output of ``slam2d COMMAND --help`` (``help:calibrate.laser``:
   of ``slam2d calibrate laser --help``);
-* ``params:module:Class`` — the parameter table of a parameter dataclass;
+* ``params:module:Class`` — the parameter table of a parameter dataclass (``params:module:Class:settings``:
+  names as settings, ``name``, not flags);
 * ``method:NAME`` — a registered method's parameter table and the values it logs;
 * ``ros-params:ORIGIN:METHOD`` — how a slam_toolbox or slam_gmapping YAML is read for METHOD;
 * ``example:NAME`` — the output of an example command on a shared dataset
@@ -49,8 +50,11 @@ def _help(command: str) -> str:
 def _params(spec: str) -> str:
     from slam2d.params import markdown_table
 
+    names = "flags"
+    if spec.count(":") == 2:  # params:module:Class:settings names the parameters as settings, not flags
+        spec, names = spec.rsplit(":", 1)
     module, cls = spec.rsplit(":", 1)
-    return markdown_table(getattr(importlib.import_module(module), cls))
+    return markdown_table(getattr(importlib.import_module(module), cls), names=names)
 
 
 def _method(name: str) -> str:

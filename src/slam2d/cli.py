@@ -38,6 +38,7 @@ _HELP = {
     "sweep": "run a parameter study (methods x parameters x datasets x seeds) on a local pool or a Dask cluster",
     "experiment": "rerun the source study's Section V experiments in simulation, with numbers",
     "compile": "compile every method's kernels now, so the first run is as fast as the second",
+    "ros": "run a method live as a ROS 1 node (scan and tf in; map, tf map -> odom and pose out)",
 }
 
 EXIT_USER_ERROR = 2
@@ -1294,9 +1295,50 @@ def cmd_compile(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- ros
+
+
+def _add_ros(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "ros",
+        help=_HELP["ros"],
+        description="Run METHOD as a ROS 1 node named slam2d, as slam_gmapping runs: it subscribes 'scan', reads "
+        "the odometry from tf (odom_frame -> base_frame) and the laser's mount (base_frame -> the scan's frame), "
+        "and publishes 'map' and 'map_metadata' (latched), tf map_frame -> odom_frame, '~pose' and "
+        "'~diagnostics'; services 'dynamic_map' and '~save'. Every method parameter is also a private ROS "
+        "parameter (_particles:=50; --set wins), and ROS remappings (scan:=/base_scan) pass through. On "
+        "shutdown with --out (or _output:=DIR) the run folder is written as 'slam2d run' writes it. Needs ROS 1 "
+        "(Debian: apt-get install ros-core python3-rospy python3-tf2-ros and the message packages).",
+    )
+    p.add_argument("method", help="method name (see 'slam2d methods')")
+    p.add_argument("--out", type=Path, help="run folder written on shutdown and by ~save (as _output:=DIR)")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty --out that is not a node's output")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE", dest="settings",
+                   help="a method parameter (repeatable); wins over the private ROS parameters")
+    p.add_argument("--params", type=Path, metavar="FILE",
+                   help="YAML file of parameters, a slam_toolbox or slam_gmapping YAML, or a run.json")
+    p.add_argument("--seed", type=_seed, help="random seed (default: the --params file's, else 0)")
+    _add_sensor_model_option(p)
+    p.set_defaults(handler=cmd_ros)
+
+
+def cmd_ros(args: argparse.Namespace) -> int:
+    from slam2d.methods.runner import build_method
+    from slam2d.ros.node import run_node
+
+    build = {"settings": _settings(args.settings), "params_file": args.params, "seed": args.seed,
+             "sensor_model": args.sensor_model}
+    build_method(args.method, **build)  # every setting checked before ROS starts
+    if args.out is not None:
+        from slam2d.io.atomic import check_output_folder
+
+        check_output_folder(args.out, "ros", overwrite=args.overwrite)
+    return run_node(args.method, build, command=_command_line(), output=args.out, overwrite=args.overwrite)
+
+
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
-    _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep, _add_experiment, _add_compile,
+    _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep, _add_experiment, _add_compile, _add_ros,
 ]
 
 
@@ -1384,6 +1426,8 @@ def _main_args(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "ros":  # ROS remappings and private parameters (name:=value) are rospy's to read
+        argv = [a for a in argv if ":=" not in a]
     parser = build_parser(argv[0] if argv else None, listing=True)
     args = parser.parse_args(argv)
     return main_args(args)

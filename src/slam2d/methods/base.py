@@ -82,6 +82,11 @@ class Diagnostics:
     def count(self, name: str, n: int = 1) -> None:
         self.counters[name] += n
 
+    def last_values(self) -> dict[str, float | int]:
+        """The last update's values (those it reported) and every counter: what a live node publishes."""
+        last = {k: col[-1] for k, col in self.series.items() if col and not math.isnan(col[-1])}
+        return {**last, **self.counters}
+
     def array(self, name: str) -> NDArray[np.float64]:
         return np.asarray(self.series[name], dtype=np.float64)
 

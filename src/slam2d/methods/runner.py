@@ -37,7 +37,8 @@ from slam2d.methods.registry import get_method
 from slam2d.params import as_dict, from_mapping
 from slam2d.sensors.recording_profile import measure_profile
 
-__all__ = ["RunSummary", "build_method", "build_method_for", "read_params_file", "run_method", "input_digest", "versions"]
+__all__ = ["RunSummary", "build_method", "build_method_for", "read_params_file", "run_method", "write_live_run",
+           "input_digest", "versions"]
 
 RUN_FORMAT = 1
 _DEPENDENCIES = ("numpy", "scipy", "numba", "rosbags", "matplotlib", "pyyaml", "pillow", "rich")
@@ -282,11 +283,28 @@ def _odometry_warnings(slam: SlamMethod, frames: int) -> list[str]:
             f"(check --odometry and the topics with 'slam2d info'; methods that need none: {', '.join(free)})"]
 
 
+def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
+                   span: tuple[float | None, float | None], started: datetime, seconds: float,
+                   command: str) -> RunSummary:
+    """The run folder of a method fed live (``slam2d ros``): what ``slam2d run`` writes, ``source`` for the data.
+
+    Written whole into a staging folder that then replaces ``out_dir`` (an earlier output of the node).
+    """
+    from slam2d.io.atomic import staged_folder
+
+    peak = _peak_rss_mb()
+    with staged_folder(out_dir, "ros") as stage:
+        summary = _write_run(slam, stage, data=source, data_format="live", digest={}, options=ReadOptions(),
+                             frames=frames, span=span, started=started, seconds=seconds, rss_before=math.nan,
+                             peak=peak, problems=[], command=command)
+    return summary
+
+
 def _write_run(
     slam: SlamMethod,
     out_dir: Path,
     *,
-    data: Path,
+    data: Path | str,
     data_format: str,
     digest: dict[str, Any],
     options: ReadOptions,
@@ -335,7 +353,9 @@ def _write_run(
         "seed": slam.seed,
         "auto": slam.auto,
         "sensor_model": describe_sensor_model(slam.sensor_model),
-        "data": {"path": str(data.resolve()), "format": data_format, **digest},
+        # a recording's file, or a live source (a ROS topic) with no file to name
+        "data": ({"path": str(data.resolve()), "format": data_format, **digest} if isinstance(data, Path)
+                 else {"source": str(data), "format": data_format}),
         "read_options": as_dict(options),
         "scans": frames,
         "poses": int(len(times)),
