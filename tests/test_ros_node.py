@@ -224,6 +224,8 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
     assert len(t_live) == len(t_off) > 100
     np.testing.assert_array_equal(t_live, t_off)
     assert np.abs(p_live[:, :2] - p_off[:, :2]).max() < 0.01
+    # and the same map, cell for cell
+    assert (out / "map.pgm").read_bytes() == (tmp_path / "offline" / "map.pgm").read_bytes()
     summary = json.loads((out / "diagnostics.json").read_text())["summary"]
     assert summary["live_scans_dropped"] == 0 and summary["live_scans_without_tf"] == 0
     assert json.loads((out / "run.json").read_text())["data"]["source"] == "ROS topic /scan"
