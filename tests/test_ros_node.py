@@ -265,3 +265,34 @@ def test_live_node_survives_no_odometry_a_replay_and_a_typo(ros, office_bag, tmp
     t_off, p_off = read_tum(tmp_path / "offline" / "trajectory.tum")
     assert len(t_live) == len(t_off)
     assert np.abs(p_live[:, :2] - p_off[:, :2]).max() < 0.01
+
+
+@pytest.mark.slow
+def test_live_node_skips_scans_of_another_beam_count_and_says_when_no_scan_comes(ros, office_bag, tmp_path):
+    import dataclasses
+
+    from slam2d.io import open_recording
+    from slam2d.io.rosbag import write_rosbag
+
+    # the office bag with scans 40-49 cut to half their beams (a driver restarted with another setting)
+    messages = list(open_recording(office_bag).messages())
+    scans = [k for k, m in enumerate(messages) if hasattr(m, "ranges")]
+    for k in scans[40:50]:
+        m = messages[k]
+        messages[k] = dataclasses.replace(m, ranges=m.ranges[: m.num_beams // 2])
+    bag = write_rosbag(tmp_path / "mixed.bag", messages, version="ros1")
+    out = tmp_path / "node"
+    node = _start_node(ros, "hector", "--out", str(out))
+    try:
+        _wait_for_node(ros)
+        time.sleep(11.0)  # no scan publisher for 10 s: one warning
+        subprocess.run(["rosbag", "play", "--clock", "-q", str(bag)], env=ros, check=True, timeout=120,
+                       capture_output=True)
+        time.sleep(2.0)
+    finally:
+        log = _stop(node)
+    assert log.count("no scan for 10 s") == 1, log
+    assert "beams after" in log, log
+    summary = json.loads((out / "diagnostics.json").read_text())["summary"]
+    assert summary["live_scans_other_beam_count"] == 10
+    assert json.loads((out / "run.json").read_text())["scans"] == len(scans) - 10

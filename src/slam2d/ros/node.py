@@ -171,7 +171,8 @@ class _Node:
         rospy.Subscriber("scan", LaserScanMsg, self._on_scan, queue_size=max(10, node.queue_size))
         if node.transform_publish_period > 0:
             rospy.Timer(rospy.Duration(node.transform_publish_period), self._publish_transform)
-        rospy.Timer(rospy.Duration(1.0), self._watch_silence)
+        # on the wall clock: under use_sim_time with no /clock yet (no bag playing), ROS time stands still
+        threading.Thread(target=self._watch_silence, name="slam2d-silence", daemon=True).start()
         self.worker = threading.Thread(target=self._work, name="slam2d-worker", daemon=True)
         self.worker.start()
 
@@ -181,11 +182,13 @@ class _Node:
         self.last_scan_wall = time.monotonic()
         self.queue.put((msg, time.monotonic()))
 
-    def _watch_silence(self, _event: Any) -> None:
-        if not self.warned_silence and time.monotonic() - self.last_scan_wall > 10.0:
-            self.warned_silence = True
-            self.rospy.logwarn("slam2d: no scan for 10 s on %s: is a laser publishing it?",
-                               self.rospy.resolve_name("scan"))
+    def _watch_silence(self) -> None:
+        while not self.rospy.is_shutdown() and not self.warned_silence:
+            time.sleep(1.0)
+            if time.monotonic() - self.last_scan_wall > 10.0:
+                self.warned_silence = True
+                self.rospy.logwarn("slam2d: no scan for 10 s on %s: is a laser publishing it?",
+                                   self.rospy.resolve_name("scan"))
 
     def _publish_transform(self, _event: Any) -> None:
         from geometry_msgs.msg import TransformStamped
