@@ -16,3 +16,16 @@ def test_grown_keeps_rows_fills_new_ones_and_doubles():
     assert grown(a, 10).shape == (10, 2)  # more than double: what is needed
     assert grown(np.zeros(0), 1, minimum=16).shape == (16,)
     assert not grown(np.ones(2, bool), 3).tolist()[2]  # new rows of a bool store are False
+
+
+def test_freed_large_blocks_go_back_to_the_system_on_linux():
+    import platform
+    import sys
+
+    from slam2d.core.memory import return_freed_memory
+
+    applied = return_freed_memory()
+    if sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc":
+        assert applied  # glibc: mallopt took the fixed threshold
+    else:
+        assert not applied

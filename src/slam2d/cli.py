@@ -1425,6 +1425,9 @@ def _main_args(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from slam2d.core.memory import return_freed_memory
+
+    return_freed_memory()  # peak memory near what is live (workers forked from here inherit it)
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "ros":  # ROS remappings and private parameters (name:=value) are rospy's to read
         argv = [a for a in argv if ":=" not in a]
