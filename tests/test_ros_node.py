@@ -296,3 +296,21 @@ def test_live_node_skips_scans_of_another_beam_count_and_says_when_no_scan_comes
     summary = json.loads((out / "diagnostics.json").read_text())["summary"]
     assert summary["live_scans_other_beam_count"] == 10
     assert json.loads((out / "run.json").read_text())["scans"] == len(scans) - 10
+
+
+@pytest.mark.slow
+def test_roslaunch_finds_the_node_through_the_ros_package(office_bag, tmp_path):
+    """ros/slam2d is a ROS 1 package: roslaunch runs its office.launch, and the node writes the run folder."""
+    _ros_or_skip()
+    root = Path(__file__).resolve().parents[1]
+    if not (root / ".venv" / "bin" / "slam2d").is_file():
+        pytest.skip("the package's node runs the clone's .venv/bin/slam2d, which is not there")
+    env = {**os.environ, "ROS_PACKAGE_PATH": f"{root / 'ros'}:/usr/share", "ROS_HOME": str(tmp_path / "ros"),
+           "ROS_LOG_DIR": str(tmp_path / "ros" / "log")}
+    port = _free_port()
+    env["ROS_MASTER_URI"] = f"http://localhost:{port}"
+    out = tmp_path / "launched"
+    done = subprocess.run(["roslaunch", "-p", str(port), "slam2d", "office.launch", f"bag:={office_bag}",
+                           f"out:={out}"], env=env, capture_output=True, text=True, timeout=180)
+    assert "wrote the run folder" in done.stdout + done.stderr, (done.stdout + done.stderr)[-3000:]
+    assert json.loads((out / "run.json").read_text())["scans"] > 100
