@@ -152,8 +152,8 @@ class _Node:
         self.diag_pub = rospy.Publisher("~diagnostics", DiagnosticArray, queue_size=10)
         self.map_msg: Any = None
         self.mounts: dict[str, tuple[NDArray[np.float64], bool]] = {}
-        self.correction: NDArray[np.float64] | None = None  # map -> odom (or map -> base without odometry)
-        self.child_frame = node.odom_frame
+        # (map -> odom, "odom"), or (map -> base, "base_link") without odometry in tf; None until the first pose
+        self.tf_state: tuple[NDArray[np.float64] | None, str] = (None, node.odom_frame)
         self.last_tf_stamp: Any = None
         self.frames = 0
         self.beams: int | None = None
@@ -193,8 +193,8 @@ class _Node:
     def _publish_transform(self, _event: Any) -> None:
         from geometry_msgs.msg import TransformStamped
 
-        with self.lock:
-            correction, child = self.correction, self.child_frame
+        # no lock: a map being drawn must not hold tf back; one tuple is read whole
+        correction, child = self.tf_state
         stamp = self.rospy.Time.now() + self.rospy.Duration(self.p.transform_publish_period)
         if correction is None or (self.last_tf_stamp is not None and stamp <= self.last_tf_stamp):
             return  # nothing yet, or the clock stood still (a paused bag): tf refuses a repeated stamp
@@ -302,9 +302,9 @@ class _Node:
             if pose is not None:
                 pose = np.asarray(pose, dtype=np.float64)
                 if odometry is not None:
-                    self.correction, self.child_frame = map_to_odom(pose, odometry), self.p.odom_frame
+                    self.tf_state = (map_to_odom(pose, odometry), self.p.odom_frame)
                 else:  # no odometry in tf: the map places the robot itself
-                    self.correction, self.child_frame = pose, self.p.base_frame
+                    self.tf_state = (pose, self.p.base_frame)
             self.busy_s += time.process_time() - started
             self.latency.append(time.monotonic() - arrived)
             publish_map = time.monotonic() - self.last_map_wall >= self.p.map_update_interval
@@ -324,7 +324,8 @@ class _Node:
 
         with self.lock:
             self.slam = build_method(self.method_name, **self.build)
-            self.frames, self.first_t, self.last_t, self.beams, self.correction = 0, None, None, None, None
+            self.frames, self.first_t, self.last_t, self.beams = 0, None, None, None
+            self.tf_state = (None, self.p.odom_frame)
             self.counts["resets"] += 1
         # (tf2's listener clears its own buffer when the clock jumps back; clearing it here as well would lose
         # the transforms of the scan that showed the jump)
