@@ -195,7 +195,8 @@ def _wait_for_node(env, timeout=60) -> None:
 
 def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros, office_bag, tmp_path):
     out = tmp_path / "node"
-    node = _start_node(ros, "karto", "--out", str(out))
+    # a method parameter as a private ROS parameter, as a launch file sets it
+    node = _start_node(ros, "karto", "--out", str(out), "_minimum_travel_distance:=0.25")
     listener = subprocess.Popen(["/usr/bin/python3", "-c", _LISTENER, str(tmp_path / "seen.json")], env=ros,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
@@ -207,9 +208,16 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
                        capture_output=True)
         time.sleep(2.0)
         seen = json.loads((tmp_path / "seen.json").read_text())
+        # the services: the map on request, and the run folder written while the node runs
+        got_map = subprocess.run(["rosservice", "call", "/dynamic_map"], env=ros, capture_output=True, text=True,
+                                 timeout=60)
+        saved = subprocess.run(["rosservice", "call", "/slam2d/save"], env=ros, capture_output=True, text=True,
+                               timeout=120)
     finally:
         os.killpg(listener.pid, signal.SIGINT)
         log = _stop(node)
+    assert "resolution: 0.05" in got_map.stdout, got_map.stdout[-500:] + got_map.stderr
+    assert "success: True" in saved.stdout and str(out) in saved.stdout, saved.stdout + saved.stderr
     assert seen["map"] >= 1, log
     assert seen["map_to_odom"] >= 1, log
     assert "wrote the run folder" in log, log
@@ -228,7 +236,9 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
     assert (out / "map.pgm").read_bytes() == (tmp_path / "offline" / "map.pgm").read_bytes()
     summary = json.loads((out / "diagnostics.json").read_text())["summary"]
     assert summary["live_scans_dropped"] == 0 and summary["live_scans_without_tf"] == 0
-    assert json.loads((out / "run.json").read_text())["data"]["source"] == "ROS topic /scan"
+    record = json.loads((out / "run.json").read_text())
+    assert record["data"]["source"] == "ROS topic /scan"
+    assert record["params"]["minimum_travel_distance"] == 0.25
 
 
 @pytest.mark.slow
