@@ -183,14 +183,19 @@ def _stop(process, timeout=60) -> str:
     return out
 
 
-def _wait_for_node(env, timeout=60) -> None:
+def _wait_for_node(env, node, timeout=120) -> None:
+    """Until the node offers its services; fails with the node's own output if it exits or never does."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
+        if node.poll() is not None:
+            pytest.fail(f"the node exited with status {node.returncode} before offering its services:\n"
+                        f"{node.stdout.read()[-3000:]}")
         done = subprocess.run(["rosservice", "list"], env=env, capture_output=True, text=True)
         if "/slam2d/save" in done.stdout:
             return
         time.sleep(0.5)
-    pytest.fail(f"the node offered no /slam2d/save within {timeout} s")
+    pytest.fail(f"the node offered no /slam2d/save within {timeout} s (rosservice list: {done.stdout[-500:]!r} "
+                f"{done.stderr[-500:]!r}); the node said:\n{_stop(node)[-3000:]}")
 
 
 def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros, office_bag, tmp_path):
@@ -200,7 +205,7 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
     listener = subprocess.Popen(["/usr/bin/python3", "-c", _LISTENER, str(tmp_path / "seen.json")], env=ros,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
-        _wait_for_node(ros)
+        _wait_for_node(ros, node)
         deadline = time.monotonic() + 30
         while not (tmp_path / "seen.json.ready").exists() and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -252,7 +257,7 @@ def test_live_node_survives_no_odometry_a_replay_and_a_typo(ros, office_bag, tmp
     out = tmp_path / "node"
     node = _start_node(ros, "karto", "--out", str(out))
     try:
-        _wait_for_node(ros)
+        _wait_for_node(ros, node)
         # no odometry in tf (only the scans and the laser's mount): every scan skipped, counted, warned
         subprocess.run(["rosbag", "play", "--clock", "-q", str(office_bag), "--topics", "/scan", "/tf_static"],
                        env=ros, check=True, timeout=120, capture_output=True)
@@ -294,7 +299,7 @@ def test_live_node_skips_scans_of_another_beam_count_and_says_when_no_scan_comes
     out = tmp_path / "node"
     node = _start_node(ros, "hector", "--out", str(out))
     try:
-        _wait_for_node(ros)
+        _wait_for_node(ros, node)
         time.sleep(11.0)  # no scan publisher for 10 s: one warning
         subprocess.run(["rosbag", "play", "--clock", "-q", str(bag)], env=ros, check=True, timeout=120,
                        capture_output=True)
