@@ -54,7 +54,7 @@ def _one(method: str, rate: float, bag: Path, env: dict[str, str], work: Path) -
         if time.monotonic() > deadline:
             raise SystemExit(f"{method}: the node did not come up")
         time.sleep(0.5)
-    subprocess.run(["rosbag", "play", "--clock", "-q", "-r", str(rate), str(bag)], env=env, check=True,
+    subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", "-r", str(rate), str(bag)], env=env, check=True,
                    capture_output=True)
     time.sleep(1.0)
     os.killpg(node.pid, signal.SIGINT)

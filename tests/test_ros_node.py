@@ -76,14 +76,19 @@ def test_map_message_is_row_major_from_the_lower_left_corner():
 
 
 def test_private_parameters_split_between_node_and_method_and_typos_are_refused():
-    node, settings = _split_private({"map_frame": "world", "particles": 12, "throttle_scans": 1}, {"particles"})
+    node, settings, warnings = _split_private({"map_frame": "world", "particles": 12, "throttle_scans": 1},
+                                              {"particles"})
     assert node.map_frame == "world" and node.base_frame == NodeParams().base_frame
-    assert settings == {"particles": 12}
+    assert settings == {"particles": 12} and warnings == []
     with pytest.raises(InputError, match="unknown parameter") as err:
-        _split_private({"partciles": 12}, {"particles"})
+        _split_private({"partciles": 12}, {"particles"}, {"karto": {"resolution"}})
     assert err.value.field == "~partciles"
     with pytest.raises(InputError):
         _split_private({"map_update_interval": -1.0}, set())
+    # another method's parameter, left on the parameter server by an earlier node of the same name: a warning
+    _, settings, warnings = _split_private({"minimum_travel_distance": 0.3}, {"particles"},
+                                           {"karto": {"minimum_travel_distance"}})
+    assert settings == {} and warnings == ["~minimum_travel_distance ignored: a parameter of karto, not of this method"]
 
 
 def test_a_scan_message_becomes_a_scan_with_its_mount():
@@ -148,6 +153,9 @@ def office_bag(tmp_path_factory) -> Path:
     return out / "recording.bag"
 
 
+# Every `rosbag play` waits 2 s after advertising its topics (-d 2): a subscriber that connects after the first
+# messages went out misses them (the node would miss the first scan's tf under load).
+
 # A listener in the system's Python (where rospy is): did /map and tf map -> odom arrive while the bag played?
 _LISTENER = """
 import json, sys, rospy
@@ -168,6 +176,8 @@ while not rospy.is_shutdown():
 
 
 def _start_node(env, *args):
+    # each test's node starts from a clean slate: the parameter server keeps an earlier node's private parameters
+    subprocess.run(["rosparam", "delete", "/slam2d"], env=env, capture_output=True)
     return subprocess.Popen([sys.executable, "-m", "slam2d", "ros", *args], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
@@ -209,7 +219,7 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
         deadline = time.monotonic() + 30
         while not (tmp_path / "seen.json.ready").exists() and time.monotonic() < deadline:
             time.sleep(0.2)
-        subprocess.run(["rosbag", "play", "--clock", "-q", str(office_bag)], env=ros, check=True, timeout=120,
+        subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True, timeout=120,
                        capture_output=True)
         time.sleep(2.0)
         seen = json.loads((tmp_path / "seen.json").read_text())
@@ -259,11 +269,11 @@ def test_live_node_survives_no_odometry_a_replay_and_a_typo(ros, office_bag, tmp
     try:
         _wait_for_node(ros, node)
         # no odometry in tf (only the scans and the laser's mount): every scan skipped, counted, warned
-        subprocess.run(["rosbag", "play", "--clock", "-q", str(office_bag), "--topics", "/scan", "/tf_static"],
+        subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag), "--topics", "/scan", "/tf_static"],
                        env=ros, check=True, timeout=120, capture_output=True)
         # then the whole bag, twice: the second play goes back in time and starts a new map
         for _ in range(2):
-            subprocess.run(["rosbag", "play", "--clock", "-q", str(office_bag)], env=ros, check=True, timeout=120,
+            subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True, timeout=120,
                            capture_output=True)
         time.sleep(2.0)
     finally:
@@ -301,7 +311,7 @@ def test_live_node_skips_scans_of_another_beam_count_and_says_when_no_scan_comes
     try:
         _wait_for_node(ros, node)
         time.sleep(11.0)  # no scan publisher for 10 s: one warning
-        subprocess.run(["rosbag", "play", "--clock", "-q", str(bag)], env=ros, check=True, timeout=120,
+        subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(bag)], env=ros, check=True, timeout=120,
                        capture_output=True)
         time.sleep(2.0)
     finally:

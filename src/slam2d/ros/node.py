@@ -401,21 +401,33 @@ def _fill_transform(transform: Any, pose: NDArray[np.float64]) -> None:
     transform.rotation.z, transform.rotation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
 
 
-def _split_private(private: dict[str, Any], method_fields: set[str]) -> tuple[NodeParams, dict[str, Any]]:
-    """The node's parameters and the method's settings from the private ROS parameters (unknown names refused)."""
+def _split_private(private: dict[str, Any], method_fields: set[str],
+                   other_methods: dict[str, set[str]] | None = None,
+                   ) -> tuple[NodeParams, dict[str, Any], list[str]]:
+    """The node's parameters, the method's settings and warnings, from the private ROS parameters.
+
+    A name no method has is a typo and refused. Another method's parameter is ignored with a warning:
+    the parameter server keeps a node's private parameters after it exits, so a node started again
+    under the same name with another method finds the first one's.
+    """
     node_names = {f.name for f in fields(NodeParams)}
-    node_values, settings = {}, {}
+    node_values, settings, warnings = {}, {}, []
     for key, value in private.items():
         if key in node_names:
             node_values[key] = value
         elif key in method_fields:
             settings[key] = value
-        elif key not in _IGNORED:
-            raise InputError(f"unknown parameter: not one of the node's ({', '.join(sorted(node_names))}) "
-                             "or the method's", field=f"~{key}")
+        elif key in _IGNORED:
+            continue
+        else:
+            owners = sorted(m for m, names in (other_methods or {}).items() if key in names)
+            if not owners:
+                raise InputError(f"unknown parameter: not one of the node's ({', '.join(sorted(node_names))}) "
+                                 "or any method's", field=f"~{key}")
+            warnings.append(f"~{key} ignored: a parameter of {', '.join(owners)}, not of this method")
     from slam2d.params import from_mapping
 
-    return from_mapping(NodeParams, node_values), settings
+    return from_mapping(NodeParams, node_values), settings, warnings
 
 
 def run_node(method: str, build: dict[str, Any], command: str = "", output: Path | None = None,
@@ -430,8 +442,14 @@ def run_node(method: str, build: dict[str, Any], command: str = "", output: Path
 
     rospy = import_rospy()
     rospy.init_node("slam2d")  # reads the remappings and _private:=parameters of sys.argv
+    from slam2d.methods import available
+
     cls = get_method(method)
-    node_params, ros_settings = _split_private(rospy.get_param("~", {}), {f.name for f in fields(cls.Params)})
+    others = {name: {f.name for f in fields(c.Params)} for name, c in available().items() if name != cls.name}
+    node_params, ros_settings, warnings = _split_private(rospy.get_param("~", {}), {f.name for f in fields(cls.Params)},
+                                                         others)
+    for warning in warnings:
+        rospy.logwarn(f"slam2d: {warning}")
     if output is not None:
         node_params = dataclasses.replace(node_params, output=str(output))
     elif node_params.output:
