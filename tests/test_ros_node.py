@@ -46,11 +46,12 @@ def _quaternion(yaw):
 
 
 def test_planar_transform_reads_yaw_and_an_upside_down_laser():
-    pose, down = planar_transform(SimpleNamespace(x=1.0, y=-2.0, z=0.3), _quaternion(0.7))
+    pose, down = planar_transform(SimpleNamespace(translation=SimpleNamespace(x=1.0, y=-2.0, z=0.3),
+                                                  rotation=_quaternion(0.7)))
     np.testing.assert_allclose(pose, [1.0, -2.0, 0.7], atol=1e-12)
     assert not down
     flipped = SimpleNamespace(x=1.0, y=0.0, z=0.0, w=0.0)  # a half turn about x: the laser hangs upside down
-    assert planar_transform(SimpleNamespace(x=0.0, y=0.0, z=0.0), flipped)[1]
+    assert planar_transform(SimpleNamespace(translation=SimpleNamespace(x=0.0, y=0.0, z=0.0), rotation=flipped))[1]
 
 
 def test_map_to_odom_puts_the_odometry_pose_where_the_method_says():

@@ -120,7 +120,7 @@ class RosParams:
     notes: list[str] = field(default_factory=list)
 
 
-def _flatten(doc: dict[str, Any], path: Path) -> tuple[dict[str, Any], bool] | None:
+def _flatten(doc: dict[str, Any], path: Path) -> dict[str, Any] | None:
     """The parameters of a ROS 2 file (``node: {ros__parameters: {...}}``) or a flat ROS 1 file; None otherwise."""
     nested = [k for k, v in doc.items() if isinstance(v, dict) and "ros__parameters" in v]
     if nested:
@@ -131,19 +131,18 @@ def _flatten(doc: dict[str, Any], path: Path) -> tuple[dict[str, Any], bool] | N
         if not isinstance(params, dict):
             raise InputError("expected a mapping of parameter names to values", path=path,
                              field=f"{nested[0]}.ros__parameters")
-        return dict(params), True
+        return dict(params)
     if any(k in doc for k in _ROS_MARKERS):
-        return dict(doc), False
+        return dict(doc)
     return None
 
 
 def ros_params(doc: dict[str, Any], path: str | Path, params_class: type, method: str) -> RosParams | None:
     """``doc`` (a parameter file's mapping) translated for ``params_class``; None when it is not a ROS node's file."""
     path = Path(path)
-    found = _flatten(doc, path)
-    if found is None:
+    params = _flatten(doc, path)
+    if params is None:
         return None
-    params, _ = found
     names = {f.name for f in fields(params_class)}
     toolbox = sum(k in params for k in _TOOLBOX_KEYS)
     gmapping = sum(k in params for k in _GMAPPING_KEYS)

@@ -35,7 +35,7 @@ from slam2d.io.atomic import atomic_path
 from slam2d.io.base import Message, ProgressCallback, ReadOptions, Recording, StreamInfo, pose_problem
 from slam2d.io.ros1_fallback import DATA_LOSS, BagDamaged, Ros1SequentialReader
 
-__all__ = ["RosBag", "write_rosbag", "SCAN_TYPE", "ODOMETRY_TYPE", "TF_TYPE"]
+__all__ = ["RosBag", "write_rosbag", "planar_transform", "SCAN_TYPE", "ODOMETRY_TYPE", "TF_TYPE"]
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
@@ -123,6 +123,20 @@ def _transform_matrix(tf: Any) -> NDArray[np.float64]:
 def _planar(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """``[x, y, yaw]`` of a 3D transform: the yaw is that of its x axis (ZYX yaw)."""
     return np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+
+
+def _mount_of(m: NDArray[np.float64]) -> tuple[NDArray[np.float64], bool]:
+    """A laser's ``([x, y, yaw], upside_down)`` on the base from the 4x4 transform base <- laser.
+
+    The laser's z axis pointing down means its scan sweeps clockwise seen from above; make_scan mirrors
+    the beam angles for it.
+    """
+    return _planar(m), bool(m[2, 2] < 0.0)
+
+
+def planar_transform(transform: Any) -> tuple[NDArray[np.float64], bool]:
+    """``([x, y, yaw], upside_down)`` of a geometry_msgs/Transform (raises ``ValueError`` when it is not valid)."""
+    return _mount_of(_transform_matrix(transform))
 
 
 @dataclass
@@ -807,9 +821,7 @@ class RosBag(Recording):
                         f"{plan.base_frame} -> {laser_frame} not found in /tf_static",
                     )
             else:
-                # The laser's z axis pointing down means its scan sweeps clockwise
-                # seen from above; make_scan mirrors the beam angles for it.
-                result = (_planar(m), bool(m[2, 2] < 0.0))
+                result = _mount_of(m)
         self._mounts[laser_frame] = result
         return result
 
@@ -984,6 +996,7 @@ class _BagWriter:
         topics: dict[str, str],
         frames: dict[str, str],
         write_tf: bool,
+        scan_timing: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         self.user_path = user_path
         self.ros1 = version == "ros1"
@@ -992,7 +1005,7 @@ class _BagWriter:
         self.topics = topics
         self.frames = frames
         self.write_tf = write_tf
-        self.scan_timing = (0.0, 0.0)  # LaserScan scan_time, time_increment (s); 0: unknown
+        self.scan_timing = scan_timing  # LaserScan scan_time, time_increment (s); 0: unknown
         if self.ros1:
             from rosbags.rosbag1 import Writer as Writer1
 
@@ -1229,8 +1242,8 @@ def write_rosbag(
         for name, value in (("scan_time", scan_time), ("time_increment", time_increment)):
             if not (math.isfinite(value) and value >= 0.0):
                 raise InputError(f"{value} must be a finite time >= 0", path=out, field=name)
-        writer = _BagWriter(target, out, version, storage, topics, frames, write_tf)
-        writer.scan_timing = (float(scan_time), float(time_increment))
+        writer = _BagWriter(target, out, version, storage, topics, frames, write_tf,
+                            (float(scan_time), float(time_increment)))
         try:
             for k, item in enumerate(frames_or_messages):
                 where = f"item {k}"

@@ -32,6 +32,7 @@ from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.core.scan import LaserScan, make_scan
 from slam2d.errors import InputError
+from slam2d.io.rosbag import planar_transform  # tf as the bag reader reads it: (x, y, yaw), upside down
 from slam2d.params import param
 
 __all__ = ["NodeParams", "ScanQueue", "scan_from_message", "planar_transform", "map_to_odom", "grid_message_fields",
@@ -90,14 +91,6 @@ class ScanQueue:
 
     def __len__(self) -> int:
         return len(self._items)
-
-
-def planar_transform(translation: Any, rotation: Any) -> tuple[NDArray[np.float64], bool]:
-    """``([x, y, yaw], upside_down)`` of a 3D transform (geometry_msgs Vector3 and Quaternion)."""
-    x, y, z, w = float(rotation.x), float(rotation.y), float(rotation.z), float(rotation.w)
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    zz = 1.0 - 2.0 * (x * x + y * y)  # the rotated z axis's z: below 0, the laser hangs upside down
-    return np.array([float(translation.x), float(translation.y), yaw]), zz < 0.0
 
 
 def scan_from_message(msg: Any, mount: NDArray[np.float64], upside_down: bool = False) -> LaserScan:
@@ -256,8 +249,7 @@ class _Node:
             found = self._lookup(self.p.base_frame, frame_id, stamp, self.p.transform_timeout)
             if found is None:
                 return None
-            tr = found.transform
-            self.mounts[frame_id] = planar_transform(tr.translation, tr.rotation)
+            self.mounts[frame_id] = planar_transform(found.transform)
         return self.mounts[frame_id]
 
     def _process(self, msg: Any, arrived: float) -> None:
@@ -280,7 +272,7 @@ class _Node:
         odometry = None
         found = self._lookup(self.p.odom_frame, self.p.base_frame, stamp, self.p.transform_timeout)
         if found is not None:
-            odometry = planar_transform(found.transform.translation, found.transform.rotation)[0]
+            odometry = planar_transform(found.transform)[0]
         elif self.needs_odometry:
             self.counts["scans_without_tf"] += 1
             rospy.logwarn_throttle(5.0, f"slam2d: no odometry {self.p.odom_frame} -> {self.p.base_frame} at "
@@ -354,7 +346,7 @@ class _Node:
         msg.header.stamp = stamp
         msg.header.frame_id = self.p.map_frame
         msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
-        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
+        _, _, msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = map(float, se2.yaw_to_quaternion(pose[2]))
         self.pose_pub.publish(msg)
 
     def _publish_diagnostics(self, stamp: Any, values: dict[str, Any]) -> None:
@@ -398,7 +390,7 @@ class _Node:
 
 def _fill_transform(transform: Any, pose: NDArray[np.float64]) -> None:
     transform.translation.x, transform.translation.y, transform.translation.z = float(pose[0]), float(pose[1]), 0.0
-    transform.rotation.z, transform.rotation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
+    _, _, transform.rotation.z, transform.rotation.w = map(float, se2.yaw_to_quaternion(pose[2]))
 
 
 def _split_private(private: dict[str, Any], method_fields: set[str],
