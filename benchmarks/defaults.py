@@ -217,6 +217,14 @@ def write_section(path: Path, table: list[str]) -> None:
     replace_section(path, SECTION_BEGIN, SECTION_END, "\n".join(section(table)))
 
 
+def emit_section(begin: str, end: str, title: str, head: str, table: list[str], write: Path | None) -> None:
+    """Print a BENCHMARKS.md section (markers, ``## title``, ``head``, ``table``) and, with ``write``, put it there."""
+    block = "\n".join([begin, f"## {title}", "", head, "", *table, "", end])
+    print(block)
+    if write:
+        replace_section(write, begin, end, block)
+
+
 def replace_section(path: Path, begin: str, end: str, block: str) -> None:
     """Replace the text from ``begin`` to ``end`` in BENCHMARKS.md with ``block`` (which holds both markers), or
     add it before the methods x datasets table; atomically."""

@@ -100,12 +100,9 @@ def main() -> int:
                f"after `slam2d compile` ({compile_s:.0f} s, as `make` runs it after installing)")
             + f". Measured {when}; command: `.venv/bin/python benchmarks/first_run.py"
             + (" --no-compile" if compile_s is None else "") + " --write BENCHMARKS.md`.")
-    block = [SECTION_BEGIN, "## First run in a fresh clone", "", head, "", *lines, "", SECTION_END]
-    print("\n".join(block))
-    if args.write:
-        from defaults import replace_section
+    from defaults import emit_section
 
-        replace_section(args.write, SECTION_BEGIN, SECTION_END, "\n".join(block))
+    emit_section(SECTION_BEGIN, SECTION_END, "First run in a fresh clone", head, lines, args.write)
     return 0
 
 

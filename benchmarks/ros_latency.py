@@ -120,12 +120,9 @@ def main() -> int:
             "callback to its pose (queueing included), scans dropped, and the largest distance between the "
             "node's trajectory and `slam2d run` of the same method with the node's run.json. Measured "
             f"{when}; command: `.venv/bin/python benchmarks/ros_latency.py --write BENCHMARKS.md`.")
-    block = [SECTION_BEGIN, "## Live node", "", head, "", *lines, "", SECTION_END]
-    print("\n".join(block))
-    if args.write:
-        from defaults import replace_section
+    from defaults import emit_section
 
-        replace_section(args.write, SECTION_BEGIN, SECTION_END, "\n".join(block))
+    emit_section(SECTION_BEGIN, SECTION_END, "Live node", head, lines, args.write)
     return 0
 
 

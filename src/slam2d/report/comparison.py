@@ -192,6 +192,12 @@ def _alignment(entry: _Entry) -> NDArray[np.float64] | None:
     return pose if np.isfinite(pose).all() else None
 
 
+def _drawn_poses(entry: _Entry) -> NDArray[np.float64]:
+    """The run's poses as the report draws them: moved by its alignment into the truth's frame when it has one."""
+    alignment = _alignment(entry)
+    return entry.run.poses if alignment is None else se2.compose(alignment, entry.run.poses)
+
+
 def _fmt_number(value: Any) -> str:
     if isinstance(value, bool) or value is None:
         return str(value)
@@ -373,7 +379,7 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
         alignment = _alignment(entry)
         grids.append(entry.run.map)
         transforms.append(alignment)
-        poses = entry.run.poses if alignment is None else se2.compose(alignment, entry.run.poses)
+        poses = _drawn_poses(entry)
         tracks.append(poses if len(poses) else None)
         if alignment is not None:
             aligned_any = True
@@ -407,9 +413,7 @@ def _trajectory_image(entries: list[_Entry], truth: Any) -> tuple[_Image | None,
     for entry in entries:
         if not entry.shown or len(entry.run.poses) == 0:
             continue
-        alignment = _alignment(entry)
-        poses = entry.run.poses if alignment is None else se2.compose(alignment, entry.run.poses)
-        tracks.append((entry.label, poses, entry.colour))
+        tracks.append((entry.label, _drawn_poses(entry), entry.colour))
     truth_track = None
     if truth is not None and truth.has_trajectory:
         word = "truth" if truth.kind == "truth" else "reference (not ground truth)"
@@ -452,11 +456,10 @@ def _error_image(entries: list[_Entry], truth: Any, t0: float) -> _Image | None:
         return None
     series = []
     for entry in entries:
-        alignment = _alignment(entry)
-        if not entry.shown or alignment is None or len(entry.run.poses) < 2:
+        if not entry.shown or _alignment(entry) is None or len(entry.run.poses) < 2:
             continue
         try:
-            pairs = associate(entry.run.times, se2.compose(alignment, entry.run.poses), truth.times, truth.poses)
+            pairs = associate(entry.run.times, _drawn_poses(entry), truth.times, truth.poses)
         except (InputError, ValueError):  # no overlap in time: nothing to draw
             continue
         error = np.hypot(*(pairs.estimate[:, :2] - pairs.reference[:, :2]).T)
