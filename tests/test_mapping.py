@@ -29,6 +29,16 @@ def test_run_lengths_along_rows():
     assert run_lengths(np.zeros((0, 3), bool)).shape == (0, 3)
 
 
+def test_wall_thickness_is_the_shorter_run_through_each_occupied_cell():
+    from slam2d.eval.map_metrics import _thickness_of_occupied
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):  # random masks of every density, empty and one-row ones among them
+        m = rng.random((int(rng.integers(0, 30)), int(rng.integers(0, 30)))) < rng.random()
+        by_runs = np.minimum(run_lengths(m)[m], run_lengths(m.T).T[m])
+        np.testing.assert_array_equal(_thickness_of_occupied(m), by_runs)
+
+
 @pytest.mark.parametrize("thickness", [1, 2, 3, 5])
 def test_straight_walls_measure_their_thickness(thickness):
     occ = np.full((60, 80), 0, dtype=np.int8)

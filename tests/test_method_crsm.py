@@ -56,6 +56,29 @@ def test_occupancy_uses_the_originals_thresholds():
     assert list(m.occupancy()[0, :3]) == [0, -1, 100]
 
 
+def test_a_map_cropped_to_its_written_cells_keeps_every_cell_where_it_was():
+    m = CrsmMap(0.1)
+    m.ensure_contains(-5, -5, 5, 5, margin=0)
+    m.values[40, 30], m.values[60, 70] = 200, 40  # two written cells inside a mostly unwritten map
+    cropped = m.crop_to_observed()
+    assert cropped.shape == (21 + 2, 41 + 2)  # the written box plus one unknown cell around it
+    for grid in (m, cropped):  # the same world position for the same value, in both
+        ox, oy = grid.origin
+        assert grid.values[round((m.origin[1] + 40 * 0.1 - oy) / 0.1), round((m.origin[0] + 30 * 0.1 - ox) / 0.1)] == 200
+    assert (cropped.occupancy() == 0).sum() == 1 and (cropped.occupancy() == 100).sum() == 1
+    assert cropped.crop_to_observed() is cropped  # already cropped: no copy
+    assert m.shape == (101, 101) and cropped.observed.sum() == 2
+    grid = m.to_occupancy_grid()  # the float grid every method hands out: the same cells, known and occupied
+    assert grid.shape == cropped.shape and grid.origin == pytest.approx(cropped.origin)
+    assert np.array_equal(grid.observed, cropped.observed) and np.array_equal(grid.occupied(), cropped.occupied())
+    # a written cell on the edge: the margin beyond the edge is unknown
+    m.values[0, 0] = 40
+    edge = m.crop_to_observed()
+    assert edge.shape == (61 + 2, 71 + 2) and edge.values[0, 0] == UNKNOWN and edge.values[1, 1] == 40
+    empty = CrsmMap(0.1)
+    assert empty.crop_to_observed().shape == (0, 0)
+
+
 def test_critical_rays_keep_discontinuities_and_adapt_their_count():
     d = np.full(300, 2.0) + 0.01 * np.sin(np.arange(300))  # texture for the density walk
     d[100:150] = 4.0  # two jumps of 2 m

@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from slam2d.core.arrays import lookup_by_band
 from slam2d.grids.value_grid import ValueGrid
 
 __all__ = ["CrsmMap", "UNKNOWN", "crsm_update", "GAIN_TABLE", "first_beam_per_cell", "marked_endpoints"]
@@ -160,8 +161,7 @@ class CrsmMap(ValueGrid):
 
     def occupancy_of(self, values: NDArray) -> NDArray[np.int8]:
         """The original's published map: above 128 free (0), below 126 occupied (100), else unknown (-1)."""
-        v = values
-        occ = np.full(v.shape, -1, dtype=np.int8)
-        occ[v > 128] = 0
-        occ[v < 126] = 100
-        return occ
+        table = np.full(256, -1, dtype=np.int8)
+        table[129:] = 0
+        table[:126] = 100
+        return lookup_by_band(table, values)

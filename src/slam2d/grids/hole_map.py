@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from slam2d.core.arrays import lookup_by_band
 from slam2d.grids.value_grid import ValueGrid
 
 __all__ = ["HoleMap", "OBSTACLE", "FREE", "UNKNOWN", "hole_update", "hole_distance", "hole_distance_inside"]
@@ -193,7 +194,8 @@ class HoleMap(ValueGrid):
 
     def occupancy_of(self, values: NDArray) -> NDArray[np.int8]:
         """Occupancy 0..100 (100 = obstacle value), -1 where no beam ever wrote."""
-        v = values.astype(np.int32)
-        occ = np.rint(100.0 * (FREE - np.clip(v, 0, FREE)) / FREE).astype(np.int8)
-        occ[v == UNKNOWN] = -1
-        return occ
+        # one answer per possible value, looked up a band at a time: no int32 or float copy of a big map
+        v = np.arange(np.iinfo(values.dtype).max + 1, dtype=np.int64)
+        table = np.rint(100.0 * (FREE - np.clip(v, 0, FREE)) / FREE).astype(np.int8)
+        table[UNKNOWN] = -1
+        return lookup_by_band(table, values)

@@ -15,6 +15,7 @@ method hands out.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -129,22 +130,44 @@ class ValueGrid:
         """Occupancy (0..100, -1 unknown) of every cell."""
         return self.occupancy_of(self.values)
 
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        """True for cells ever written."""
+        return self.values != self.values.dtype.type(self.fill)
+
+    def occupied(self, threshold: float = 0.65) -> NDArray[np.bool_]:
+        """True for cells whose occupancy (0..100) is at least ``100 * threshold``."""
+        occ = self.occupancy()
+        return (occ >= 100.0 * threshold) & (occ <= 100)
+
+    def crop_to_observed(self, margin: int = 1) -> ValueGrid:
+        """A copy trimmed to the cells ever written plus ``margin`` unwritten cells around them.
+
+        What a run folder writes of a CoreSLAM or CRSM map: a diverged run grows the map to hundreds of
+        metres a side, and the written part is a fraction (crsm on fr101: 43 of 130 million cells).
+        """
+        rows, cols = self.shape
+        r0, r1, c0, c1 = _written_box(self.values, self.values.dtype.type(self.fill)) if rows and cols else (0,) * 4
+        out = copy.copy(self)  # (a shallow copy: the subclasses' own settings come along)
+        if r1 == 0:
+            out.values = np.full((0, 0), self.fill, dtype=self.values.dtype)
+            return out
+        r0, r1, c0, c1 = r0 - margin, r1 + margin, c0 - margin, c1 + margin
+        if (r0, r1, c0, c1) == (0, rows, 0, cols):
+            return self  # already cropped: no copy
+        out.values = np.full((r1 - r0, c1 - c0), self.fill, dtype=self.values.dtype)
+        sr0, sr1, sc0, sc1 = max(r0, 0), min(r1, rows), max(c0, 0), min(c1, cols)
+        out.values[sr0 - r0 : sr1 - r0, sc0 - c0 : sc1 - c0] = self.values[sr0:sr1, sc0:sc1]
+        out._row0, out._col0 = self._row0 + r0, self._col0 + c0
+        return out
+
     def to_occupancy_grid(self, params: GridParams | None = None, margin: int = 1) -> OccupancyGrid:
         """An :class:`OccupancyGrid` of the cells ever written plus ``margin`` around them.
 
-        Cropped before it is converted: a diverged run grows the map to hundreds of metres a side, and the
-        float copies of all of it took 2.5 GB (crsm on fr101) where the written part is a fraction.
+        Cropped before it is converted: the float copies of all of a diverged map took 2.5 GB (crsm on fr101).
         """
         params = params if params is not None else GridParams(resolution=self.resolution)
-        rows, cols = self.shape
-        r0, r1, c0, c1 = _written_box(self.values, self.values.dtype.type(self.fill)) if rows and cols else (0,) * 4
-        if r1 == 0:
+        cropped = self.crop_to_observed(margin)
+        if not cropped.values.size:
             return OccupancyGrid.from_occupancy(np.full((0, 0), -1, np.int8), self.resolution, self.origin, params)
-        w0, w1, v0, v1 = max(0, r0 - margin), min(rows, r1 + margin), max(0, c0 - margin), min(cols, c1 + margin)
-        occ = self.occupancy_of(self.values[w0:w1, v0:v1])
-        # the margin beyond the grid's edge is unknown
-        occ = np.pad(occ, ((w0 - (r0 - margin), r1 + margin - w1), (v0 - (c0 - margin), c1 + margin - v1)),
-                     constant_values=-1)
-        ox, oy = self.origin
-        origin = (ox + (c0 - margin) * self.resolution, oy + (r0 - margin) * self.resolution)
-        return OccupancyGrid.from_occupancy(occ, self.resolution, origin, params)
+        return OccupancyGrid.from_occupancy(cropped.occupancy(), self.resolution, cropped.origin, params)

@@ -43,6 +43,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
+from slam2d.core.arrays import lookup_by_band, row_bands
 from slam2d.errors import InputError
 from slam2d.io.atomic import atomic_path
 
@@ -459,7 +460,7 @@ def read_pgm(path: str | Path) -> tuple[NDArray[np.uint16] | NDArray[np.uint8], 
 
 def write_pgm(path: str | Path, pixels: ArrayLike, *, comment: str = "") -> None:
     """Write 8-bit pixels ``(rows, cols)`` (row 0 = top) as binary PGM (P5, maxval 255), atomically."""
-    arr = np.ascontiguousarray(np.asarray(pixels, dtype=np.uint8))
+    arr = np.asarray(pixels, dtype=np.uint8)
     if arr.ndim != 2:
         raise ValueError(f"pixels: expected a 2D array, got shape {arr.shape}")
     rows, cols = arr.shape
@@ -467,7 +468,8 @@ def write_pgm(path: str | Path, pixels: ArrayLike, *, comment: str = "") -> None
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header.encode("ascii"))
-            f.write(arr.tobytes())
+            for band in row_bands(arr.shape):  # a band at a time: no whole copy of a flipped (strided) image
+                f.write(np.ascontiguousarray(arr[band]).data)
 
 
 # --------------------------------------------------------------------------- writing
@@ -556,8 +558,13 @@ def write_map(
     if fmt not in ("pgm", "png"):
         raise InputError(f"{image_format!r} is not pgm or png", field="image_format")
 
-    known = (occ >= 0) & (occ <= 100)
-    value = np.where(known, occ, 0).astype(np.int16)  # int16: a map of 10^7 cells is not 80 MB more
+    if occ.dtype != np.int8:  # anything outside 0..100 is unknown
+        occ = np.where((occ >= 0) & (occ <= 100), occ, -1).astype(np.int8)
+    # every shade is looked up by the cell's byte (0..100 the value, 101..255 unknown), a band at a time:
+    # no mask or int16 copy of a big map
+    by_byte = occ.view(np.uint8)
+    value_of_byte = np.arange(256)
+    known_byte = value_of_byte <= 100
     alpha = None
     if mode == "trinary":
         if not 0 <= free_percent < occupied_percent <= 100:
@@ -566,9 +573,9 @@ def write_map(
                 f"got {free_percent}, {occupied_percent}",
                 field="free_percent",
             )
-        shade = np.full(occ.shape, UNKNOWN_SHADE, dtype=np.uint8)
-        shade[known & (value <= free_percent)] = FREE_SHADE
-        shade[known & (value >= occupied_percent)] = OCCUPIED_SHADE
+        table = np.full(256, UNKNOWN_SHADE, dtype=np.uint8)
+        table[known_byte & (value_of_byte <= free_percent)] = FREE_SHADE
+        table[known_byte & (value_of_byte >= occupied_percent)] = OCCUPIED_SHADE
         check = np.array([OCCUPIED_SHADE, FREE_SHADE, UNKNOWN_SHADE], dtype=np.uint8)
         got = occupancy_from_pixels(
             check, None, mode="trinary", negate=False,
@@ -582,16 +589,16 @@ def write_map(
                 field="free_thresh" if got[1] != 0 or got[2] != -1 else "occupied_thresh",
             )
     elif mode == "scale":
-        shade = _scale_table(occupied_thresh, free_thresh)[value]
-        if not known.all():
+        table = np.full(256, UNKNOWN_SHADE, dtype=np.uint8)
+        table[:101] = _scale_table(occupied_thresh, free_thresh)
+        if (by_byte > 100).any():
             if fmt == "pgm":
                 raise InputError(
                     "scale maps mark unknown cells transparent and PGM has no alpha channel; "
                     "write a PNG (image_format='png') or use mode 'trinary'",
                     field="image_format",
                 )
-            shade[~known] = UNKNOWN_SHADE
-            alpha = np.where(known, 255, 0).astype(np.uint8)
+            alpha = lookup_by_band(np.where(known_byte, 255, 0).astype(np.uint8), by_byte)
     else:
         if negate:
             raise InputError(
@@ -599,9 +606,10 @@ def write_map(
                 "differently",
                 field="negate",
             )
-        shade = np.where(known, value, 255).astype(np.uint8)
+        table = np.where(known_byte, value_of_byte, 255).astype(np.uint8)
     if negate:
-        shade = (255 - shade).astype(np.uint8)
+        table = (255 - table).astype(np.uint8)
+    shade = lookup_by_band(table, by_byte)
     image_rows = shade[::-1]  # image row 0 is the top of the map
 
     image_path = yaml_path.with_name(yaml_path.stem + "." + fmt)

@@ -326,7 +326,7 @@ def _write_run(
         raise InputError(
             f"{slam.name} placed none of the {frames} scans (no odometry or no poses for them)", path=data
         )
-    grid = slam.map()
+    grid = slam.written_map()
     if not grid.observed.any():  # refused before anything is written: no run folder without its map
         raise InputError(
             f"{slam.name} mapped nothing: none of the {frames} scans had a return it could use "

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from slam2d.core.arrays import lookup_by_band
 from slam2d.io.atomic import atomic_path
 
 __all__ = ["map_image", "gray_pixels", "save_map_png", "MATERIAL_COLOURS"]
@@ -43,7 +44,10 @@ def grey_levels() -> np.ndarray:
 
 def by_occupancy(table: np.ndarray, occupancy: np.ndarray) -> np.ndarray:
     """``table[value + 1]`` for each occupancy value (-1..100) of a map: a lookup, no float copy of the map."""
-    return table[np.clip(occupancy, -1, 100).astype(np.int16) + 1]
+    table = np.asarray(table)
+    # by the int8 value's byte: -1 is 255, 0..100 themselves; 101..127 count as 100 and -128..-2 as -1, as a clip did
+    by_byte = np.concatenate([table[1:], np.repeat(table[-1:], 27), np.repeat(table[:1], 128)])
+    return lookup_by_band(by_byte, np.asarray(occupancy, dtype=np.int8).view(np.uint8))
 
 
 def _image_of(occ: np.ndarray) -> np.ndarray:

@@ -59,6 +59,52 @@ class NodeParams:
 _IGNORED = ("throttle_scans", "tf_delay", "use_sim_time", "scan_topic")
 
 
+class TfFeed:
+    """tf's listener, minus its race with a replayed bag.
+
+    tf2_ros's listener clears its buffer when ROS time (``/clock``) jumps back, and ``/clock`` arrives
+    on its own connection: the first transforms of a replay could land before the clear and be lost
+    with it, and the first scan of the new map skipped. Here the buffer is cleared when the
+    transforms' own stamps jump back (by more than a second), just before the first of them is stored.
+    The node's own broadcasts (map -> odom) are not stored: its lookups never need them, and their
+    stamps follow ``/clock``, not the bag.
+    """
+
+    def __init__(self, rospy: Any, buffer: Any) -> None:
+        from tf2_msgs.msg import TFMessage
+
+        self.buffer, self.own_name = buffer, rospy.get_name()
+        self.latest: float | None = None
+        self.static: dict[str, tuple[Any, str]] = {}  # child frame -> (transform, authority): put back after a clear
+        self.lock = threading.Lock()
+        self.clears = 0
+        rospy.Subscriber("/tf", TFMessage, self._dynamic, queue_size=100, buff_size=1 << 20)
+        rospy.Subscriber("/tf_static", TFMessage, self._static, queue_size=100, buff_size=1 << 20)
+
+    def _dynamic(self, msg: Any) -> None:
+        who = msg._connection_header.get("callerid", "default_authority")
+        if who == self.own_name or not msg.transforms:
+            return
+        newest = max(t.header.stamp.to_sec() for t in msg.transforms)
+        with self.lock:
+            if self.latest is not None and newest < self.latest - 1.0:
+                self.buffer.clear()
+                self.clears += 1
+                for transform, authority in self.static.values():
+                    self.buffer.set_transform_static(transform, authority)
+                self.latest = None
+            self.latest = newest if self.latest is None else max(self.latest, newest)
+            for transform in msg.transforms:
+                self.buffer.set_transform(transform, who)
+
+    def _static(self, msg: Any) -> None:
+        who = msg._connection_header.get("callerid", "default_authority")
+        with self.lock:
+            for transform in msg.transforms:
+                self.static[transform.child_frame_id] = (transform, who)
+                self.buffer.set_transform_static(transform, who)
+
+
 class ScanQueue:
     """A bounded queue between the callback and the worker: the oldest is dropped (and counted) when full."""
 
@@ -137,7 +183,7 @@ class _Node:
         self.queue = ScanQueue(node.queue_size)
         self.lock = threading.Lock()  # the method and what the timers read of it
         self.tf_buffer = tf2_ros.Buffer(rospy.Duration(30.0))
-        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
+        self.tf_feed = TfFeed(rospy, self.tf_buffer)
         self.tf_broadcaster = tf2_ros.TransformBroadcaster()
         self.map_pub = rospy.Publisher("map", OccupancyGrid, queue_size=1, latch=True)
         self.meta_pub = rospy.Publisher("map_metadata", MapMetaData, queue_size=1, latch=True)
@@ -236,10 +282,15 @@ class _Node:
     def _lookup(self, target: str, source: str, stamp: Any, timeout: float) -> Any:
         import tf2_ros
 
-        try:
-            return self.tf_buffer.lookup_transform(target, source, stamp, self.rospy.Duration(timeout))
-        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
-            return None
+        # polled on the wall clock: tf2's own wait sleeps on ROS time, which raises when a replay jumps back
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return self.tf_buffer.lookup_transform_core(target, source, stamp)
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
+                if time.monotonic() >= deadline or self.rospy.is_shutdown():
+                    return None
+            time.sleep(0.002)
 
     def _mount(self, frame_id: str, stamp: Any) -> tuple[NDArray[np.float64], bool] | None:
         frame_id = frame_id.lstrip("/")
@@ -318,8 +369,9 @@ class _Node:
             self.slam = build_method(self.method_name, **self.build)
             self.frames, self.first_t, self.last_t, self.beams = 0, None, None, None
             self.tf_state = (None, self.p.odom_frame)
+            self.last_tf_stamp = None  # map -> odom goes out again, at the new clock's stamps
             self.counts["resets"] += 1
-        # (tf2's listener clears its own buffer when the clock jumps back; clearing it here as well would lose
+        # (TfFeed clears the tf buffer itself when the transforms jump back; clearing it here as well could lose
         # the transforms of the scan that showed the jump)
 
     # -- messages -------------------------------------------------------------------------------------
