@@ -28,6 +28,7 @@ _HELP = {
     "map": "build an occupancy map from a recording and known poses",
     "methods": "list the SLAM methods, or one method's parameters",
     "run": "run one SLAM method on a recording",
+    "localize": "localize a recording in a fixed map (a run's, or any map_server map)",
     "evaluate": "measure a run's trajectory error, map quality and cost",
     "compare": "run several methods on the same data and write a comparison report",
     "simulate": "simulate a recording with exact ground truth in a built-in or custom world",
@@ -508,6 +509,63 @@ def cmd_run(args: argparse.Namespace) -> int:
                   "not counted above)", markup=False)
     for path in summary.written:
         _print_written(out, path)
+    return 0
+
+
+# --------------------------------------------------------------------------- localize
+
+
+def _add_localize(sub: argparse._SubParsersAction) -> None:
+    from slam2d.localization.localizer import LocalizationParams
+
+    p = sub.add_parser(
+        "localize",
+        help=_HELP["localize"],
+        description="Localize the robot of DATA in a fixed map: a run folder's map.yaml or any map_server map "
+        "(one made by another tool works too). The map never changes. Without --initial-pose the robot is "
+        "searched for over the map's free space. Writes OUT/trajectory.tum (the poses while localized, in the "
+        "map's frame), OUT/localization.csv (every scan: state, pose, fit to the map's walls, particle spread) "
+        "and OUT/localization.json (when it was localized, lost and found again; time per scan). Exits 1, "
+        "having written what it has, when the robot was never localized.",
+    )
+    p.add_argument("map", type=Path, metavar="RUN_OR_MAP", help="a run folder (its map.yaml) or a map_server YAML")
+    p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
+    _add_out(p, "localize")
+    p.add_argument("--initial-pose", metavar="X,Y,THETA",
+                   help="where the robot starts in the map's frame [m, m, rad] (default: search the whole map)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed of the particle filter (default: 0)")
+    add_arguments(p.add_argument_group("localization"), LocalizationParams)
+    add_arguments(p.add_argument_group("reading"), ReadOptions)
+    p.set_defaults(handler=cmd_localize)
+
+
+def cmd_localize(args: argparse.Namespace) -> int:
+    from slam2d.localization.localizer import LocalizationParams
+    from slam2d.localization.run import localize_recording, parse_pose
+
+    params = from_arguments(LocalizationParams, args)
+    initial = parse_pose(args.initial_pose) if args.initial_pose is not None else None
+    with progress_bar(f"localizing {args.data.name}") as progress:
+        summary = localize_recording(args.map, args.data, args.out, params=params, seed=args.seed,
+                                     initial_pose=initial, read_options=_read_options(args), progress=progress,
+                                     command=_command_line())
+    rec = summary.record
+    out = _console()
+    for e in rec["events"]:
+        out.print(f"  {e['time'] - rec['data_span_s'][0]:.1f} s in: {e['state']} ({e['why']})", markup=False)
+    cpu = rec["cpu_ms_per_scan"]
+    if rec["localized"]:
+        first = rec["first_localized"]
+        out.print(f"{params.method}: localized {rec['localized_scans']} of {rec['scans']} scans (from scan "
+                  f"{first['scan']}, {100 * first['fraction_of_scans']:.0f} % in), lost {rec['lost']} times; "
+                  f"{cpu['median']:.1f} ms CPU per scan (median)", markup=False)
+    for path in summary.written:
+        _print_written(out, path)
+    if not rec["localized"]:
+        _console(stderr=True).print(
+            f"slam2d: {params.method} never localized the robot in {rec['map']}: no place in the map fits the "
+            f"scans well and for long enough (is this the right map? try --initial-pose X,Y,THETA)", markup=False)
+        return 1
     return 0
 
 
@@ -1337,7 +1395,7 @@ def cmd_ros(args: argparse.Namespace) -> int:
 
 
 _COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
-    _add_info, _add_map, _add_methods, _add_run, _add_evaluate, _add_compare, _add_simulate,
+    _add_info, _add_map, _add_methods, _add_run, _add_localize, _add_evaluate, _add_compare, _add_simulate,
     _add_repeatability, _add_demo, _add_paper, _add_calibrate, _add_sweep, _add_experiment, _add_compile, _add_ros,
 ]
 

@@ -1,4 +1,4 @@
-"""Faults put into a recording on purpose: odometry that missed a motion.
+"""Faults put into a recording on purpose: odometry that missed a motion, a robot carried off.
 
 Real odometry streams drop messages (a turn in place never reported, a push the
 wheels did not feel). These make such recordings from good ones, for tests,
@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from slam2d.core import se2
 
-__all__ = ["odometry_missing", "frames_with_odometry_missing"]
+__all__ = ["odometry_missing", "frames_with_odometry_missing", "kidnapped"]
 
 
 def odometry_missing(odometry: Sequence[NDArray[np.float64]], k: int,
@@ -39,3 +39,24 @@ def frames_with_odometry_missing(frames: Sequence, k: int, missed: NDArray[np.fl
     """``frames`` (each with odometry) with :func:`odometry_missing` applied to their odometry."""
     odometry = odometry_missing([f.odometry for f in frames], k, missed)
     return [dataclasses.replace(f, odometry=o) for f, o in zip(frames, odometry)]
+
+
+def kidnapped(frames: Sequence, at: int, resume: int) -> tuple[list, float]:
+    """The robot carried off after scan ``at - 1``: the scans from ``resume`` on follow, odometry unaware.
+
+    The odometry goes on from scan ``at - 1``'s without a jump (the wheels felt nothing) and the time
+    without a gap. Returns the frames and the time shift added to the resumed scans' stamps (a
+    resumed scan's true pose is the truth at its stamp minus the shift).
+    """
+    if not 1 <= at <= resume < len(frames):
+        raise ValueError(f"need 1 <= at ({at}) <= resume ({resume}) < {len(frames)}")
+    period = frames[at].timestamp - frames[at - 1].timestamp
+    shift = frames[at - 1].timestamp + period - frames[resume].timestamp
+    last = np.asarray(frames[at - 1].odometry, float)
+    base = np.asarray(frames[resume - 1].odometry, float)
+    out = list(frames[:at])
+    for j, f in enumerate(frames[resume:], start=at):
+        odometry = se2.compose(last, se2.relative(base, np.asarray(f.odometry, float)))
+        scan = dataclasses.replace(f.scan, timestamp=f.scan.timestamp + shift)
+        out.append(dataclasses.replace(f, index=j, scan=scan, odometry=odometry))
+    return out, shift

@@ -1,0 +1,304 @@
+"""Localization in a fixed map: a Monte Carlo localizer (AMCL-like) and scan-to-map tracking.
+
+``mcl``: a particle filter on the map's likelihood field. Particles move with GMapping's odometry
+noise model, are weighed by the likelihood-field beam model (tempered: the beams of one scan are not
+independent), resampled when their effective number falls under half, and their number adapts to
+their spread (KLD sampling, Fox 2003: 100 when they agree, up to ``max_particles`` while they search).
+When the scans fit the particles much worse than they used to (the short-term average likelihood
+under the long-term one, Thrun et al.'s augmented MCL), random particles are mixed in: the robot
+may have been carried off. The reported pose is the heaviest cluster's mean, refined by matching the
+scan to the map.
+
+``match``: the pose of the last scan moved by the odometry, refined by matching the scan to the map
+(Gauss-Newton on the distance field, from a few starting offsets when the fit is poor), as
+slam_toolbox's localization mode tracks. Without an initial pose, and when lost, it finds itself
+with the particle filter first.
+
+Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
+row means the robot is lost: the localizer says so, spreads particles over the map's free space and
+searches again. Poses are reported only while localized.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slam2d.core import se2
+from slam2d.errors import InputError
+from slam2d.grids.likelihood_field import LikelihoodField, likelihood_field
+from slam2d.localization.kernels import fit_fraction, particle_log_likelihoods, refine_on_field
+from slam2d.params import param
+from slam2d.sensors.motion_noise import draw_from_motion
+
+__all__ = ["LocalizationParams", "Localizer", "ScanResult", "STATES"]
+
+STATES = ("searching", "localized", "lost")
+
+# GMapping's odometry noise (srr, srt, str, stt): the same motion model the particle filters share
+_MOTION_NOISE = (0.1, 0.2, 0.1, 0.2)
+# Each scan's mean log-likelihood per beam counts as this many independent beams (tempering: the
+# beams of one scan share the map's errors; the product of all of them makes the filter overconfident)
+_INDEPENDENT_BEAMS = 1.0
+_Z_HIT, _Z_RAND = 0.95, 0.05
+# augmented MCL: long- and short-term averages of the scans' likelihood (AMCL's recovery_alpha_*)
+_ALPHA_SLOW, _ALPHA_FAST = 0.001, 0.1
+# KLD sampling: histogram bins (m, m, rad), error bound and its 99 % quantile (AMCL's kld_err, kld_z)
+_KLD_BIN = (0.5, 0.5, math.radians(10.0))
+_KLD_ERROR, _KLD_Z = 0.01, 2.326
+# the pull of the predicted pose in matching, against the endpoints' unit weights (m^2 per m^2, m^2 per rad^2):
+# (0.05 m of endpoint noise / 0.1 m of prediction error)^2, (0.05 m / 0.05 rad)^2
+_PRIOR_XY, _PRIOR_TH = 0.25, 1.0
+# filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
+# of a symmetric building fits in several places, motion tells them apart
+_CONFIRM_UPDATES = 5
+# the fraction of a scan on the map's walls a found place needs, at each of those updates (a right place fits
+# 0.9-1.0 in the simulated worlds and in fr079's mapped parts; wrong places that passed a 0.5 fit 0.45-0.75)
+_FOUND_FIT = 0.8
+# the spread (std) of the particles put around a given initial pose (AMCL's initial_cov: 0.5 m, pi/12)
+_INITIAL_STD = (0.5, 0.5, math.pi / 12.0)
+
+
+@dataclass
+class LocalizationParams:
+    """How ``slam2d localize`` finds and tracks the robot in a fixed map."""
+
+    method: str = param("mcl", choices=("mcl", "match"),
+                        help="mcl: particle filter (AMCL-like); match: scan-to-map matching (slam_toolbox-like)")
+    min_particles: int = param(100, low=1, help="particles kept once they agree (mcl; AMCL's min_particles)")
+    max_particles: int = param(5000, low=10, help="particles while searching (AMCL's max_particles)")
+    beams: int = param(60, low=3, help="beams per scan the particle filter weighs (AMCL's laser_max_beams)")
+    match_beams: int = param(180, low=3, help="beams per scan matched to the map")
+    hit_sigma: float = param(0.2, unit="m", low=0.001, help="spread of a beam's endpoint around a wall (AMCL's laser_sigma_hit)")
+    update_distance: float = param(0.1, unit="m", low=0.0, help="travel between particle filter updates")
+    update_angle: float = param(0.15, unit="rad", low=0.0, help="turn between particle filter updates")
+    lost_fit: float = param(0.3, low=0.0, high=1.0,
+                            help="fraction of endpoints within 2 cells of a wall under which a scan does not fit")
+    lost_after: int = param(10, low=1, help="scans in a row that do not fit before the robot counts as lost")
+
+
+@dataclass
+class ScanResult:
+    """What the localizer says about one scan."""
+
+    timestamp: float
+    state: str  # one of STATES
+    pose: NDArray[np.float64] | None  # in the map frame; None unless localized
+    fit: float  # fraction of endpoints on the map's walls at the reported (or best) pose
+    spread: float  # particles' position spread (m); NaN when the filter is not running
+    particles: int  # 0 when the filter is not running
+
+
+class Localizer:
+    """Feed frames (scan + odometry) in time order; each gets a :class:`ScanResult`."""
+
+    def __init__(self, grid: Any, params: LocalizationParams | None = None, *, seed: int = 0,
+                 initial_pose: NDArray[np.float64] | None = None) -> None:
+        self.p = p = params if params is not None else LocalizationParams()
+        if p.min_particles > p.max_particles:
+            raise InputError(f"min_particles {p.min_particles} is above max_particles {p.max_particles}",
+                             field="min_particles")
+        self.rng = np.random.default_rng(seed)
+        self.resolution = float(grid.resolution)
+        self.near = 2.0 * self.resolution + 0.02  # "on a wall": within two cells (and 2 cm)
+        self.field: LikelihoodField = likelihood_field(grid, max_distance=max(1.0, 5.0 * p.hit_sigma))
+        free = np.argwhere(grid.observed & ~grid.occupied(0.5) & (grid.occupancy() <= 25))
+        if len(free) == 0:
+            raise InputError("the map has no free cell to place the robot in", field="map")
+        ox, oy = grid.origin
+        self.free_xy = np.column_stack([ox + (free[:, 1] + 0.5) * self.resolution,
+                                        oy + (free[:, 0] + 0.5) * self.resolution])
+        self.particles = np.zeros((0, 3))
+        self.log_w = np.zeros(0)
+        self.w_slow = self.w_fast = 0.0
+        self.filter_odom: NDArray[np.float64] | None = None  # odometry at the last filter update
+        self.last_odom: NDArray[np.float64] | None = None
+        self.pose: NDArray[np.float64] | None = None  # the last reported pose (map frame)
+        self.state = "searching"
+        self.misfits = 0
+        self.events: list[dict[str, Any]] = []  # when it was localized, lost, found again
+        self.updates = 0
+        self.agreeing = 0  # filter updates in a row with the particles in one cluster
+        self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
+        if initial_pose is not None:
+            self._spread_around(np.asarray(initial_pose, dtype=np.float64))
+        else:
+            self._spread_globally()
+
+    # -- particles ------------------------------------------------------------------------------
+
+    def _spread_globally(self) -> None:
+        n = self.p.max_particles
+        cells = self.rng.integers(0, len(self.free_xy), n)
+        jitter = self.rng.uniform(-0.5, 0.5, (n, 2)) * self.resolution
+        self.particles = np.column_stack([self.free_xy[cells] + jitter, self.rng.uniform(-np.pi, np.pi, n)])
+        self.log_w = np.zeros(n)
+
+    def _spread_around(self, pose: NDArray[np.float64]) -> None:
+        n = max(self.p.min_particles, min(self.p.max_particles, 500))
+        self.particles = pose + self.rng.standard_normal((n, 3)) * np.asarray(_INITIAL_STD)
+        self.particles[:, 2] = se2.wrap_angle(self.particles[:, 2])
+        self.log_w = np.zeros(n)
+
+    def _weights(self) -> NDArray[np.float64]:
+        w = np.exp(self.log_w - self.log_w.max())
+        return w / w.sum()
+
+    def _kld_count(self, poses: NDArray[np.float64]) -> int:
+        """How many particles the spread of ``poses`` needs (KLD sampling), within the configured bounds."""
+        keys = np.floor(poses / np.asarray(_KLD_BIN)).astype(np.int64)
+        k = len(np.unique(keys[:, 0] * 1_000_003 * 1_009 + keys[:, 1] * 1_009 + keys[:, 2], axis=0))
+        if k <= 1:
+            n = self.p.min_particles
+        else:
+            a = 2.0 / (9.0 * (k - 1))
+            n = int(math.ceil((k - 1) / (2.0 * _KLD_ERROR) * (1.0 - a + math.sqrt(a) * _KLD_Z) ** 3))
+        return int(min(self.p.max_particles, max(self.p.min_particles, n)))
+
+    def _resample(self) -> None:
+        w = self._weights()
+        # systematic resampling of a first draw, then as many as its spread needs (KLD)
+        n = self._kld_count(self.particles)
+        picked = self.particles[np.minimum(np.searchsorted(np.cumsum(w), (self.rng.random() + np.arange(n)) / n),
+                                           len(w) - 1)]
+        # augmented MCL: random particles in proportion to how much worse the scans fit lately
+        inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0 else 0.0
+        randoms = int(self.rng.binomial(n, inject)) if inject > 0 else 0
+        if randoms:
+            cells = self.rng.integers(0, len(self.free_xy), randoms)
+            picked[:randoms] = np.column_stack([self.free_xy[cells], self.rng.uniform(-np.pi, np.pi, randoms)])
+            self.w_fast = self.w_slow  # AMCL resets the short-term average after injecting
+        self.particles = picked
+        self.log_w = np.zeros(n)
+
+    def _filter_update(self, delta: NDArray[np.float64], bx: NDArray[np.float64], by: NDArray[np.float64]) -> None:
+        draw_from_motion(self.particles, delta, self.rng.standard_normal(self.particles.shape), *_MOTION_NOISE)
+        f = self.field
+        ll = np.empty(len(self.particles))
+        particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, self.particles,
+                                 bx, by, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
+        tempered = _INDEPENDENT_BEAMS * ll
+        self.log_w = self.log_w + tempered
+        w_avg = float(np.mean(np.exp(tempered)))
+        self.w_slow = w_avg if self.w_slow == 0 else self.w_slow + _ALPHA_SLOW * (w_avg - self.w_slow)
+        self.w_fast = w_avg if self.w_fast == 0 else self.w_fast + _ALPHA_FAST * (w_avg - self.w_fast)
+        self.updates += 1
+        w = self._weights()
+        if 1.0 / float(np.sum(w * w)) < 0.5 * len(w):
+            self._resample()
+
+    def _cluster(self) -> tuple[NDArray[np.float64], float, float]:
+        """The heaviest cluster's mean pose, its share of the weight and its position spread (std, m)."""
+        w = self._weights()
+        keys = np.floor(self.particles[:, :2] / 1.0).astype(np.int64)  # 1 m bins
+        _, inverse = np.unique(keys, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        heaviest = int(np.argmax(np.bincount(inverse, weights=w)))
+        seed_xy = np.average(self.particles[inverse == heaviest, :2], axis=0, weights=w[inverse == heaviest] + 1e-300)
+        near = np.hypot(*(self.particles[:, :2] - seed_xy).T) < 1.0
+        wn = w[near] + 1e-300
+        xy = np.average(self.particles[near, :2], axis=0, weights=wn)
+        th = math.atan2(float(np.sum(wn * np.sin(self.particles[near, 2]))), float(np.sum(wn * np.cos(self.particles[near, 2]))))
+        spread = math.sqrt(float(np.average(np.sum((self.particles[near, :2] - xy) ** 2, axis=1), weights=wn)))
+        return np.array([xy[0], xy[1], th]), float(w[near].sum()), spread
+
+    # -- matching ----------------------------------------------------------------------------------
+
+    def _fit(self, pose: NDArray[np.float64], bx, by) -> float:
+        f = self.field
+        return float(fit_fraction(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
+                                  float(pose[0]), float(pose[1]), float(pose[2]), bx, by, self.near))
+
+    def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool) -> tuple[NDArray[np.float64], float]:
+        """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly."""
+        f = self.field
+        best, best_fit = pose, self._fit(pose, bx, by)
+        starts = [(0.0, 0.0, 0.0)]
+        if wide or best_fit < 0.8:
+            starts += [(dx, dy, dt) for dx in (-0.2, 0.0, 0.2) for dy in (-0.2, 0.0, 0.2) for dt in (-0.15, 0.0, 0.15)
+                       if (dx, dy, dt) != (0.0, 0.0, 0.0)]
+        for dx, dy, dt in starts:
+            x, y, th, used = refine_on_field(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
+                                             float(pose[0] + dx), float(pose[1] + dy), float(pose[2] + dt),
+                                             bx, by, 20, 0.1, pose, _PRIOR_XY, _PRIOR_TH)
+            if used < 10:
+                continue
+            cand = np.array([x, y, th])
+            fit = self._fit(cand, bx, by)
+            # another start must fit clearly better: in a corridor many fit alike, and picking the best of
+            # them scan after scan walks the pose along it
+            if fit > best_fit + (1e-9 if (dx, dy, dt) == (0.0, 0.0, 0.0) else 0.05):
+                best, best_fit = cand, fit
+        return best, best_fit
+
+    # -- the per-scan step -----------------------------------------------------------------------------
+
+    def _beams(self, scan: Any, count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        pts = scan.points_in_base()
+        if len(pts) > count:
+            pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
+        return np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+
+    def feed(self, frame: Any) -> ScanResult:
+        odom = np.asarray(frame.odometry, dtype=np.float64) if frame.odometry is not None else None
+        t = frame.timestamp
+        step = np.zeros(3)
+        if odom is not None and self.last_odom is not None:
+            step = se2.relative(self.last_odom, odom).reshape(3)
+        self.last_odom = odom if odom is not None else self.last_odom
+        fx, fy = self._beams(frame.scan, self.p.beams)
+        mx, my = self._beams(frame.scan, self.p.match_beams)
+        if len(mx) < 10:  # too few returns to say anything: the pose moves with the odometry
+            if self.pose is not None:
+                self.pose = se2.compose(self.pose, step).reshape(3)
+            return ScanResult(t, self.state, self.pose if self.state == "localized" else None, float("nan"),
+                              float("nan"), len(self.particles))
+        filtering = self.p.method == "mcl" or self.state != "localized"
+        spread, moved = float("nan"), False
+        if filtering:
+            if self.filter_odom is None or odom is None:
+                delta = step if odom is None else np.zeros(3)
+                moved = self.filter_odom is None or odom is None
+            else:
+                delta = se2.relative(self.filter_odom, odom).reshape(3)
+                moved = math.hypot(delta[0], delta[1]) >= self.p.update_distance or abs(delta[2]) >= self.p.update_angle
+            if moved:
+                self._filter_update(delta, fx, fy)
+                self.filter_odom = odom
+            estimate, share, spread = self._cluster()
+            if self.filter_odom is not None and odom is not None:  # the odometry since the update
+                estimate = se2.compose(estimate, se2.relative(self.filter_odom, odom)).reshape(3)
+        if self.state == "localized":
+            guess = se2.compose(self.pose, step).reshape(3) if self.p.method == "match" else estimate
+            pose, fit = self._refine(guess, mx, my, wide=False)
+            self.pose = pose
+            self.misfits = self.misfits + 1 if fit < self.p.lost_fit else 0
+            if self.misfits >= self.p.lost_after:
+                self._set_state("lost", t, f"{self.misfits} scans in a row fit the map under {self.p.lost_fit:.0%}")
+                self._spread_globally()
+                self.filter_odom, self.misfits, self.agreeing, self.confirm = odom, 0, 0, _CONFIRM_UPDATES
+                return ScanResult(t, "lost", None, fit, spread, len(self.particles))
+            return ScanResult(t, "localized", self.pose.copy(), fit, spread,
+                              len(self.particles) if self.p.method == "mcl" else 0)
+        # searching (or lost): localized once the particles agree and the scan fits there
+        pose, fit = self._refine(estimate, mx, my, wide=True)
+        if moved:  # a place counts once the particles gather there and the scans fit it, update after update
+            self.agreeing = self.agreeing + 1 if share > 0.5 and spread < 0.5 and fit >= _FOUND_FIT else 0
+        if self.agreeing >= self.confirm:
+            self.pose = pose
+            self.misfits = 0
+            self._set_state("localized", t, f"{share:.0%} of the weight within {spread:.2f} m, {fit:.0%} of the scan on walls")
+            if self.p.method == "mcl":
+                # the particles around the matched pose: the filter goes on from where the scan says it is
+                offset = se2.relative(estimate, pose).reshape(3)
+                self.particles = se2.compose(self.particles, offset)
+            return ScanResult(t, "localized", self.pose.copy(), fit, spread, len(self.particles))
+        return ScanResult(t, self.state, None, fit, spread, len(self.particles))
+
+    def _set_state(self, state: str, t: float, why: str) -> None:
+        self.events.append({"time": t, "state": state, "why": why})
+        self.state = state
