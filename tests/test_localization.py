@@ -32,17 +32,16 @@ def _errors(trajectory, truth):
 
 
 def test_found_without_an_initial_pose_and_tracked_in_the_true_map(office, tmp_path):
-    # (the office is symmetric: a search may first settle in the wrong wing; the particle filter then
-    # notices and moves on. What is asserted: found within the first 20 % of the scans, right in the end.)
+    # (the office is symmetric: one scan fits both wings; the search keeps both until the scans tell them apart)
     s = localize_recording(office / "truth-map.yaml", office / "recording.log.gz", tmp_path)
     rec = s.record
-    assert rec["localized"] and rec["first_localized"]["fraction_of_scans"] < 0.2, rec["events"]
+    assert rec["localized"] and rec["first_localized"]["time"] - rec["data_span_s"][0] < 15.0, rec["events"]
+    assert rec["lost"] == 0 and "other places fit worse" in rec["events"][0]["why"]
     dist, heading = _errors(tmp_path / "trajectory.tum", office / "truth.tum")
-    assert len(dist) == rec["localized_scans"] > 0.7 * rec["scans"]
-    last = slice(len(dist) // 2, None)
+    assert len(dist) == rec["localized_scans"] > 0.6 * rec["scans"]
     # (along a corridor longer than the URG-04LX's 5.6 m the walls do not say where along it the robot is:
     # tenths of a metre there even in the true map, as the accuracy bound in BENCHMARKS.md has it)
-    assert np.median(dist[last]) < 0.06 and dist[last].max() < 0.5 and np.median(heading[last]) < np.radians(1.0)
+    assert np.median(dist) < 0.06 and dist.max() < 0.5 and np.median(heading) < np.radians(1.0)
     rows = (tmp_path / "localization.csv").read_text().splitlines()
     assert rows[0] == "time,state,x,y,theta,fit,spread_m,particles" and len(rows) == rec["scans"] + 1
     assert rows[1].split(",")[1] == "searching" and rows[1].split(",")[2] == ""  # no pose before it is found
@@ -61,7 +60,8 @@ def test_tracked_from_an_initial_pose(office, tmp_path, method):
 
 
 def test_the_same_seed_gives_the_same_answer_and_another_seed_another_search(office, tmp_path):
-    runs = [localize_recording(office / "truth-map.yaml", office / "recording.log.gz", tmp_path / str(i), seed=seed)
+    runs = [localize_recording(office / "truth-map.yaml", office / "recording.log.gz", tmp_path / str(i), seed=seed,
+                               params=LocalizationParams(max_particles=1500))
             for i, seed in enumerate((5, 5, 6))]
     a, b, c = ((tmp_path / str(i) / "localization.csv").read_text() for i in range(3))
     assert a == b and a != c

@@ -11,10 +11,12 @@ scan to the map.
 
 ``match``: the pose of the last scan moved by the odometry, refined by matching the scan to the map
 (Gauss-Newton on the distance field, from a few starting offsets when the fit is poor), as
-slam_toolbox's localization mode tracks. Without an initial pose, and when lost, it finds itself
-with the particle filter first.
+slam_toolbox's localization mode tracks.
 
-Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
+Without an initial pose the particles spread over the map's free space, and every place they gather
+becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there; one wins
+when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
+apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
 row means the robot is lost: the localizer says so, spreads particles over the map's free space and
 searches again. Poses are reported only while localized.
 """
@@ -22,6 +24,7 @@ searches again. Poses are reported only while localized.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,6 +62,19 @@ _CONFIRM_UPDATES = 5
 # the fraction of a scan on the map's walls a found place needs, at each of those updates (a right place fits
 # 0.9-1.0 in the simulated worlds and in fr079's mapped parts; wrong places that passed a 0.5 fit 0.45-0.75)
 _FOUND_FIT = 0.8
+# from a given initial pose: found when this share of the weight gathers within 1 m
+_FOUND_SHARE = 0.5
+# while searching, resampled only when the particles' effective number falls under this share: resampling
+# more often lost a place's symmetric twin before the scans told them apart (5 of 9 second drives through
+# office and corridor-loop went to the wrong twin at 0.5, 1 of 9 at 0.1)
+_SEARCH_NEFF = 0.1
+# a global search's hypotheses: at most this many; one wins when it leads every other by _HYPOTHESIS_MARGIN in
+# summed log-likelihood (a factor e^3 = 20); one trailing the best by _HYPOTHESIS_DROP is dropped
+_MAX_HYPOTHESES = 12
+_HYPOTHESIS_MARGIN = 3.0
+_HYPOTHESIS_DROP = 8.0
+# the particles put around a found place (mcl goes on from there)
+_FOUND_STD = (0.1, 0.1, 0.05)
 # the spread (std) of the particles put around a given initial pose (AMCL's initial_cov: 0.5 m, pi/12)
 _INITIAL_STD = (0.5, 0.5, math.pi / 12.0)
 
@@ -77,7 +93,8 @@ class LocalizationParams:
     update_distance: float = param(0.1, unit="m", low=0.0, help="travel between particle filter updates")
     update_angle: float = param(0.15, unit="rad", low=0.0, help="turn between particle filter updates")
     lost_fit: float = param(0.3, low=0.0, high=1.0,
-                            help="fraction of endpoints within 2 cells of a wall under which a scan does not fit")
+                            help="fraction of endpoints within 2 cells of a wall under which a scan does not fit "
+                            "(or half the last 100 scans' median fit, when higher)")
     lost_after: int = param(10, low=1, help="scans in a row that do not fit before the robot counts as lost")
 
 
@@ -122,7 +139,8 @@ class Localizer:
         self.misfits = 0
         self.events: list[dict[str, Any]] = []  # when it was localized, lost, found again
         self.updates = 0
-        self.agreeing = 0  # filter updates in a row with the particles in one cluster
+        self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
+        self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
         self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
         if initial_pose is not None:
             self._spread_around(np.asarray(initial_pose, dtype=np.float64))
@@ -138,9 +156,9 @@ class Localizer:
         self.particles = np.column_stack([self.free_xy[cells] + jitter, self.rng.uniform(-np.pi, np.pi, n)])
         self.log_w = np.zeros(n)
 
-    def _spread_around(self, pose: NDArray[np.float64]) -> None:
+    def _spread_around(self, pose: NDArray[np.float64], std: tuple[float, float, float] = _INITIAL_STD) -> None:
         n = max(self.p.min_particles, min(self.p.max_particles, 500))
-        self.particles = pose + self.rng.standard_normal((n, 3)) * np.asarray(_INITIAL_STD)
+        self.particles = pose + self.rng.standard_normal((n, 3)) * np.asarray(std)
         self.particles[:, 2] = se2.wrap_angle(self.particles[:, 2])
         self.log_w = np.zeros(n)
 
@@ -188,7 +206,9 @@ class Localizer:
         self.w_fast = w_avg if self.w_fast == 0 else self.w_fast + _ALPHA_FAST * (w_avg - self.w_fast)
         self.updates += 1
         w = self._weights()
-        if 1.0 / float(np.sum(w * w)) < 0.5 * len(w):
+        # while searching, resampled only when few particles carry the weight: a place and its symmetric twin
+        # keep their particles until the scans tell them apart
+        if 1.0 / float(np.sum(w * w)) < (_SEARCH_NEFF if self.state != "localized" else 0.5) * len(w):
             self._resample()
 
     def _cluster(self) -> tuple[NDArray[np.float64], float, float]:
@@ -273,32 +293,113 @@ class Localizer:
             if self.filter_odom is not None and odom is not None:  # the odometry since the update
                 estimate = se2.compose(estimate, se2.relative(self.filter_odom, odom)).reshape(3)
         if self.state == "localized":
-            guess = se2.compose(self.pose, step).reshape(3) if self.p.method == "match" else estimate
+            guess = se2.compose(self.pose, step).reshape(3)
+            if self.p.method == "mcl" and not _near(guess, estimate, 0.3, 0.2):
+                guess = estimate  # the particles disagree with the tracked pose: they have the last word
             pose, fit = self._refine(guess, mx, my, wide=False)
             self.pose = pose
-            self.misfits = self.misfits + 1 if fit < self.p.lost_fit else 0
+            # lost: the scans fit under lost_fit, or under half of what they fitted lately (a map whose walls
+            # fit 0.95 of a scan does not fit 0.4 of it at the right place)
+            floor = max(self.p.lost_fit, 0.5 * float(np.median(self.recent_fits))) if self.recent_fits else self.p.lost_fit
+            self.recent_fits.append(fit)
+            self.misfits = self.misfits + 1 if fit < floor else 0
             if self.misfits >= self.p.lost_after:
-                self._set_state("lost", t, f"{self.misfits} scans in a row fit the map under {self.p.lost_fit:.0%}")
+                self._set_state("lost", t, f"{self.misfits} scans in a row fit the map under {floor:.0%}")
+                self.recent_fits.clear()
                 self._spread_globally()
-                self.filter_odom, self.misfits, self.agreeing, self.confirm = odom, 0, 0, _CONFIRM_UPDATES
+                self.filter_odom, self.misfits, self.confirm = odom, 0, _CONFIRM_UPDATES
                 return ScanResult(t, "lost", None, fit, spread, len(self.particles))
             return ScanResult(t, "localized", self.pose.copy(), fit, spread,
                               len(self.particles) if self.p.method == "mcl" else 0)
-        # searching (or lost): localized once the particles agree and the scan fits there
-        pose, fit = self._refine(estimate, mx, my, wide=True)
-        if moved:  # a place counts once the particles gather there and the scans fit it, update after update
-            self.agreeing = self.agreeing + 1 if share > 0.5 and spread < 0.5 and fit >= _FOUND_FIT else 0
-        if self.agreeing >= self.confirm:
-            self.pose = pose
-            self.misfits = 0
-            self._set_state("localized", t, f"{share:.0%} of the weight within {spread:.2f} m, {fit:.0%} of the scan on walls")
-            if self.p.method == "mcl":
-                # the particles around the matched pose: the filter goes on from where the scan says it is
-                offset = se2.relative(estimate, pose).reshape(3)
-                self.particles = se2.compose(self.particles, offset)
-            return ScanResult(t, "localized", self.pose.copy(), fit, spread, len(self.particles))
-        return ScanResult(t, self.state, None, fit, spread, len(self.particles))
+        # searching (or lost)
+        if self.confirm == 1:  # from a given initial pose: the particles need only gather there once
+            pose, fit = self._refine(estimate, mx, my, wide=True)
+            if moved and share > _FOUND_SHARE and spread < 0.5 and fit >= _FOUND_FIT:
+                return self._found(t, pose, fit, f"{share:.0%} of the weight within {spread:.2f} m, "
+                                   f"{fit:.0%} of the scan on walls", spread)
+            return ScanResult(t, self.state, None, fit, spread, len(self.particles))
+        # a global search: every place the particles gather becomes a hypothesis, tracked by matching and
+        # scored scan after scan; one wins only when every other fits clearly worse (a symmetric building
+        # keeps two alive until a door or a pillar tells them apart)
+        best = self._track_hypotheses(step, mx, my, moved)
+        if best is None:
+            return ScanResult(t, self.state, None, float("nan"), spread, len(self.particles))
+        h, lead = best
+        if h["updates"] >= _CONFIRM_UPDATES and h["fit"] >= _FOUND_FIT and lead >= _HYPOTHESIS_MARGIN:
+            others = len(self.hypotheses) - 1
+            return self._found(t, h["pose"], h["fit"], f"{h['fit']:.0%} of the scan on walls; "
+                               + (f"{others} other places fit worse (by {lead:.1f} in log-likelihood)" if others
+                                  else "no other place fits"), spread)
+        return ScanResult(t, self.state, None, h["fit"], spread, len(self.particles))
+
+    def _found(self, t: float, pose: NDArray[np.float64], fit: float, why: str, spread: float) -> ScanResult:
+        self.pose = pose
+        self.misfits = 0
+        self.hypotheses = []
+        self._set_state("localized", t, why)
+        if self.p.method == "mcl":  # the filter goes on from where the scan says the robot is
+            self._spread_around(pose, _FOUND_STD)
+        return ScanResult(t, "localized", self.pose.copy(), fit, spread, len(self.particles))
+
+    def _modes(self) -> list[NDArray[np.float64]]:
+        """The places the particles gather: the weighted means of the heaviest (1 m, 1 m, 45 deg) bins."""
+        w = self._weights()
+        keys = np.floor(self.particles / np.array([1.0, 1.0, np.pi / 4])).astype(np.int64)
+        _, inverse = np.unique(keys, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        mass = np.bincount(inverse, weights=w)
+        modes = []
+        for b in np.argsort(mass)[::-1][:_MAX_HYPOTHESES]:
+            if mass[b] < 0.01:
+                break
+            sel = inverse == b
+            wb = w[sel] + 1e-300
+            xy = np.average(self.particles[sel, :2], axis=0, weights=wb)
+            th = math.atan2(float(np.sum(wb * np.sin(self.particles[sel, 2]))),
+                            float(np.sum(wb * np.cos(self.particles[sel, 2]))))
+            modes.append(np.array([xy[0], xy[1], th]))
+        return modes
+
+    def _track_hypotheses(self, step, mx, my, moved: bool) -> tuple[dict, float] | None:
+        """Move and match every hypothesis, score it, add the particles' new places, drop the hopeless."""
+        f = self.field
+        for h in self.hypotheses:
+            h["pose"], h["fit"] = self._refine(se2.compose(h["pose"], step).reshape(3), mx, my, wide=False)
+        if self.hypotheses:
+            poses = np.array([h["pose"] for h in self.hypotheses])
+            ll = np.empty(len(poses))
+            particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, poses,
+                                     mx, my, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
+            for h, v in zip(self.hypotheses, ll):
+                h["score"] += _INDEPENDENT_BEAMS * float(v)
+                h["updates"] += int(moved)
+        if moved:
+            top = max((h["score"] for h in self.hypotheses), default=0.0)
+            for mode in self._modes():
+                if any(_near(mode, h["pose"], 0.5, 0.3) for h in self.hypotheses):
+                    continue
+                pose, fit = self._refine(mode, mx, my, wide=True)
+                if fit >= _FOUND_FIT and not any(_near(pose, h["pose"], 0.2, 0.1) for h in self.hypotheses):
+                    # a newcomer starts level with the best: what it missed cannot count against it
+                    self.hypotheses.append({"pose": pose, "fit": fit, "score": top, "updates": 0})
+        if not self.hypotheses:
+            return None
+        self.hypotheses.sort(key=lambda h: -h["score"])
+        kept: list[dict] = []
+        for h in self.hypotheses:  # one per place (two that matched onto the same place are one), the hopeless out
+            if h["score"] >= self.hypotheses[0]["score"] - _HYPOTHESIS_DROP and h["fit"] >= self.p.lost_fit and not any(
+                    _near(h["pose"], k["pose"], 0.2, 0.1) for k in kept):
+                kept.append(h)
+        self.hypotheses = kept[:_MAX_HYPOTHESES]
+        if not self.hypotheses:
+            return None
+        lead = self.hypotheses[0]["score"] - self.hypotheses[1]["score"] if len(self.hypotheses) > 1 else math.inf
+        return self.hypotheses[0], lead
 
     def _set_state(self, state: str, t: float, why: str) -> None:
         self.events.append({"time": t, "state": state, "why": why})
         self.state = state
+
+
+def _near(a: NDArray[np.float64], b: NDArray[np.float64], distance: float, angle: float) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) < distance and abs(math.remainder(a[2] - b[2], math.tau)) < angle
