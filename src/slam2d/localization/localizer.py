@@ -4,10 +4,11 @@
 noise model, are weighed by the likelihood-field beam model (tempered: the beams of one scan are not
 independent), resampled when their effective number falls under half, and their number adapts to
 their spread (KLD sampling, Fox 2003: 100 when they agree, up to ``max_particles`` while they search).
-When the scans fit the particles much worse than they used to (the short-term average likelihood
-under the long-term one, Thrun et al.'s augmented MCL), random particles are mixed in: the robot
-may have been carried off. The reported pose is the heaviest cluster's mean, refined by matching the
-scan to the map.
+While searching, random particles are mixed in when the scans fit the particles much worse than
+they used to (the short-term average likelihood under the long-term one, Thrun et al.'s augmented
+MCL). The reported pose is tracked by matching the scan to the map; where the particles gather
+elsewhere, their place takes over only when the scans' likelihood there leads clearly, update after
+update.
 
 ``match``: the pose of the last scan moved by the odometry, refined by matching the scan to the map
 (Gauss-Newton on the distance field, from a few starting offsets when the fit is poor), as
@@ -141,6 +142,7 @@ class Localizer:
         self.updates = 0
         self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
         self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
+        self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
         self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
         if initial_pose is not None:
             self._spread_around(np.asarray(initial_pose, dtype=np.float64))
@@ -184,7 +186,9 @@ class Localizer:
         picked = self.particles[np.minimum(np.searchsorted(np.cumsum(w), (self.rng.random() + np.arange(n)) / n),
                                            len(w) - 1)]
         # augmented MCL: random particles in proportion to how much worse the scans fit lately
-        inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0 else 0.0
+        # (only while searching: once localized, random particles gathered on wrong places that fit a scan at
+        # the map's edge better than the right one, fr079; a carried-off robot is found by the lost rule)
+        inject = max(0.0, 1.0 - self.w_fast / self.w_slow) if self.w_slow > 0 and self.state != "localized" else 0.0
         randoms = int(self.rng.binomial(n, inject)) if inject > 0 else 0
         if randoms:
             cells = self.rng.integers(0, len(self.free_xy), randoms)
@@ -293,10 +297,9 @@ class Localizer:
             if self.filter_odom is not None and odom is not None:  # the odometry since the update
                 estimate = se2.compose(estimate, se2.relative(self.filter_odom, odom)).reshape(3)
         if self.state == "localized":
-            guess = se2.compose(self.pose, step).reshape(3)
-            if self.p.method == "mcl" and not _near(guess, estimate, 0.3, 0.2):
-                guess = estimate  # the particles disagree with the tracked pose: they have the last word
-            pose, fit = self._refine(guess, mx, my, wide=False)
+            pose, fit = self._refine(se2.compose(self.pose, step).reshape(3), mx, my, wide=False)
+            if self.p.method == "mcl":
+                pose, fit = self._challenge(pose, fit, estimate, step, mx, my, moved, t)
             self.pose = pose
             # lost: the scans fit under lost_fit, or under half of what they fitted lately (a map whose walls
             # fit 0.95 of a scan does not fit 0.4 of it at the right place)
@@ -332,10 +335,39 @@ class Localizer:
                                   else "no other place fits"), spread)
         return ScanResult(t, self.state, None, h["fit"], spread, len(self.particles))
 
+    def _challenge(self, pose, fit, estimate, step, mx, my, moved: bool, t: float):
+        """The tracked pose against the particles' place when they disagree: theirs takes over only when
+        the scans' likelihood there leads by the search's margin over five updates (the random particles of
+        a recovery can gather on a wrong place that fits a scan as well as the right one at a map's edge)."""
+        c = self.challenger
+        if c is not None:
+            c["pose"], c["fit"] = self._refine(se2.compose(c["pose"], step).reshape(3), mx, my, wide=False)
+        elif moved and not _near(pose, estimate, 0.5, 0.3):
+            c_pose, c_fit = self._refine(estimate, mx, my, wide=False)
+            if not _near(pose, c_pose, 0.5, 0.3):
+                c = self.challenger = {"pose": c_pose, "fit": c_fit, "lead": 0.0, "updates": 0}
+        if c is None:
+            return pose, fit
+        f = self.field
+        ll = np.empty(2)
+        particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
+                                 np.array([pose, c["pose"]]), mx, my, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT,
+                                 _Z_RAND, ll)
+        c["lead"] += _INDEPENDENT_BEAMS * float(ll[1] - ll[0])
+        c["updates"] += int(moved)
+        if c["lead"] < -_HYPOTHESIS_DROP or _near(pose, c["pose"], 0.3, 0.2):
+            self.challenger = None
+        elif c["updates"] >= _CONFIRM_UPDATES and c["lead"] >= _HYPOTHESIS_MARGIN:
+            self.challenger = None
+            self.events.append({"time": t, "state": "localized", "why": f"moved to where the particles are: the scans "
+                                f"fit there better (by {c['lead']:.1f} in log-likelihood)"})
+            return c["pose"], c["fit"]
+        return pose, fit
+
     def _found(self, t: float, pose: NDArray[np.float64], fit: float, why: str, spread: float) -> ScanResult:
         self.pose = pose
         self.misfits = 0
-        self.hypotheses = []
+        self.hypotheses, self.challenger = [], None
         self._set_state("localized", t, why)
         if self.p.method == "mcl":  # the filter goes on from where the scan says the robot is
             self._spread_around(pose, _FOUND_STD)
