@@ -341,3 +341,38 @@ def test_roslaunch_finds_the_node_through_the_ros_package(office_bag, tmp_path):
                            f"out:={out}"], env=env, capture_output=True, text=True, timeout=180)
     assert "wrote the run folder" in done.stdout + done.stderr, (done.stdout + done.stderr)[-3000:]
     assert json.loads((out / "run.json").read_text())["scans"] > 100
+
+
+@pytest.mark.slow
+def test_live_localization_in_a_saved_map_from_rviz_initial_pose(ros, office_bag, tmp_path):
+    from slam2d.io.tum import read_tum
+
+    truth_t, truth = read_tum(office_bag.parent / "truth.tum")
+    out = tmp_path / "node"
+    node = _start_node(ros, "karto", "--out", str(out), "_mode:=localization",
+                       f"_session:={office_bag.parent / 'truth-map.yaml'}", "_method:=match")
+    try:
+        _wait_for_node(ros, node)
+        # RViz's "2D Pose Estimate": the true start, 20 cm and 3 degrees off
+        x, y, th = truth[0] + [0.2, -0.1, 0.05]
+        pose = (f"{{header: {{frame_id: map}}, pose: {{pose: {{position: {{x: {x}, y: {y}}}, "
+                f"orientation: {{z: {math.sin(th / 2)}, w: {math.cos(th / 2)}}}}}}}}}")
+        subprocess.run(["rostopic", "pub", "-1", "/initialpose", "geometry_msgs/PoseWithCovarianceStamped", pose],
+                       env=ros, check=True, timeout=60, capture_output=True)
+        subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True,
+                       timeout=120, capture_output=True)
+        time.sleep(2.0)
+    finally:
+        log = _stop(node)
+    rec = json.loads((out / "localization.json").read_text())
+    assert rec["method"] == "match" and rec["localized"], (rec["events"], log)
+    assert rec["events"][0]["why"].startswith("restarted around (") and rec["lost"] == 0
+    t, p = read_tum(out / "trajectory.tum")
+    k = np.searchsorted(truth_t, t).clip(0, len(truth_t) - 1)
+    err = np.hypot(p[:, 0] - truth[k, 0], p[:, 1] - truth[k, 1])
+    assert len(t) > 0.9 * rec["scans"] and np.median(err) < 0.05, (np.median(err), log)
+    # a map that is not there: refused at start, with the parameter's name
+    bad = subprocess.run([sys.executable, "-m", "slam2d", "ros", "karto", "_mode:=localization",
+                          f"_session:={tmp_path / 'nowhere.yaml'}", "__name:=nomap"],
+                         env=ros, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "nowhere.yaml" in bad.stderr, bad.stderr

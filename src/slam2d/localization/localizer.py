@@ -143,11 +143,23 @@ class Localizer:
         self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
         self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
         self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
+        self.restart(initial_pose, said=False)
+
+    def restart(self, initial_pose: NDArray[np.float64] | None = None, *, t: float | None = None,
+                said: bool = True) -> None:
+        """Search again: around ``initial_pose`` (as RViz's "2D Pose Estimate" sends it), or over the whole map."""
+        self.state, self.pose, self.misfits = "searching", None, 0
+        self.hypotheses, self.challenger, self.filter_odom = [], None, None
+        self.recent_fits.clear()
+        self.w_slow = self.w_fast = 0.0
         self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
         if initial_pose is not None:
             self._spread_around(np.asarray(initial_pose, dtype=np.float64))
         else:
             self._spread_globally()
+        if said:
+            where = "the whole map" if initial_pose is None else "({:.2f}, {:.2f}, {:.2f})".format(*initial_pose)
+            self.events.append({"time": t, "state": "searching", "why": f"restarted around {where}"})
 
     # -- particles ------------------------------------------------------------------------------
 

@@ -23,7 +23,8 @@ from slam2d.errors import InputError
 from slam2d.localization.localizer import LocalizationParams, Localizer
 from slam2d.params import as_dict
 
-__all__ = ["load_map_grid", "localize_recording", "parse_pose", "LocalizationSummary"]
+__all__ = ["load_map_grid", "localize_recording", "parse_pose", "LocalizationSummary", "LocalizationLog",
+           "write_localization"]
 
 
 def parse_pose(text: str, field: str = "--initial-pose") -> np.ndarray:
@@ -58,35 +59,33 @@ class LocalizationSummary:
     record: dict[str, Any]
 
 
-def localize_recording(map_source: str | Path, data: str | Path, out_dir: str | Path, *,
-                       params: LocalizationParams | None = None, seed: int = 0,
-                       initial_pose: np.ndarray | None = None, read_options: Any = None,
-                       progress: Any = None, command: str = "") -> LocalizationSummary:
-    from slam2d.io import detect_format, open_recording
+class LocalizationLog:
+    """Every scan's answer, and the CPU time it took (compilation not counted): what the outputs are made of."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple] = []
+        self.cpu: list[float] = []
+        self.started = datetime.now(timezone.utc)
+        self.compile0 = compile_clock()[1]
+
+    def feed(self, localizer: Localizer, frame: Any) -> Any:
+        c0, k0 = time.process_time(), compile_clock()[1]
+        r = localizer.feed(frame)
+        self.cpu.append(time.process_time() - c0 - (compile_clock()[1] - k0))
+        pose = r.pose if r.pose is not None else (np.nan, np.nan, np.nan)
+        self.rows.append((r.timestamp, r.state, *pose, r.fit, r.spread, r.particles))
+        return r
+
+
+def write_localization(out_dir: Path, log: LocalizationLog, localizer: Localizer, *, map_path: Path,
+                       data: dict[str, Any], seed: int, initial_pose: np.ndarray | None, command: str,
+                       problems: list[str] | None = None) -> LocalizationSummary:
+    """Write ``trajectory.tum`` (when localized at all), ``localization.csv`` and ``localization.json``."""
     from slam2d.io.atomic import write_json_atomic, write_text_atomic
     from slam2d.io.tum import write_tum
-    from slam2d.methods.runner import input_digest, versions
+    from slam2d.methods.runner import versions
 
-    params = params if params is not None else LocalizationParams()
-    grid, yaml_path = load_map_grid(map_source)
-    data, out_dir = Path(data), Path(out_dir)
-    localizer = Localizer(grid, params, seed=seed, initial_pose=initial_pose)
-    recording = open_recording(data, read_options)
-    rows: list[tuple] = []
-    cpu: list[float] = []
-    compile0 = compile_clock()[1]
-    started = datetime.now(timezone.utc)
-    for frame in recording.frames(progress):
-        c0, k0 = time.process_time(), compile_clock()[1]
-        try:
-            r = localizer.feed(frame)
-        except InputError as exc:
-            raise exc.in_file(data, f"scan {len(rows) + 1} at t={frame.timestamp:.3f} s") from None
-        cpu.append(time.process_time() - c0 - (compile_clock()[1] - k0))  # compiling once is not the method's time
-        pose = r.pose if r.pose is not None else (np.nan, np.nan, np.nan)
-        rows.append((r.timestamp, r.state, *pose, r.fit, r.spread, r.particles))
-    if not rows:
-        raise InputError("no laser scans in the recording", path=data)
+    rows, params = log.rows, localizer.p
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     localized = [row for row in rows if row[1] == "localized"]
@@ -102,17 +101,17 @@ def localize_recording(map_source: str | Path, data: str | Path, out_dir: str | 
     write_text_atomic(csv_path, text.getvalue())
     written.append(csv_path)
     first = next((i for i, row in enumerate(rows) if row[1] == "localized"), None)
-    cpu_ms = 1000.0 * np.asarray(cpu)
+    cpu_ms = 1000.0 * np.asarray(log.cpu if log.cpu else [0.0])
     record = {
         "format": "slam2d-localization-1",
         "method": params.method,
         "params": as_dict(params),
         "seed": seed,
         "initial_pose": None if initial_pose is None else [float(v) for v in initial_pose],
-        "map": str(yaml_path.resolve()),
-        "data": {"path": str(data.resolve()), "format": detect_format(data), **input_digest(data)},
+        "map": str(map_path.resolve()),
+        "data": data,
         "scans": len(rows),
-        "data_span_s": [rows[0][0], rows[-1][0]],
+        "data_span_s": [rows[0][0], rows[-1][0]] if rows else [None, None],
         "localized_scans": len(localized),
         "localized": first is not None,
         "first_localized": None if first is None else {"scan": first + 1, "time": rows[first][0],
@@ -121,9 +120,9 @@ def localize_recording(map_source: str | Path, data: str | Path, out_dir: str | 
         "lost": sum(1 for e in localizer.events if e["state"] == "lost"),
         "cpu_ms_per_scan": {"median": float(np.median(cpu_ms)), "mean": float(np.mean(cpu_ms)),
                             "p95": float(np.percentile(cpu_ms, 95))},
-        "compile_s": compile_clock()[1] - compile0,
-        "started": started.isoformat(timespec="seconds"),
-        "input_problems": recording.problems.lines(),
+        "compile_s": compile_clock()[1] - log.compile0,
+        "started": log.started.isoformat(timespec="seconds"),
+        "input_problems": problems or [],
         "versions": versions(),
         "command": command,
     }
@@ -131,3 +130,28 @@ def localize_recording(map_source: str | Path, data: str | Path, out_dir: str | 
     write_json_atomic(json_path, record)
     written.append(json_path)
     return LocalizationSummary(out_dir, written, record)
+
+
+def localize_recording(map_source: str | Path, data: str | Path, out_dir: str | Path, *,
+                       params: LocalizationParams | None = None, seed: int = 0,
+                       initial_pose: np.ndarray | None = None, read_options: Any = None,
+                       progress: Any = None, command: str = "") -> LocalizationSummary:
+    from slam2d.io import detect_format, open_recording
+    from slam2d.methods.runner import input_digest
+
+    params = params if params is not None else LocalizationParams()
+    grid, yaml_path = load_map_grid(map_source)
+    data, out_dir = Path(data), Path(out_dir)
+    localizer = Localizer(grid, params, seed=seed, initial_pose=initial_pose)
+    recording = open_recording(data, read_options)
+    log = LocalizationLog()
+    for frame in recording.frames(progress):
+        try:
+            log.feed(localizer, frame)
+        except InputError as exc:
+            raise exc.in_file(data, f"scan {len(log.rows) + 1} at t={frame.timestamp:.3f} s") from None
+    if not log.rows:
+        raise InputError("no laser scans in the recording", path=data)
+    return write_localization(out_dir, log, localizer, map_path=yaml_path, seed=seed, initial_pose=initial_pose,
+                              data={"path": str(data.resolve()), "format": detect_format(data), **input_digest(data)},
+                              command=command, problems=recording.problems.lines())

@@ -53,6 +53,9 @@ class NodeParams:
     transform_timeout: float = param(0.2, unit="s", low=0.0, help="how long to wait for a scan's odometry in tf")
     output: str = param("", help="run folder written on shutdown and by ~save (empty: none)")
     queue_size: int = param(100, low=1, help="scans queued while the method works; beyond, the oldest is dropped")
+    mode: str = param("mapping", choices=("mapping", "localization"),
+                      help="mapping: the method maps; localization: localize in ~session's map, which stays fixed")
+    session: str = param("", help="localization: the map, a run folder or a map_server YAML")
 
 
 #: ROS-only parameters a node takes (slam_gmapping's) that slam2d's node has no use for: accepted, ignored
@@ -178,8 +181,20 @@ class _Node:
 
         self.rospy = rospy
         self.method_name, self.build, self.p, self.command = method, build, node, command
-        self.slam = build_method(method, **build)
-        self.needs_odometry = self.slam._uses_odometry_now()
+        self.localizer: Any = None
+        self.localization_log: Any = None
+        if node.mode == "localization":
+            from slam2d.localization.run import LocalizationLog, load_map_grid
+
+            if not node.session:
+                raise InputError("localization needs a map: a run folder or a map_server YAML", field="~session")
+            self.map_grid, self.map_path = load_map_grid(node.session)
+            self.localizer = self._new_localizer()
+            self.localization_log = LocalizationLog()
+            self.needs_odometry = True
+        else:
+            self.slam = build_method(method, **build)
+            self.needs_odometry = self.slam._uses_odometry_now()
         self.queue = ScanQueue(node.queue_size)
         self.lock = threading.Lock()  # the method and what the timers read of it
         self.tf_buffer = tf2_ros.Buffer(rospy.Duration(30.0))
@@ -208,6 +223,11 @@ class _Node:
         rospy.Service("dynamic_map", GetMap, self._dynamic_map)
         rospy.Service("~save", Trigger, self._save_service)
         rospy.Subscriber("scan", LaserScanMsg, self._on_scan, queue_size=max(10, node.queue_size))
+        if self.localizer is not None:
+            rospy.Subscriber("initialpose", PoseWithCovarianceStamped, self._on_initial_pose, queue_size=1)
+            self.map_msg = self._map_message()  # the fixed map, latched once
+            self.map_pub.publish(self.map_msg)
+            self.meta_pub.publish(self.map_msg.info)
         if node.transform_publish_period > 0:
             rospy.Timer(rospy.Duration(node.transform_publish_period), self._publish_transform)
         # on the wall clock: under use_sim_time with no /clock yet (no bag playing), ROS time stands still
@@ -220,6 +240,25 @@ class _Node:
     def _on_scan(self, msg: Any) -> None:
         self.last_scan_wall = time.monotonic()
         self.queue.put((msg, time.monotonic()))
+
+    def _new_localizer(self, initial_pose: Any = None) -> Any:
+        from slam2d.localization.localizer import LocalizationParams, Localizer
+        from slam2d.params import from_mapping
+
+        params = from_mapping(LocalizationParams, self.build.get("settings") or {})
+        return Localizer(self.map_grid, params, seed=int(self.build.get("seed") or 0), initial_pose=initial_pose)
+
+    def _on_initial_pose(self, msg: Any) -> None:
+        """RViz's "2D Pose Estimate": search again around it (in the map's frame)."""
+        from slam2d.core.se2 import quaternion_to_yaw
+
+        q = msg.pose.pose.orientation
+        pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y,
+                         float(quaternion_to_yaw([q.x, q.y, q.z, q.w]))])
+        with self.lock:
+            self.localizer.restart(pose, t=msg.header.stamp.to_sec())
+            self.tf_state = (None, self.p.odom_frame)
+        self.rospy.loginfo(f"slam2d: initial pose ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}): searching there")
 
     def _watch_silence(self) -> None:
         while not self.rospy.is_shutdown() and not self.warned_silence:
@@ -334,6 +373,9 @@ class _Node:
             rospy.logwarn_throttle(5.0, f"slam2d: a scan of {len(msg.ranges)} beams after {self.beams}: skipped")
             return
         scan = scan_from_message(msg, *mount)
+        if self.localizer is not None:
+            self._localize(msg, stamp, t, scan, odometry, arrived)
+            return
         started = time.process_time()
         with self.lock:
             self.beams = len(msg.ranges)
@@ -362,11 +404,31 @@ class _Node:
             self.meta_pub.publish(self.map_msg.info)
         self._publish_diagnostics(stamp, values)
 
+    def _localize(self, msg: Any, stamp: Any, t: float, scan: LaserScan, odometry: Any, arrived: float) -> None:
+        started = time.process_time()
+        with self.lock:
+            self.beams = len(msg.ranges)
+            r = self.localization_log.feed(self.localizer, Frame(self.frames, scan, odometry))
+            self.frames += 1
+            self.first_t = t if self.first_t is None else self.first_t
+            self.last_t = t
+            if r.pose is not None:
+                self.tf_state = (map_to_odom(np.asarray(r.pose), odometry), self.p.odom_frame)
+            self.busy_s += time.process_time() - started
+            self.latency.append(time.monotonic() - arrived)
+        if r.pose is not None:
+            self._publish_pose(stamp, np.asarray(r.pose))
+        self._publish_diagnostics(stamp, {"state": r.state, "fit": r.fit, "spread_m": r.spread,
+                                          "particles": r.particles})
+
     def _reset(self) -> None:
         from slam2d.methods.runner import build_method
 
         with self.lock:
-            self.slam = build_method(self.method_name, **self.build)
+            if self.localizer is not None:
+                self.localizer.restart(t=None)
+            else:
+                self.slam = build_method(self.method_name, **self.build)
             self.frames, self.first_t, self.last_t, self.beams = 0, None, None, None
             self.tf_state = (None, self.p.odom_frame)
             self.last_tf_stamp = None  # map -> odom goes out again, at the new clock's stamps
@@ -379,7 +441,7 @@ class _Node:
     def _map_message(self) -> Any:
         from nav_msgs.msg import OccupancyGrid
 
-        fields_ = grid_message_fields(self.slam.map())
+        fields_ = grid_message_fields(self.map_grid if self.localizer is not None else self.slam.map())
         msg = OccupancyGrid()
         msg.header.stamp = self.rospy.Time.now()
         msg.header.frame_id = self.p.map_frame
@@ -419,6 +481,13 @@ class _Node:
         """Write the run folder to ``~output`` (the caller holds the lock)."""
         from slam2d.methods.runner import write_live_run
 
+        if self.localizer is not None:
+            from slam2d.localization.run import write_localization
+
+            write_localization(Path(self.p.output), self.localization_log, self.localizer, map_path=self.map_path,
+                               data={"source": f"ROS topic {self.rospy.resolve_name('scan')}", "format": "ros"},
+                               seed=int(self.build.get("seed") or 0), initial_pose=None, command=self.command)
+            return Path(self.p.output)
         self.slam.diagnostics.summary.update({
             **{f"live_{k}": v for k, v in self.counts.items()}, "live_scans_dropped": self.queue.dropped,
             "live_latency_median_s": float(np.median(self.latency)) if self.latency else None,
@@ -489,9 +558,17 @@ def run_node(method: str, build: dict[str, Any], command: str = "", output: Path
     from slam2d.methods import available
 
     cls = get_method(method)
-    others = {name: {f.name for f in fields(c.Params)} for name, c in available().items() if name != cls.name}
-    node_params, ros_settings, warnings = _split_private(rospy.get_param("~", {}), {f.name for f in fields(cls.Params)},
-                                                         others)
+    private = rospy.get_param("~", {})
+    if private.get("mode") == "localization":  # the settings are the localizer's; the methods' are ignored
+        from slam2d.localization.localizer import LocalizationParams
+
+        own = {f.name for f in fields(LocalizationParams)}
+        others = {name: {f.name for f in fields(c.Params)} - own for name, c in available().items()}
+        build = {**build, "settings": {}}  # (--set was checked against the method, which does not run)
+    else:
+        own = {f.name for f in fields(cls.Params)}
+        others = {name: {f.name for f in fields(c.Params)} for name, c in available().items() if name != cls.name}
+    node_params, ros_settings, warnings = _split_private(private, own, others)
     for warning in warnings:
         rospy.logwarn(f"slam2d: {warning}")
     if output is not None:
@@ -500,7 +577,8 @@ def run_node(method: str, build: dict[str, Any], command: str = "", output: Path
         check_output_folder(node_params.output, "ros", overwrite=overwrite)
     build = {**build, "settings": {**ros_settings, **(build.get("settings") or {})}}
     node = _Node(rospy, method, build, node_params, command)
-    rospy.loginfo(f"slam2d: {method} on {rospy.resolve_name('scan')}, odometry {node_params.odom_frame} -> "
+    what = (f"localizing in {node.map_path}" if node.localizer is not None else method)
+    rospy.loginfo(f"slam2d: {what} on {rospy.resolve_name('scan')}, odometry {node_params.odom_frame} -> "
                   f"{node_params.base_frame}, map in {node_params.map_frame}")
     rospy.spin()
     node.shutdown()
