@@ -613,3 +613,20 @@ def test_corners_counted_in_bands_equal_the_whole_image_count():
     assert mm._count_corners(occ) == whole(occ) > 100
     blobs = rng.random((300, 400)) > 0.7
     assert mm._count_blobs(blobs.copy()) == ndimage.label(blobs, structure=np.ones((3, 3)))[1]
+
+
+def test_region_sizes_are_scipys_four_connected_labels_counted():
+    from scipy import ndimage
+
+    from slam2d.eval.map_metrics import region_sizes
+
+    rng = np.random.default_rng(11)
+    for _ in range(100):  # every density, empty and one-row masks among them
+        m = rng.random((int(rng.integers(0, 30)), int(rng.integers(0, 30)))) < rng.random()
+        labels, n = ndimage.label(m)
+        expected = sorted(np.bincount(labels.ravel())[1:].tolist()) if n else []
+        assert sorted(region_sizes(np.ascontiguousarray(m)).tolist()) == expected
+    # a U: two arms joined only at the bottom row are one region
+    u = np.zeros((5, 5), bool)
+    u[:, 0] = u[:, 4] = u[4, :] = True
+    assert region_sizes(u).tolist() == [13]

@@ -44,7 +44,6 @@ from numpy.typing import ArrayLike, NDArray
 from numba import njit
 
 from slam2d.core import se2
-from slam2d.core.arrays import row_bands
 from slam2d.core.frames import Frame
 from slam2d.errors import InputError
 from slam2d.grids.raycast import cast_rays
@@ -769,6 +768,86 @@ _HARRIS_K = 0.05
 _HARRIS_RELATIVE_THRESHOLD = 0.05
 
 
+@njit(cache=True)
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def region_sizes(mask):
+    """Cells of every 4-connected region of True cells, in no particular order.
+
+    Row by row, each run of True cells is joined (union-find) to the runs of the row below it that share a
+    column: memory for the runs, not for a label per cell.
+    """
+    rows, cols = mask.shape
+    cap = 1024
+    parent = np.empty(cap, np.int64)
+    size = np.empty(cap, np.int64)
+    prev_start = np.empty(cols, np.int64)
+    prev_end = np.empty(cols, np.int64)
+    prev_id = np.empty(cols, np.int64)
+    cur_start = np.empty(cols, np.int64)
+    cur_end = np.empty(cols, np.int64)
+    cur_id = np.empty(cols, np.int64)
+    n_prev = 0
+    n = 0
+    for r in range(rows):
+        n_cur = 0
+        c = 0
+        while c < cols:
+            if not mask[r, c]:
+                c += 1
+                continue
+            start = c
+            while c < cols and mask[r, c]:
+                c += 1
+            if n == cap:
+                cap *= 2
+                grown_parent = np.empty(cap, np.int64)
+                grown_size = np.empty(cap, np.int64)
+                grown_parent[:n] = parent[:n]
+                grown_size[:n] = size[:n]
+                parent, size = grown_parent, grown_size
+            parent[n] = n
+            size[n] = c - start
+            cur_start[n_cur], cur_end[n_cur], cur_id[n_cur] = start, c, n
+            n += 1
+            n_cur += 1
+        # join each run to the runs of the row before that overlap it (a two-pointer walk: both are sorted)
+        i = j = 0
+        while i < n_cur and j < n_prev:
+            if cur_start[i] < prev_end[j] and prev_start[j] < cur_end[i]:
+                a, b = _find(parent, cur_id[i]), _find(parent, prev_id[j])
+                if a != b:
+                    if size[a] < size[b]:
+                        a, b = b, a
+                    parent[b] = a
+                    size[a] += size[b]
+            if cur_end[i] < prev_end[j]:
+                i += 1
+            else:
+                j += 1
+        prev_start[:n_cur] = cur_start[:n_cur]
+        prev_end[:n_cur] = cur_end[:n_cur]
+        prev_id[:n_cur] = cur_id[:n_cur]
+        n_prev = n_cur
+    roots = 0
+    for k in range(n):
+        if parent[k] == k:
+            roots += 1
+    out = np.empty(roots, np.int64)
+    m = 0
+    for k in range(n):
+        if parent[k] == k:
+            out[m] = size[k]
+            m += 1
+    return out
+
+
 _HARRIS_BAND = 512  # rows per band of the corner response
 
 
@@ -926,21 +1005,15 @@ def map_quality(
     n_free = int(free.sum())
     n_uncertain = n_observed - n_occupied - n_free
     nan = float("nan")
-    from scipy import ndimage
-
-    labels, n_regions = ndimage.label(free)  # default structure: 4-connected
+    # 4-connected free regions, sized from runs of free cells (no label image: 110 MB of int32 for a diverged
+    # crsm map of 28 M cells)
+    sizes = region_sizes(np.ascontiguousarray(free))
     del free, observed  # before the corners: a map of 10^7 cells is 40 MB a copy
-    if n_regions:
-        # counted a band of rows at a time: bincount makes an int64 copy of what it counts (220 MB for 27 M cells)
-        sizes = np.zeros(n_regions + 1, dtype=np.int64)
-        for rows in row_bands(labels.shape):
-            sizes += np.bincount(labels[rows].ravel(), minlength=n_regions + 1)
-        sizes = sizes[1:]
+    if sizes.size:
         enclosed = int(np.count_nonzero(sizes >= min_area))
         largest = float(sizes.max()) / n_free
     else:
         enclosed, largest = 0, nan
-    del labels
     known = n_occupied + n_free
     return {
         "occupied_fraction": n_occupied / known if known else nan,
