@@ -255,6 +255,9 @@ def test_live_karto_publishes_while_the_bag_plays_and_writes_the_offline_run(ros
     record = json.loads((out / "run.json").read_text())
     assert record["data"]["source"] == "ROS topic /scan"
     assert record["params"]["minimum_travel_distance"] == 0.25
+    # its session holds the scans it was fed: another day goes on from it
+    session = json.loads((out / "session" / "session.json").read_text())
+    assert session["frames"]["count"] == record["scans"] and session["method"] == "karto"
 
 
 @pytest.mark.slow

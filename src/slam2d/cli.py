@@ -456,8 +456,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help=_HELP["run"],
         description="Run METHOD (see 'slam2d methods') over every scan of DATA and write OUT/trajectory.tum, "
         "OUT/map.yaml + map.pgm + preview.png, OUT/diagnostics.json (time and values per update) and "
-        "OUT/run.json (method, every parameter, seed, input SHA-256, versions, peak memory). "
-        "'--params OUT/run.json' repeats a run exactly.",
+        "OUT/run.json (method, every parameter, seed, input SHA-256, versions, peak memory) and OUT/session/ "
+        "(what the method needs to go on another day). '--params OUT/run.json' repeats a run exactly; "
+        "'--resume OUT' maps DATA into OUT's map.",
     )
     p.add_argument("method", help="method name (see 'slam2d methods')")
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
@@ -468,6 +469,11 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="YAML file of parameters (name: value), a slam_toolbox or slam_gmapping YAML (read "
                    "under slam2d's names and units), or a run.json to repeat; --set wins")
     p.add_argument("--seed", type=_seed, help="random seed (default: the --params file's, else 0)")
+    p.add_argument("--resume", type=Path, metavar="RUN",
+                   help="go on mapping in RUN's map (a run folder with its session/): DATA's start is found in "
+                   "it, and mapping goes on in its frame with its settings and seed")
+    p.add_argument("--initial-pose", metavar="X,Y,THETA",
+                   help="with --resume: where DATA starts in RUN's map [m, m, rad] (default: search the whole map)")
     _add_sensor_model_option(p)
     add_arguments(p.add_argument_group("reading"), ReadOptions)
     p.set_defaults(handler=cmd_run)
@@ -480,7 +486,30 @@ def _command_line() -> str:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from slam2d.methods.runner import build_method, run_method
+    from slam2d.methods.runner import build_method, resume_run, run_method
+
+    if args.resume is None and args.initial_pose is not None:
+        raise InputError("is for --resume (where the recording starts in the saved map)", field="--initial-pose")
+    if args.resume is not None:
+        from slam2d.localization.run import parse_pose
+
+        for flag, given in (("--set", args.settings), ("--params", args.params), ("--seed", args.seed),
+                            ("--sensor-model", args.sensor_model)):
+            if given:
+                raise InputError("cannot go with --resume: the session's settings and seed are used", field=flag)
+        initial = parse_pose(args.initial_pose) if args.initial_pose is not None else None
+        with progress_bar(f"{args.method} on {args.data.name}, resuming {args.resume.name}") as progress:
+            summary = resume_run(args.method, args.resume, args.data, args.out, initial_pose=initial,
+                                 read_options=_read_options(args), progress=progress, command=_command_line())
+        out = _console()
+        resumed = summary.record["resumed"]
+        out.print(f"{args.method}: {resumed['session_frames']} scans of {args.resume} replayed; {args.data.name} "
+                  f"placed at ({', '.join(f'{v:.2f}' for v in resumed['placed_at'])}) after "
+                  f"{resumed['scans_before_placed']} scans, then {summary.frames} scans mapped in "
+                  f"{summary.seconds:.1f} s", markup=False)
+        for path in summary.written:
+            _print_written(out, path)
+        return 0
 
     build = {"settings": _settings(args.settings), "params_file": args.params, "seed": args.seed,
              "sensor_model": args.sensor_model}

@@ -612,6 +612,7 @@ class GraphFrontend:
         self._bary_store = self._bary_base  # _bary_base's rows, with room to grow (see _append_node)
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
+        self._put_at: NDArray[np.float64] | None = None  # a relocation waiting for the next frame
         self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
@@ -999,6 +1000,10 @@ class GraphFrontend:
 
     # ----------------------------------------------------------------- the main step
 
+    def relocate(self, pose: NDArray[np.float64]) -> None:
+        """The next frame is taken at ``pose`` (map frame): see :meth:`process`."""
+        self._put_at = np.asarray(pose, dtype=np.float64).reshape(3)
+
     def process(self, frame: Frame) -> dict[str, float] | None:
         """Handle one frame; returns the values to log, or None when the scan added no node.
 
@@ -1013,6 +1018,16 @@ class GraphFrontend:
         odom = np.asarray(odom, dtype=np.float64)
         previous_odom = self._last_odom
         self._last_odom = odom
+        relocating = self._put_at is not None and self.graph.num_nodes > 0
+        if relocating:
+            # A resumed session's new recording: the next node is predicted at the given pose (the last
+            # node's odometry re-expressed so that the odometry since it is the step to there), matched
+            # against the old scans near it (near chains, loop closure), not against the last ones.
+            last = self.graph.num_nodes - 1
+            self._odom[last] = se2.compose(odom, se2.inverse(se2.relative(self.graph.poses[last], self._put_at)))
+            previous_odom, self._frame_pose, self._running = None, None, []
+            self._put_at = None
+            self._count("relocations")
         # The last frame's response is a reference only for a scan taken close to it (less than
         # the gate's travel by odometry): on logs thinned to a metre between scans it varies too much.
         last_response, self._frame_response = self._frame_response, math.nan
@@ -1090,7 +1105,9 @@ class GraphFrontend:
         points, sigmas = self._scan_points(scan, sig, use)
         values: dict[str, float] = {}
         pose = predicted
-        if last >= 0 and p.use_scan_matching:
+        if relocating:
+            cov = np.diag([RELOCATION_SIGMA_XY**2, RELOCATION_SIGMA_XY**2, RELOCATION_SIGMA_THETA**2])
+        elif last >= 0 and p.use_scan_matching:
             pose, cov, result = self._sequential_estimate(points, predicted, values, last_response,
                                                           seed=seed if after_between else None)
             values["response"] = result.response
@@ -1107,7 +1124,8 @@ class GraphFrontend:
             covs = [cov]
             self._add_edge(last, node, pose, cov)
             self._seq_steps.append((self.graph.measurements[-1].copy(), self._local_covariance(last, cov)))
-            self._link_running_scan(last, node, pose, cov)
+            if self._running:  # (none right after a relocation)
+                self._link_running_scan(last, node, pose, cov)
             linked = self._link_near_chains(node, points, pose, means, covs)
             values["near_links"] = float(linked)
             if len(means) > 1:
@@ -1751,6 +1769,9 @@ _NEAR_HOT = 0.75
 _REFINE_GAIN = 0.2
 # Uncertainty of an edge that holds the odometry step (scan matching off or failed).
 ODOMETRY_SIGMA_XY = 0.1  # m
+# a relocation's edge (a resumed session's first new node from the last old one): the localization's uncertainty,
+# loose enough that the matches against the old scans near it decide
+RELOCATION_SIGMA_XY, RELOCATION_SIGMA_THETA = 0.3, 0.1  # m, rad
 ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad
 
 

@@ -60,6 +60,9 @@ class GraphSlam(SlamMethod):
         names = {p.name for p in describe(GridParams)}
         return GridParams(**{n: getattr(self.params, n) for n in names})
 
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        self.frontend.relocate(pose)
+
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         nodes = self.frontend.num_nodes
         values = self.frontend.process(frame)

@@ -194,6 +194,23 @@ class SlamMethod(ABC):
         """
         return self.map()
 
+    def relocate(self, pose: NDArray[np.float64]) -> None:
+        """Put the robot down at ``pose`` (map frame) before the next frame: a resumed session's new recording
+        starts there. The next frame's odometry is not read as motion from the last one."""
+        self._relocate(np.asarray(pose, dtype=np.float64).reshape(3))
+        if self._gap_guard is not None:
+            from slam2d.matching.odometry_gaps import OdometryGapGuard
+
+            self._gap_guard = OdometryGapGuard(self.gap_check)
+
+    @classmethod
+    def can_relocate(cls) -> bool:
+        """Whether :meth:`relocate` is implemented (``slam2d run --resume`` needs it)."""
+        return cls._relocate is not SlamMethod._relocate
+
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        raise NotImplementedError(f"{self.name} cannot go on from a saved session yet")
+
     def finish(self) -> None:  # noqa: B027 - optional hook
         """Called once after the last frame (a final optimisation, picking the best particle...)."""
 

@@ -165,6 +165,11 @@ class CoreSlam(SlamMethod):
             return poses[0]  # the history starts later (the first scans): its oldest reading
         return interpolate_poses(times, poses, when, math.inf)[0][0]
 
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        self._pose, self._last_odom, self._step = pose.copy(), None, np.zeros(3)
+        self._odom_times.clear()
+        self._odom_poses.clear()
+
     def _predict(self, frame: Frame) -> NDArray[np.float64]:
         odom = self._delayed_odometry(frame)
         if self._pose is None:

@@ -211,6 +211,10 @@ class Crsm(SlamMethod):
         self._random = new_state(self.rng)
         self._directions = None  # (layout key, cos, sin, angles) of the beams: see _beam_directions
 
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        self._pose, self._step, self._consecutive = pose.copy(), np.zeros(3), np.zeros(3)
+        self._recent, self._previous_points, self._last_time = [], None, math.nan
+
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         p = self.params
         scan = frame.scan

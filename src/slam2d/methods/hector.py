@@ -137,6 +137,9 @@ class Hector(SlamMethod):
         #: Covariance (3, 3) of the last match; None before the first.
         self.covariance: NDArray[np.float64] | None = None
 
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        self._pose, self._previous, self._last_odom = pose.copy(), None, None
+
     def _prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
         """Where the robot should be, and the prior's information (None: no odometry prior)."""
         p = self.params

@@ -15,6 +15,7 @@ A run folder holds
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import platform
@@ -28,10 +29,13 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from slam2d.core.compile_time import compile_clock
 from slam2d.core.memory import resident_bytes
 from slam2d.errors import InputError
 from slam2d.io.base import ProgressCallback, ReadOptions
+from slam2d.io.session import SessionRecorder
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import get_method
 from slam2d.params import as_dict, from_mapping
@@ -245,7 +249,9 @@ def run_method(
     first_t = last_t = None
     # read already (to measure it for the auto parameters): the progress is the frames run, not the bytes read
     count = len(source) if isinstance(source, list) and progress is not None else 0
+    session = SessionRecorder()
     for frame in source:
+        session.add(frame)
         try:
             slam.feed(frame)
         except InputError as exc:  # e.g. a corrupt pose that would grow the map without bound
@@ -267,7 +273,7 @@ def run_method(
         slam, out_dir,
         data=data, data_format=detect_format(data), digest=digest, options=options, frames=frames,
         span=(first_t, last_t), started=started, seconds=seconds, rss_before=rss_before, peak=peak,
-        problems=recording.problems.lines(), command=command,
+        problems=recording.problems.lines(), command=command, session=session,
     )
 
 
@@ -285,7 +291,7 @@ def _odometry_warnings(slam: SlamMethod, frames: int) -> list[str]:
 
 def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
                    span: tuple[float | None, float | None], started: datetime, seconds: float,
-                   command: str) -> RunSummary:
+                   command: str, session: SessionRecorder | None = None) -> RunSummary:
     """The run folder of a method fed live (``slam2d ros``): what ``slam2d run`` writes, ``source`` for the data.
 
     Written whole into a staging folder that then replaces ``out_dir`` (an earlier output of the node).
@@ -296,7 +302,7 @@ def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
     with staged_folder(out_dir, "ros") as stage:
         summary = _write_run(slam, stage, data=source, data_format="live", digest={}, options=ReadOptions(),
                              frames=frames, span=span, started=started, seconds=seconds, rss_before=math.nan,
-                             peak=peak, problems=[], command=command)
+                             peak=peak, problems=[], command=command, session=session)
     return summary
 
 
@@ -316,6 +322,8 @@ def _write_run(
     peak: float,
     problems: list[str],
     command: str,
+    session: SessionRecorder | None = None,
+    extra: dict[str, Any] | None = None,
 ) -> RunSummary:
     from slam2d.io.atomic import write_json_atomic
     from slam2d.io.tum import write_tum
@@ -336,6 +344,14 @@ def _write_run(
     written = [write_tum(out_dir / "trajectory.tum", times, poses)]
     written += write_map_outputs(grid, out_dir)
     written += slam.extra_outputs(out_dir)
+    if session is not None:
+        from slam2d import __version__
+        from slam2d.io.session import write_session
+
+        params = {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v)
+                  for k, v in slam.parameters().items()}
+        written += write_session(out_dir / "session", session, method=slam.name, params=params, seed=slam.seed,
+                                 version=__version__)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
     diag = {"method": slam.name, "descriptions": {**slam.COMMON_DIAGNOSTICS, **slam.DIAGNOSTICS},
             **slam.diagnostics.as_dict()}
@@ -369,8 +385,111 @@ def _write_run(
         "warnings": slam.param_notes + _odometry_warnings(slam, frames),
         "versions": versions(),
         "command": command,
+        **(extra or {}),
     }
     run_path = out_dir / "run.json"
     write_json_atomic(run_path, record)
     written.append(run_path)
     return RunSummary(slam.name, out_dir, written, frames, int(len(times)), seconds, record)
+
+
+def resume_run(
+    method: str,
+    run: str | Path,
+    data: str | Path,
+    out_dir: str | Path,
+    *,
+    initial_pose: Any = None,
+    read_options: ReadOptions | None = None,
+    progress: ProgressCallback | None = None,
+    command: str = "",
+) -> RunSummary:
+    """Go on mapping in ``run``'s map with the recording ``data``; write the joined run folder.
+
+    The session's frames are fed again (the method's state rebuilt exactly, same settings and seed),
+    the new recording's start is found in ``run``'s map (:class:`~slam2d.localization.Localizer`,
+    matching from ``initial_pose`` or a global search), the method is put down there, and the new
+    frames follow, their times moved after the session's when they start earlier. ``trajectory.tum``
+    holds the new recording's poses (at its own times), in the saved map's frame.
+    """
+    from slam2d import __version__
+    from slam2d.io import detect_format, open_recording
+    from slam2d.io.session import read_session
+    from slam2d.localization.localizer import LocalizationParams, Localizer
+    from slam2d.localization.run import load_map_grid
+
+    run, data, out_dir = Path(run), Path(data), Path(out_dir)
+    session = read_session(run, version=__version__, method=method)
+    slam = build_method(method, settings=session.record["params"], seed=int(session.record["seed"]))
+    if not slam.can_relocate():
+        raise InputError(f"{slam.name} cannot go on from a saved session yet (karto, lago, hector, coreslam, crsm and "
+                         "odometry can)", field="--resume")
+    grid, _ = load_map_grid(run)
+    options = read_options if read_options is not None else ReadOptions()
+    recording = open_recording(data, options)
+    new = list(recording.frames(progress))
+    if not new:
+        raise InputError("no laser scans in the recording", path=data)
+    # where the new recording starts in the saved map
+    localizer = Localizer(grid, LocalizationParams(method="match"), seed=slam.seed, initial_pose=initial_pose)
+    start = None
+    for k, frame in enumerate(new):
+        r = localizer.feed(frame)
+        if r.pose is not None:
+            start = (k, r.pose)
+            break
+    if start is None:
+        raise InputError(f"its robot was never found in {run / 'map.yaml'}: no place fits its scans well and for long "
+                         "enough (is it the same building? try --initial-pose X,Y,THETA)", path=data)
+    first, pose = start
+    rss_before = _rss_mb()
+    compile0 = compile_clock()[0]
+    wall0 = time.perf_counter()
+    started = datetime.now(timezone.utc)
+    recorder = SessionRecorder()
+    old_last_t = None
+    for frame, relocation in session.frames():
+        if relocation is not None:
+            slam.relocate(relocation)
+            recorder.relocated(relocation)
+        recorder.add(frame)
+        slam.feed(frame)
+        old_last_t = frame.timestamp
+    replayed = len(slam.trajectory()[0])
+    period = float(np.median(np.diff([f.timestamp for f in new[first:]]))) if len(new) - first > 1 else 0.1
+    shift = max(0.0, (old_last_t or 0.0) + period - new[first].timestamp)
+    slam.relocate(pose)
+    recorder.relocated(pose)
+    for frame in new[first:]:
+        moved = dataclasses.replace(frame, scan=dataclasses.replace(frame.scan, timestamp=frame.scan.timestamp + shift))
+        recorder.add(moved)
+        try:
+            slam.feed(moved)
+        except InputError as exc:
+            raise exc.in_file(data, f"scan {frame.index + 1} at t={frame.timestamp:.3f} s") from None
+    slam.timed_finish()
+    compiled = compile_clock()[0] - compile0
+    seconds = time.perf_counter() - wall0 - compiled
+    times, poses = slam.trajectory()
+    own = times[replayed:] - shift  # the new recording's poses, at its own times
+    extra = {"resumed": {"from": str(run.resolve()), "session_frames": len(session), "placed_at": [float(v) for v in pose],
+                         "scans_before_placed": first, "time_shift_s": shift}}
+    return _write_run(
+        _OwnTrajectory(slam, own, poses[replayed:]), out_dir, data=data, data_format=detect_format(data),
+        digest=input_digest(data), options=options, frames=len(new) - first,
+        span=(new[first].timestamp, new[-1].timestamp), started=started, seconds=seconds, rss_before=rss_before,
+        peak=_peak_rss_mb(), problems=recording.problems.lines(), command=command, session=recorder, extra=extra,
+    )
+
+
+class _OwnTrajectory:
+    """A resumed method whose trajectory is the new recording's alone (at its own times); the rest is the method."""
+
+    def __init__(self, slam: SlamMethod, times: Any, poses: Any) -> None:
+        self._slam, self._times, self._poses = slam, times, poses
+
+    def trajectory(self) -> tuple[Any, Any]:
+        return self._times, self._poses
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._slam, name)

@@ -32,6 +32,7 @@ from slam2d.core import se2
 from slam2d.core.frames import Frame
 from slam2d.core.scan import LaserScan, make_scan
 from slam2d.errors import InputError
+from slam2d.io.session import SessionRecorder
 from slam2d.io.rosbag import planar_transform  # tf as the bag reader reads it: (x, y, yaw), upside down
 from slam2d.params import param
 
@@ -195,6 +196,7 @@ class _Node:
         else:
             self.slam = build_method(method, **build)
             self.needs_odometry = self.slam._uses_odometry_now()
+        self.session = SessionRecorder()  # the frames fed: the run folder's session/
         self.queue = ScanQueue(node.queue_size)
         self.lock = threading.Lock()  # the method and what the timers read of it
         self.tf_buffer = tf2_ros.Buffer(rospy.Duration(30.0))
@@ -379,7 +381,9 @@ class _Node:
         started = time.process_time()
         with self.lock:
             self.beams = len(msg.ranges)
-            self.slam.feed(Frame(self.frames, scan, odometry))
+            frame = Frame(self.frames, scan, odometry)
+            self.session.add(frame)
+            self.slam.feed(frame)
             self.frames += 1
             self.first_t = t if self.first_t is None else self.first_t
             self.last_t = t
@@ -429,6 +433,7 @@ class _Node:
                 self.localizer.restart(t=None)
             else:
                 self.slam = build_method(self.method_name, **self.build)
+                self.session = SessionRecorder()
             self.frames, self.first_t, self.last_t, self.beams = 0, None, None, None
             self.tf_state = (None, self.p.odom_frame)
             self.last_tf_stamp = None  # map -> odom goes out again, at the new clock's stamps
@@ -496,7 +501,7 @@ class _Node:
         source = f"ROS topic {self.rospy.resolve_name('scan')}"
         write_live_run(self.slam, Path(self.p.output), source=source, frames=self.frames,
                        span=(self.first_t, self.last_t), started=self.started, seconds=self.busy_s,
-                       command=self.command)
+                       command=self.command, session=self.session)
         return Path(self.p.output)
 
     def shutdown(self) -> None:
