@@ -379,3 +379,38 @@ def test_live_localization_in_a_saved_map_from_rviz_initial_pose(ros, office_bag
                           f"_session:={tmp_path / 'nowhere.yaml'}", "__name:=nomap"],
                          env=ros, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "nowhere.yaml" in bad.stderr, bad.stderr
+
+
+@pytest.mark.slow
+def test_live_mapping_goes_on_from_a_saved_session(ros, office_bag, tmp_path):
+    from slam2d.cli import main
+    from slam2d.io.tum import read_tum
+
+    # Monday, offline; Tuesday, the same office live from where the session says (RViz's initial pose)
+    assert main(["run", "karto", str(office_bag), "--out", str(tmp_path / "monday")]) == 0
+    truth_t, truth = read_tum(office_bag.parent / "truth.tum")
+    out = tmp_path / "tuesday"
+    node = _start_node(ros, "karto", "--out", str(out), f"_session:={tmp_path / 'monday'}")
+    try:
+        _wait_for_node(ros, node)
+        x, y, th = truth[0]
+        pose = (f"{{header: {{frame_id: map}}, pose: {{pose: {{position: {{x: {x}, y: {y}}}, "
+                f"orientation: {{z: {math.sin(th / 2)}, w: {math.cos(th / 2)}}}}}}}}}")
+        subprocess.run(["rostopic", "pub", "-1", "/initialpose", "geometry_msgs/PoseWithCovarianceStamped", pose],
+                       env=ros, check=True, timeout=60, capture_output=True)
+        subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True,
+                       timeout=120, capture_output=True)
+        time.sleep(2.0)
+    finally:
+        log = _stop(node)
+    assert (out / "run.json").is_file(), log
+    record = json.loads((out / "run.json").read_text())
+    assert record["resumed"]["scans_before_placed"] <= 20, log  # (placed once the robot has moved)
+    monday = json.loads((tmp_path / "monday" / "run.json").read_text())
+    session = json.loads((out / "session" / "session.json").read_text())
+    assert session["frames"]["count"] == monday["scans"] + record["scans"] and len(session["relocations"]) == 1
+    t, p = read_tum(out / "trajectory.tum")  # Tuesday's poses, at Tuesday's times, in Monday's frame
+    mt, mp = read_tum(tmp_path / "monday" / "trajectory.tum")
+    assert t[0] >= truth_t[0] and len(t) > 0.9 * record["scans"]
+    k = np.searchsorted(mt, t).clip(0, len(mt) - 1)
+    assert np.median(np.hypot(p[:, 0] - mp[k, 0], p[:, 1] - mp[k, 1])) < 0.1  # where Monday put the same scans

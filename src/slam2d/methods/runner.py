@@ -291,7 +291,8 @@ def _odometry_warnings(slam: SlamMethod, frames: int) -> list[str]:
 
 def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
                    span: tuple[float | None, float | None], started: datetime, seconds: float,
-                   command: str, session: SessionRecorder | None = None) -> RunSummary:
+                   command: str, session: SessionRecorder | None = None,
+                   extra: dict[str, Any] | None = None) -> RunSummary:
     """The run folder of a method fed live (``slam2d ros``): what ``slam2d run`` writes, ``source`` for the data.
 
     Written whole into a staging folder that then replaces ``out_dir`` (an earlier output of the node).
@@ -302,7 +303,7 @@ def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
     with staged_folder(out_dir, "ros") as stage:
         summary = _write_run(slam, stage, data=source, data_format="live", digest={}, options=ReadOptions(),
                              frames=frames, span=span, started=started, seconds=seconds, rss_before=math.nan,
-                             peak=peak, problems=[], command=command, session=session)
+                             peak=peak, problems=[], command=command, session=session, extra=extra)
     return summary
 
 
@@ -393,6 +394,19 @@ def _write_run(
     return RunSummary(slam.name, out_dir, written, frames, int(len(times)), seconds, record)
 
 
+def replay_session(slam: SlamMethod, session: Any, recorder: SessionRecorder) -> tuple[int, float | None]:
+    """Feed a session's frames (and relocations) to ``slam`` and ``recorder``: ``(poses it placed, last time)``."""
+    last_t = None
+    for frame, relocation in session.frames():
+        if relocation is not None:
+            slam.relocate(relocation)
+            recorder.relocated(relocation)
+        recorder.add(frame)
+        slam.feed(frame)
+        last_t = frame.timestamp
+    return len(slam.trajectory()[0]), last_t
+
+
 def resume_run(
     method: str,
     run: str | Path,
@@ -447,15 +461,7 @@ def resume_run(
     wall0 = time.perf_counter()
     started = datetime.now(timezone.utc)
     recorder = SessionRecorder()
-    old_last_t = None
-    for frame, relocation in session.frames():
-        if relocation is not None:
-            slam.relocate(relocation)
-            recorder.relocated(relocation)
-        recorder.add(frame)
-        slam.feed(frame)
-        old_last_t = frame.timestamp
-    replayed = len(slam.trajectory()[0])
+    replayed, old_last_t = replay_session(slam, session, recorder)
     period = float(np.median(np.diff([f.timestamp for f in new[first:]]))) if len(new) - first > 1 else 0.1
     shift = max(0.0, (old_last_t or 0.0) + period - new[first].timestamp)
     slam.relocate(pose)
@@ -475,14 +481,14 @@ def resume_run(
     extra = {"resumed": {"from": str(run.resolve()), "session_frames": len(session), "placed_at": [float(v) for v in pose],
                          "scans_before_placed": first, "time_shift_s": shift}}
     return _write_run(
-        _OwnTrajectory(slam, own, poses[replayed:]), out_dir, data=data, data_format=detect_format(data),
+        OwnTrajectory(slam, own, poses[replayed:]), out_dir, data=data, data_format=detect_format(data),
         digest=input_digest(data), options=options, frames=len(new) - first,
         span=(new[first].timestamp, new[-1].timestamp), started=started, seconds=seconds, rss_before=rss_before,
         peak=_peak_rss_mb(), problems=recording.problems.lines(), command=command, session=recorder, extra=extra,
     )
 
 
-class _OwnTrajectory:
+class OwnTrajectory:
     """A resumed method whose trajectory is the new recording's alone (at its own times); the rest is the method."""
 
     def __init__(self, slam: SlamMethod, times: Any, poses: Any) -> None:

@@ -16,6 +16,7 @@ plain functions the tests call without a ROS master.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -56,7 +57,8 @@ class NodeParams:
     queue_size: int = param(100, low=1, help="scans queued while the method works; beyond, the oldest is dropped")
     mode: str = param("mapping", choices=("mapping", "localization"),
                       help="mapping: the method maps; localization: localize in ~session's map, which stays fixed")
-    session: str = param("", help="localization: the map, a run folder or a map_server YAML")
+    session: str = param("", help="a run folder to start from: mapping goes on in its map (its session/), "
+                                   "localization localizes in its map (or a map_server YAML)")
 
 
 #: ROS-only parameters a node takes (slam_gmapping's) that slam2d's node has no use for: accepted, ignored
@@ -178,12 +180,14 @@ class _Node:
         from sensor_msgs.msg import LaserScan as LaserScanMsg
         from std_srvs.srv import Trigger
 
-        from slam2d.methods.runner import build_method
-
         self.rospy = rospy
         self.method_name, self.build, self.p, self.command = method, build, node, command
+        self.counts = {"scans_without_tf": 0, "scans_other_beam_count": 0, "resets": 0, "scans_out_of_order": 0}
         self.localizer: Any = None
         self.localization_log: Any = None
+        self.placing: Any = None  # with ~session while mapping: where the live scans start in its map
+        self.session = SessionRecorder()
+        self.replayed, self.shift, self.session_last_t = 0, 0.0, None
         if node.mode == "localization":
             from slam2d.localization.run import LocalizationLog, load_map_grid
 
@@ -194,9 +198,8 @@ class _Node:
             self.localization_log = LocalizationLog()
             self.needs_odometry = True
         else:
-            self.slam = build_method(method, **build)
+            self._start_mapping()
             self.needs_odometry = self.slam._uses_odometry_now()
-        self.session = SessionRecorder()  # the frames fed: the run folder's session/
         self.queue = ScanQueue(node.queue_size)
         self.lock = threading.Lock()  # the method and what the timers read of it
         self.tf_buffer = tf2_ros.Buffer(rospy.Duration(30.0))
@@ -213,7 +216,6 @@ class _Node:
         self.last_tf_stamp: Any = None
         self.frames = 0
         self.beams: int | None = None
-        self.counts = {"scans_without_tf": 0, "scans_other_beam_count": 0, "resets": 0, "scans_out_of_order": 0}
         self.first_t: float | None = None
         self.last_t: float | None = None
         self.last_map_wall = -math.inf
@@ -225,8 +227,9 @@ class _Node:
         rospy.Service("dynamic_map", GetMap, self._dynamic_map)
         rospy.Service("~save", Trigger, self._save_service)
         rospy.Subscriber("scan", LaserScanMsg, self._on_scan, queue_size=max(10, node.queue_size))
-        if self.localizer is not None:
+        if self.localizer is not None or self.placing is not None:
             rospy.Subscriber("initialpose", PoseWithCovarianceStamped, self._on_initial_pose, queue_size=1)
+        if self.localizer is not None:
             self.map_msg = self._map_message()  # the fixed map, latched once
             self.map_pub.publish(self.map_msg)
             self.meta_pub.publish(self.map_msg.info)
@@ -243,6 +246,32 @@ class _Node:
         self.last_scan_wall = time.monotonic()
         self.queue.put((msg, time.monotonic()))
 
+    def _start_mapping(self) -> None:
+        """The method, new; or with ``~session`` rebuilt from that run's session, to be put down where the
+        first live scans are found in its map (as ``slam2d run --resume``)."""
+        from slam2d.methods.runner import build_method
+
+        self.session = SessionRecorder()  # the frames fed: the run folder's session/
+        self.placing: Any = None
+        self.replayed, self.shift, self.session_last_t = 0, 0.0, None
+        if not self.p.session:
+            self.slam = build_method(self.method_name, **self.build)
+            return
+        from slam2d import __version__
+        from slam2d.io.session import read_session
+        from slam2d.localization.localizer import LocalizationParams, Localizer
+        from slam2d.localization.run import load_map_grid
+        from slam2d.methods.runner import replay_session
+
+        saved = read_session(self.p.session, version=__version__, method=self.method_name)
+        self.slam = build_method(self.method_name, settings=saved.record["params"], seed=int(saved.record["seed"]))
+        if not self.slam.can_relocate():
+            raise InputError(f"{self.method_name} cannot go on from a saved session yet", field="~session")
+        self.replayed, self.session_last_t = replay_session(self.slam, saved, self.session)
+        self.map_grid, self.map_path = load_map_grid(self.p.session)
+        self.placing = Localizer(self.map_grid, LocalizationParams(method="match"), seed=self.slam.seed)
+        self.counts["scans_before_placed"] = 0
+
     def _new_localizer(self, initial_pose: Any = None) -> Any:
         from slam2d.localization.localizer import LocalizationParams, Localizer
         from slam2d.params import from_mapping
@@ -258,7 +287,11 @@ class _Node:
         pose = np.array([msg.pose.pose.position.x, msg.pose.pose.position.y,
                          float(quaternion_to_yaw([q.x, q.y, q.z, q.w]))])
         with self.lock:
-            self.localizer.restart(pose, t=msg.header.stamp.to_sec())
+            target = self.localizer if self.localizer is not None else self.placing
+            if target is None:
+                self.rospy.logwarn("slam2d: an initial pose while mapping: ignored (the method places the robot)")
+                return
+            target.restart(pose, t=msg.header.stamp.to_sec())
             self.tf_state = (None, self.p.odom_frame)
         self.rospy.loginfo(f"slam2d: initial pose ({pose[0]:.2f}, {pose[1]:.2f}, {pose[2]:.2f}): searching there")
 
@@ -380,7 +413,20 @@ class _Node:
             return
         started = time.process_time()
         with self.lock:
+            if self.placing is not None:  # ~session: where in the saved map do the live scans start?
+                found = self.placing.feed(Frame(self.frames, scan, odometry))
+                if found.pose is None:
+                    self.counts["scans_before_placed"] += 1
+                    return
+                self.slam.relocate(found.pose)
+                self.session.relocated(found.pose)
+                self.placing = None
+                # the method's clock goes on after the session's (a replayed bag starts earlier)
+                self.shift = max(0.0, (self.session_last_t or t) + 0.1 - t)
+                rospy.loginfo("slam2d: found in %s at (%.2f, %.2f, %.2f): mapping on", self.p.session, *found.pose)
             self.beams = len(msg.ranges)
+            if self.shift:
+                scan = dataclasses.replace(scan, timestamp=scan.timestamp + self.shift)
             frame = Frame(self.frames, scan, odometry)
             self.session.add(frame)
             self.slam.feed(frame)
@@ -426,14 +472,11 @@ class _Node:
                                           "particles": r.particles})
 
     def _reset(self) -> None:
-        from slam2d.methods.runner import build_method
-
         with self.lock:
             if self.localizer is not None:
                 self.localizer.restart(t=None)
             else:
-                self.slam = build_method(self.method_name, **self.build)
-                self.session = SessionRecorder()
+                self._start_mapping()
             self.frames, self.first_t, self.last_t, self.beams = 0, None, None, None
             self.tf_state = (None, self.p.odom_frame)
             self.last_tf_stamp = None  # map -> odom goes out again, at the new clock's stamps
@@ -499,9 +542,17 @@ class _Node:
             "live_latency_p95_s": float(np.percentile(self.latency, 95)) if self.latency else None,
         })
         source = f"ROS topic {self.rospy.resolve_name('scan')}"
-        write_live_run(self.slam, Path(self.p.output), source=source, frames=self.frames,
+        slam, extra = self.slam, None
+        if self.p.session:  # the live scans' poses alone, at their own times
+            from slam2d.methods.runner import OwnTrajectory
+
+            times, poses = self.slam.trajectory()
+            slam = OwnTrajectory(self.slam, times[self.replayed:] - self.shift, poses[self.replayed:])
+            extra = {"resumed": {"from": str(Path(self.p.session).resolve()), "scans_before_placed":
+                                 self.counts.get("scans_before_placed", 0), "time_shift_s": self.shift}}
+        write_live_run(slam, Path(self.p.output), source=source, frames=self.frames,
                        span=(self.first_t, self.last_t), started=self.started, seconds=self.busy_s,
-                       command=self.command, session=self.session)
+                       command=self.command, session=self.session, extra=extra)
         return Path(self.p.output)
 
     def shutdown(self) -> None:
