@@ -97,8 +97,9 @@ def sim_rows(world: str, work: Path) -> list[str]:
             print(rows[-1], file=sys.stderr, flush=True)
     rows.append(kidnap_row(world, d2, work))
     print(rows[-1], file=sys.stderr, flush=True)
-    CONTINUE_ROWS.append(continue_row(world, d1, d2, work, frame))
-    print(CONTINUE_ROWS[-1], file=sys.stderr, flush=True)
+    for method in ("karto", "gmapping"):
+        CONTINUE_ROWS.append(continue_row(method, world, d1, d2, work))
+        print(CONTINUE_ROWS[-1], file=sys.stderr, flush=True)
     return rows
 
 
@@ -111,22 +112,27 @@ def map_error(run: Path, truth: Path) -> float:
     return float(evaluate_run(load_run(run), load_truth(truth))["map_truth"]["truth_to_map_m"]["mean"])
 
 
-def continue_row(world: str, d1: Path, d2: Path, work: Path, frame: np.ndarray) -> str:
-    """karto's run of drive 1 resumed with drive 2 (no initial pose): where it was placed, its ATE, the maps."""
+def continue_row(method: str, world: str, d1: Path, d2: Path, work: Path) -> str:
+    """``method``'s run of drive 1 resumed with drive 2 (no initial pose): where it was placed, its ATE, the maps."""
     import json
 
-    from slam2d.methods.runner import resume_run
+    from slam2d.methods.runner import resume_run, run_method
 
-    out = work / f"{world}-resumed"
+    first, out = work / f"{world}-{method}-1", work / f"{world}-{method}-resumed"
+    if method != "karto":
+        run_method(method, d1 / "recording.log.gz", first)
+    else:
+        first = work / f"{world}-karto"
+    frame = frame_of(first / "trajectory.tum", d1 / "truth.tum")
     try:
-        resume_run("karto", work / f"{world}-karto", d2 / "recording.log.gz", out)
+        resume_run(method, first, d2 / "recording.log.gz", out)
     except Exception as exc:  # noqa: BLE001 - a row says what happened
-        return f"| {world} | karto, drive 2 resumed in drive 1's run | failed: {exc} | | | |"
+        return f"| {world} | `{method}` | failed: {exc} | | | |"
     rec = json.loads((out / "run.json").read_text())["resumed"]
-    first_ate = ate_in_frame(work / f"{world}-karto" / "trajectory.tum", d1 / "truth.tum", frame)
-    return (f"| {world} | karto, drive 2 resumed in drive 1's run | {rec['scans_before_placed']} | "
+    first_ate = ate_in_frame(first / "trajectory.tum", d1 / "truth.tum", frame)
+    return (f"| {world} | `{method}` | {rec['scans_before_placed']} | "
             f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', frame):.3f} m (drive 1: {first_ate:.3f} m) | "
-            f"{map_error(work / f'{world}-karto', d1):.3f} m | {map_error(out, d2):.3f} m |")
+            f"{map_error(first, d1):.3f} m | {map_error(out, d2):.3f} m |")
 
 
 def kidnap_row(world: str, d2: Path, work: Path) -> str:
@@ -225,11 +231,11 @@ def main() -> int:
              "< 10 ms (mcl) / < 5 ms (match) CPU per scan, found again within 50 scans of a kidnapping; fr079 < 0.10 m. "
              "Drive 2 of each world starts half-way along the path and drives it backwards (seed 2); its map is karto's "
              "(defaults) of drive 1 (seed 1), or the world's true map. ATE in the map's frame as drive 1 fixes it.")
-    rows += ["", "Continue mapping (`slam2d run karto DRIVE2 --resume DRIVE1_RUN`, no initial pose): scans of drive 2 "
+    rows += ["", "Continue mapping (`slam2d run METHOD DRIVE2 --resume DRIVE1_RUN`, defaults, no initial pose): scans of drive 2 "
              "before it was placed in drive 1's map, drive 2's ATE in drive 1's frame, and the map error (mean "
              "distance from a true wall cell to the map's nearest) of drive 1's map and of the joined map (target: "
              "ATE < 0.10 m, joined map no worse).", "",
-             "| world | run | scans before placed | drive 2 ATE | drive 1 map error | joined map error |",
+             "| world | method | scans before placed | drive 2 ATE | drive 1 map error | joined map error |",
              "|---|---|---|---|---|---|", *CONTINUE_ROWS]
     from datetime import datetime, timezone
 

@@ -2,8 +2,9 @@
 
 A session holds the frames the method was fed (every scan and its odometry), the places where the
 robot was put down in the map (``relocations``: where a resumed recording started) and the settings
-and seed of the run. Resuming feeds them to the method again, which rebuilds its state exactly (the
-methods are deterministic for a seed and a version), and then goes on with the new recording.
+and seed of the run. Resuming feeds them to the method again, which rebuilds its state (the methods are
+deterministic for a seed and a version; ranges are kept as 32-bit floats, so poses agree to a tenth of a
+millimetre), and then goes on with the new recording.
 
 Files: ``session.json`` (format, slam2d version, method, settings, seed, relocations, the frames'
 file name, size and SHA-256) and ``frames.npz`` (numpy arrays, no pickled objects: a session from a

@@ -209,7 +209,7 @@ class SlamMethod(ABC):
         return cls._relocate is not SlamMethod._relocate
 
     def _relocate(self, pose: NDArray[np.float64]) -> None:
-        raise NotImplementedError(f"{self.name} cannot go on from a saved session yet")
+        raise NotImplementedError(f"{self.name} cannot go on from a saved session")
 
     def finish(self) -> None:  # noqa: B027 - optional hook
         """Called once after the last frame (a final optimisation, picking the best particle...)."""

@@ -256,6 +256,7 @@ class GMapping(SlamMethod):
         self._update_odom: NDArray[np.float64] | None = None  # odometry at the last update
         self._update_poses = np.zeros((self._n, 3))  # particle poses at the last update
         self._linear = self._angular = 0.0
+        self._put_at: NDArray[np.float64] | None = None  # a relocation waiting for the next frame's odometry
         self._last_update_time = -math.inf
         # the trajectory tree: every particle's pose at each update (a node) and its parent there
         self._node_poses = np.zeros((256, self._n, 3))
@@ -327,6 +328,21 @@ class GMapping(SlamMethod):
 
     # ----------------------------------------------------------------- the filter
 
+    def _relocate(self, pose: NDArray[np.float64]) -> None:
+        for island in self._islands:
+            island._relocate(pose)
+        self._put_at = pose.copy()
+
+    def _put_down(self, odom: NDArray[np.float64]) -> None:
+        """A relocation, now that the frame's odometry is known: every particle at the pose, no motion read in."""
+        pose, self._put_at = self._put_at, None
+        self._state[:] = pose
+        self._update_poses[:] = pose
+        self._odom = self._update_odom = odom
+        self._track_pose, self._track_odom = pose.copy(), odom
+        self._linear = self._angular = 0.0
+        self.diagnostics.count("relocations")
+
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         if self._islands:
             values = [isl.update(frame) for isl in self._islands]
@@ -341,6 +357,8 @@ class GMapping(SlamMethod):
         odom = np.asarray(odom, dtype=np.float64)
         if self._maps is None:
             return self._initialise(frame, odom)
+        if self._put_at is not None:
+            self._put_down(odom)
         # a jump is warned and counted, and the particles follow it (as GMapping does)
         delta, step, _ = self.odometry_step(self._odom, odom, self.params.jump_warning, frame.timestamp)
         if step == 0.0 and delta[2] == 0.0:

@@ -420,7 +420,7 @@ def resume_run(
 ) -> RunSummary:
     """Go on mapping in ``run``'s map with the recording ``data``; write the joined run folder.
 
-    The session's frames are fed again (the method's state rebuilt exactly, same settings and seed),
+    The session's frames are fed again (the method's state rebuilt, same settings and seed),
     the new recording's start is found in ``run``'s map (:class:`~slam2d.localization.Localizer`,
     matching from ``initial_pose`` or a global search), the method is put down there, and the new
     frames follow, their times moved after the session's when they start earlier. ``trajectory.tum``
@@ -436,8 +436,7 @@ def resume_run(
     session = read_session(run, version=__version__, method=method)
     slam = build_method(method, settings=session.record["params"], seed=int(session.record["seed"]))
     if not slam.can_relocate():
-        raise InputError(f"{slam.name} cannot go on from a saved session yet (karto, lago, hector, coreslam, crsm and "
-                         "odometry can)", field="--resume")
+        raise InputError(f"{slam.name} cannot go on from a saved session", field="--resume")
     grid, _ = load_map_grid(run)
     options = read_options if read_options is not None else ReadOptions()
     recording = open_recording(data, options)

@@ -266,7 +266,7 @@ class _Node:
         saved = read_session(self.p.session, version=__version__, method=self.method_name)
         self.slam = build_method(self.method_name, settings=saved.record["params"], seed=int(saved.record["seed"]))
         if not self.slam.can_relocate():
-            raise InputError(f"{self.method_name} cannot go on from a saved session yet", field="~session")
+            raise InputError(f"{self.method_name} cannot go on from a saved session", field="~session")
         self.replayed, self.session_last_t = replay_session(self.slam, saved, self.session)
         self.map_grid, self.map_path = load_map_grid(self.p.session)
         self.placing = Localizer(self.map_grid, LocalizationParams(method="match"), seed=self.slam.seed)
