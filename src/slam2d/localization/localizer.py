@@ -66,8 +66,8 @@ _FOUND_FIT = 0.8
 # from a given initial pose: found when this share of the weight gathers within 1 m
 _FOUND_SHARE = 0.5
 # while searching, resampled only when the particles' effective number falls under this share: resampling
-# more often lost a place's symmetric twin before the scans told them apart (5 of 9 second drives through
-# office and corridor-loop went to the wrong twin at 0.5, 1 of 9 at 0.1)
+# more often lost a place's symmetric twin before the scans told them apart (benchmarks/localization_search.py:
+# 2 of 9 drives settled in the wrong place at 0.5, 1 of 9 at 0.1)
 _SEARCH_NEFF = 0.1
 # a global search's hypotheses: at most this many; one wins when it leads every other by _HYPOTHESIS_MARGIN in
 # summed log-likelihood (a factor e^3 = 20); one trailing the best by _HYPOTHESIS_DROP is dropped
