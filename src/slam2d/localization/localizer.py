@@ -139,7 +139,6 @@ class Localizer:
         self.state = "searching"
         self.misfits = 0
         self.events: list[dict[str, Any]] = []  # when it was localized, lost, found again
-        self.updates = 0
         self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
         self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
         self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
@@ -211,21 +210,32 @@ class Localizer:
 
     def _filter_update(self, delta: NDArray[np.float64], bx: NDArray[np.float64], by: NDArray[np.float64]) -> None:
         draw_from_motion(self.particles, delta, self.rng.standard_normal(self.particles.shape), *_MOTION_NOISE)
-        f = self.field
-        ll = np.empty(len(self.particles))
-        particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, self.particles,
-                                 bx, by, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
-        tempered = _INDEPENDENT_BEAMS * ll
+        tempered = _INDEPENDENT_BEAMS * self._log_likelihoods(self.particles, bx, by)
         self.log_w = self.log_w + tempered
         w_avg = float(np.mean(np.exp(tempered)))
         self.w_slow = w_avg if self.w_slow == 0 else self.w_slow + _ALPHA_SLOW * (w_avg - self.w_slow)
         self.w_fast = w_avg if self.w_fast == 0 else self.w_fast + _ALPHA_FAST * (w_avg - self.w_fast)
-        self.updates += 1
         w = self._weights()
         # while searching, resampled only when few particles carry the weight: a place and its symmetric twin
         # keep their particles until the scans tell them apart
         if 1.0 / float(np.sum(w * w)) < (_SEARCH_NEFF if self.state != "localized" else 0.5) * len(w):
             self._resample()
+
+    def _log_likelihoods(self, poses: NDArray[np.float64], bx, by) -> NDArray[np.float64]:
+        """The mean log-likelihood per beam of the scan (endpoints ``bx, by``) at each of ``poses``."""
+        f = self.field
+        ll = np.empty(len(poses))
+        particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, poses,
+                                 bx, by, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
+        return ll
+
+    def _mean_pose(self, sel: NDArray[np.bool_], w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray]:
+        """The weighted mean pose of the selected particles (circular mean heading) and their weights."""
+        ws = w[sel] + 1e-300
+        xy = np.average(self.particles[sel, :2], axis=0, weights=ws)
+        th = math.atan2(float(np.sum(ws * np.sin(self.particles[sel, 2]))),
+                        float(np.sum(ws * np.cos(self.particles[sel, 2]))))
+        return np.array([xy[0], xy[1], th]), ws
 
     def _cluster(self) -> tuple[NDArray[np.float64], float, float]:
         """The heaviest cluster's mean pose, its share of the weight and its position spread (std, m)."""
@@ -236,11 +246,9 @@ class Localizer:
         heaviest = int(np.argmax(np.bincount(inverse, weights=w)))
         seed_xy = np.average(self.particles[inverse == heaviest, :2], axis=0, weights=w[inverse == heaviest] + 1e-300)
         near = np.hypot(*(self.particles[:, :2] - seed_xy).T) < 1.0
-        wn = w[near] + 1e-300
-        xy = np.average(self.particles[near, :2], axis=0, weights=wn)
-        th = math.atan2(float(np.sum(wn * np.sin(self.particles[near, 2]))), float(np.sum(wn * np.cos(self.particles[near, 2]))))
-        spread = math.sqrt(float(np.average(np.sum((self.particles[near, :2] - xy) ** 2, axis=1), weights=wn)))
-        return np.array([xy[0], xy[1], th]), float(w[near].sum()), spread
+        mean, wn = self._mean_pose(near, w)
+        spread = math.sqrt(float(np.average(np.sum((self.particles[near, :2] - mean[:2]) ** 2, axis=1), weights=wn)))
+        return mean, float(w[near].sum()), spread
 
     # -- matching ----------------------------------------------------------------------------------
 
@@ -273,8 +281,9 @@ class Localizer:
 
     # -- the per-scan step -----------------------------------------------------------------------------
 
-    def _beams(self, scan: Any, count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        pts = scan.points_in_base()
+    @staticmethod
+    def _beams(pts: NDArray[np.float64], count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """At most ``count`` of the scan's endpoints ``pts`` (base frame), evenly spread: their x and y."""
         if len(pts) > count:
             pts = pts[np.linspace(0, len(pts) - 1, count).astype(np.int64)]
         return np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
@@ -286,8 +295,9 @@ class Localizer:
         if odom is not None and self.last_odom is not None:
             step = se2.relative(self.last_odom, odom).reshape(3)
         self.last_odom = odom if odom is not None else self.last_odom
-        fx, fy = self._beams(frame.scan, self.p.beams)
-        mx, my = self._beams(frame.scan, self.p.match_beams)
+        points = frame.scan.points_in_base()
+        fx, fy = self._beams(points, self.p.beams)
+        mx, my = self._beams(points, self.p.match_beams)
         if len(mx) < 10:  # too few returns to say anything: the pose moves with the odometry
             if self.pose is not None:
                 self.pose = se2.compose(self.pose, step).reshape(3)
@@ -360,11 +370,7 @@ class Localizer:
                 c = self.challenger = {"pose": c_pose, "fit": c_fit, "lead": 0.0, "updates": 0}
         if c is None:
             return pose, fit
-        f = self.field
-        ll = np.empty(2)
-        particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
-                                 np.array([pose, c["pose"]]), mx, my, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT,
-                                 _Z_RAND, ll)
+        ll = self._log_likelihoods(np.array([pose, c["pose"]]), mx, my)
         c["lead"] += _INDEPENDENT_BEAMS * float(ll[1] - ll[0])
         c["updates"] += int(moved)
         if c["lead"] < -_HYPOTHESIS_DROP or _near(pose, c["pose"], 0.3, 0.2):
@@ -396,24 +402,15 @@ class Localizer:
         for b in np.argsort(mass)[::-1][:_MAX_HYPOTHESES]:
             if mass[b] < 0.01:
                 break
-            sel = inverse == b
-            wb = w[sel] + 1e-300
-            xy = np.average(self.particles[sel, :2], axis=0, weights=wb)
-            th = math.atan2(float(np.sum(wb * np.sin(self.particles[sel, 2]))),
-                            float(np.sum(wb * np.cos(self.particles[sel, 2]))))
-            modes.append(np.array([xy[0], xy[1], th]))
+            modes.append(self._mean_pose(inverse == b, w)[0])
         return modes
 
     def _track_hypotheses(self, step, mx, my, moved: bool) -> tuple[dict, float] | None:
         """Move and match every hypothesis, score it, add the particles' new places, drop the hopeless."""
-        f = self.field
         for h in self.hypotheses:
             h["pose"], h["fit"] = self._refine(se2.compose(h["pose"], step).reshape(3), mx, my, wide=False)
         if self.hypotheses:
-            poses = np.array([h["pose"] for h in self.hypotheses])
-            ll = np.empty(len(poses))
-            particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, poses,
-                                     mx, my, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
+            ll = self._log_likelihoods(np.array([h["pose"] for h in self.hypotheses]), mx, my)
             for h, v in zip(self.hypotheses, ll):
                 h["score"] += _INDEPENDENT_BEAMS * float(v)
                 h["updates"] += int(moved)
