@@ -346,6 +346,15 @@ def test_roslaunch_finds_the_node_through_the_ros_package(office_bag, tmp_path):
     assert json.loads((out / "run.json").read_text())["scans"] > 100
 
 
+def _send_initial_pose(env, pose) -> None:
+    """What RViz's "2D Pose Estimate" sends: /initialpose in the map's frame."""
+    x, y, th = pose
+    message = (f"{{header: {{frame_id: map}}, pose: {{pose: {{position: {{x: {x}, y: {y}}}, "
+               f"orientation: {{z: {math.sin(th / 2)}, w: {math.cos(th / 2)}}}}}}}}}")
+    subprocess.run(["rostopic", "pub", "-1", "/initialpose", "geometry_msgs/PoseWithCovarianceStamped", message],
+                   env=env, check=True, timeout=60, capture_output=True)
+
+
 @pytest.mark.slow
 def test_live_localization_in_a_saved_map_from_rviz_initial_pose(ros, office_bag, tmp_path):
     from slam2d.io.tum import read_tum
@@ -357,11 +366,7 @@ def test_live_localization_in_a_saved_map_from_rviz_initial_pose(ros, office_bag
     try:
         _wait_for_node(ros, node)
         # RViz's "2D Pose Estimate": the true start, 20 cm and 3 degrees off
-        x, y, th = truth[0] + [0.2, -0.1, 0.05]
-        pose = (f"{{header: {{frame_id: map}}, pose: {{pose: {{position: {{x: {x}, y: {y}}}, "
-                f"orientation: {{z: {math.sin(th / 2)}, w: {math.cos(th / 2)}}}}}}}}}")
-        subprocess.run(["rostopic", "pub", "-1", "/initialpose", "geometry_msgs/PoseWithCovarianceStamped", pose],
-                       env=ros, check=True, timeout=60, capture_output=True)
+        _send_initial_pose(ros, truth[0] + [0.2, -0.1, 0.05])
         subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True,
                        timeout=120, capture_output=True)
         time.sleep(2.0)
@@ -393,11 +398,7 @@ def test_live_mapping_goes_on_from_a_saved_session(ros, office_bag, tmp_path):
     node = _start_node(ros, "karto", "--out", str(out), f"_session:={tmp_path / 'monday'}")
     try:
         _wait_for_node(ros, node)
-        x, y, th = truth[0]
-        pose = (f"{{header: {{frame_id: map}}, pose: {{pose: {{position: {{x: {x}, y: {y}}}, "
-                f"orientation: {{z: {math.sin(th / 2)}, w: {math.cos(th / 2)}}}}}}}}}")
-        subprocess.run(["rostopic", "pub", "-1", "/initialpose", "geometry_msgs/PoseWithCovarianceStamped", pose],
-                       env=ros, check=True, timeout=60, capture_output=True)
+        _send_initial_pose(ros, truth[0])
         subprocess.run(["rosbag", "play", "--clock", "-q", "-d", "2", str(office_bag)], env=ros, check=True,
                        timeout=120, capture_output=True)
         time.sleep(2.0)

@@ -70,7 +70,8 @@ __all__ = [
 
 
 @njit(cache=True)
-def _row_runs(m, out):
+def _row_runs(m, out, cap):
+    """``out[r, k]`` = the length (at most ``cap``) of the run of True cells along row ``r`` through ``m[r, k]``."""
     rows, cols = m.shape
     for r in range(rows):
         c = 0
@@ -82,7 +83,7 @@ def _row_runs(m, out):
             while end < cols and m[r, end]:
                 end += 1
             for k in range(c, end):
-                out[r, k] = end - c
+                out[r, k] = min(end - c, cap)
             c = end
 
 
@@ -95,22 +96,8 @@ def _thickness_of_occupied(m):
     """
     rows, cols = m.shape
     down = np.zeros((rows, cols), np.uint16)
-    count = 0
-    for c in range(cols):
-        r = 0
-        while r < rows:
-            if not m[r, c]:
-                r += 1
-                continue
-            end = r
-            while end < rows and m[end, c]:
-                end += 1
-            length = min(end - r, 65535)
-            for k in range(r, end):
-                down[k, c] = length
-            count += end - r
-            r = end
-    out = np.empty(count, np.int32)
+    _row_runs(m.T, down.T, 65535)  # the column runs: row runs of the transposed views
+    out = np.empty(np.count_nonzero(m), np.int32)
     n = 0
     for r in range(rows):
         c = 0
@@ -139,7 +126,7 @@ def run_lengths(mask: ArrayLike) -> NDArray[np.int32]:
         raise ValueError(f"expected a 2D mask, got shape {m.shape}")
     out = np.zeros(m.shape, dtype=np.int32)
     if m.size:
-        _row_runs(m, out)
+        _row_runs(m, out, np.iinfo(np.int32).max)
     return out
 
 

@@ -264,10 +264,7 @@ def run_method(
         last_t = frame.timestamp
     if frames == 0:
         raise InputError("no laser scans in the recording", path=data)
-    slam.timed_finish()
-    compiled = compile_clock()[0] - compile0
-    seconds = time.perf_counter() - wall0 - compiled  # compiling kernels (a fresh install) is not the method's time
-    slam.diagnostics.summary["compile_s"] = compiled
+    seconds = _finish(slam, compile0, wall0)
     peak = _peak_rss_mb()
     return _write_run(
         slam, out_dir,
@@ -275,6 +272,15 @@ def run_method(
         span=(first_t, last_t), started=started, seconds=seconds, rss_before=rss_before, peak=peak,
         problems=recording.problems.lines(), command=command, session=session,
     )
+
+
+def _finish(slam: SlamMethod, compile0: float, wall0: float) -> float:
+    """End the run (the method's finish); its wall time since ``wall0``, compiling kernels (a fresh install)
+    not counted, and that compile time kept in the diagnostics."""
+    slam.timed_finish()
+    compiled = compile_clock()[0] - compile0
+    slam.diagnostics.summary["compile_s"] = compiled
+    return time.perf_counter() - wall0 - compiled
 
 
 def _odometry_warnings(slam: SlamMethod, frames: int) -> list[str]:
@@ -472,9 +478,7 @@ def resume_run(
             slam.feed(moved)
         except InputError as exc:
             raise exc.in_file(data, f"scan {frame.index + 1} at t={frame.timestamp:.3f} s") from None
-    slam.timed_finish()
-    compiled = compile_clock()[0] - compile0
-    seconds = time.perf_counter() - wall0 - compiled
+    seconds = _finish(slam, compile0, wall0)
     times, poses = slam.trajectory()
     own = times[replayed:] - shift  # the new recording's poses, at its own times
     extra = {"resumed": {"from": str(run.resolve()), "session_frames": len(session), "placed_at": [float(v) for v in pose],
