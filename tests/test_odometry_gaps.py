@@ -89,14 +89,15 @@ def test_a_late_scan_is_corrected_and_then_taken_back():
     assert xy < 0.05 and t < math.radians(2.0)
 
 
-def test_refine_heading_takes_a_small_heading_error_out():
-    """A 10 deg heading error of one step is noise to the gap check (under 20 deg: left alone), but with
-    ``refine_heading`` (hector's) the scans' heading replaces the odometry's."""
+@pytest.mark.parametrize("error", [(0.0, 0.0, 10.0), (0.25, -0.2, 14.0)], ids=["heading", "heading-and-shift"])
+def test_refine_takes_a_step_error_under_the_gap_size_out(error):
+    """A step 10-14 deg and up to 0.32 m off is noise to the gap check (under 20 deg and 0.4 m: left alone), but
+    with ``refine`` (hector's) the scans' increment replaces the odometry's (csail's scan 13: 15 deg, 0.4 m)."""
     poses = _room_path()
-    odometry = odometry_missing(poses, 5, np.array([0.0, 0.0, math.radians(10.0)]))
+    odometry = odometry_missing(poses, 5, np.array([error[0], error[1], math.radians(error[2])]))
     guard, fixed = _guarded(poses, odometry)
     assert guard.recoveries == 0 and all(np.allclose(f, o) for f, o in zip(fixed, odometry))
-    guard, fixed = _guarded(poses, odometry, GapCheck(refine_heading=True))
+    guard, fixed = _guarded(poses, odometry, GapCheck(refine=True))
     assert guard.refined >= 1 and guard.recoveries == 0
     xy, t = _worst_increment_error(poses, fixed)
     assert t < math.radians(1.0) and xy < 0.05

@@ -68,9 +68,11 @@ class GapCheck:
     poor_fit: float = 0.5  # below this fit near the odometry and over every heading, positions are searched too
     good_fit: float = 0.6  # a correction's registration fits at least this
     search_window: float = 2.5  # m: half-width of that position search
-    # where the odometry fits poorly and the registration near it well, take the registration's heading even
-    # without a gap (hector: its Gauss-Newton match has no search to find a 10 deg heading error by itself)
-    refine_heading: bool = False
+    # take the scans' increment even without a gap (hector: its Gauss-Newton match has no search to find a 10 deg
+    # heading error by itself): where the odometry fits poorly (under poor_fit) and the registration near it
+    # clearly better, all of it; where the odometry fits fairly and the registration well, its heading only (along
+    # a corridor the registration's position slides: aces)
+    refine: bool = False
 
 
 @njit(cache=True)
@@ -99,7 +101,7 @@ class OdometryGapGuard:
         self.check = check or GapCheck()
         self.recoveries = 0  # increments replaced
         self.checks = 0
-        self.refined = 0  # headings taken from the scans (refine_heading)
+        self.refined = 0  # increments or headings taken from the scans (refine)
         self.reverted = 0  # corrections taken back at the next scan (the corrected scan alone was out of place)
         self.last_correction: NDArray[np.float64] | None = None  # the last recovery's change (robot frame)
         self._ref_points: NDArray[np.float64] | None = None
@@ -153,11 +155,11 @@ class OdometryGapGuard:
         local = consecutive_motion(ref, points, increment, half_turn=0.25)
         fit_local = float(registration_fit(ref, points, local)[0])
         off = se2.relative(increment, local)
+        odometry_wrong = fit_odometry < c.poor_fit and fit_local >= max(c.poor_fit, fit_odometry + c.margin)
         if fit_local >= c.good_fit and abs(float(off[2])) <= c.gap_turn and math.hypot(off[0], off[1]) <= c.gap_shift:
-            if c.refine_heading and fit_local > fit_odometry:
+            if c.refine and fit_local > fit_odometry:
                 self.refined += 1
-                # the heading only: along a corridor the registration's position slides (aces)
-                return np.array([increment[0], increment[1], local[2]]), False
+                return (local if odometry_wrong else np.array([increment[0], increment[1], local[2]])), False
             return increment, False  # the scans fit well near the odometry: no gap (and no wide search to pay)
         wide = consecutive_motion(ref, points, increment, half_turn=math.pi)
         fit_wide = float(registration_fit(ref, points, wide)[0])
@@ -185,4 +187,7 @@ class OdometryGapGuard:
             self.recoveries += 1
             self.last_correction = off
             return best, True
+        if c.refine and odometry_wrong:  # no gap, but the odometry is plainly off and the scans say by how much
+            self.refined += 1
+            return local, False
         return increment, False

@@ -275,7 +275,7 @@ class SlamMethod(ABC):
         refined, reverted = guard.refined, guard.reverted
         corrected, recovered = guard.correct(frame.scan.points_in_base(), odom)
         if guard.refined > refined:
-            self.diagnostics.count("odometry_headings_refined")
+            self.diagnostics.count("odometry_increments_refined")
         if guard.reverted > reverted:
             self.diagnostics.count("odometry_corrections_reverted")
         if recovered:

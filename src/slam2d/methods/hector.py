@@ -103,8 +103,8 @@ class Hector(SlamMethod):
     uses_odometry = True
     optional_odometry = True
     # Gauss-Newton finds only what lies in its basin: a 10 deg heading error of one step (intel's odometry, a
-    # scan a metre) is outside it, so the scans' own heading replaces the odometry's where it fits poorly
-    gap_check = GapCheck(refine_heading=True)
+    # scan a metre) is outside it, so the scans' own increment replaces the odometry's where that fits poorly
+    gap_check = GapCheck(refine=True)
     DIAGNOSTICS = {
         "score": "mean occupancy probability at the matched scan points (1 = every point on a wall)",
         "inverse_condition": "smallest / largest eigenvalue of the match Hessian, heading scaled "
