@@ -10,6 +10,7 @@ at least 4 m, to where it faces another way, odometry unaware: scans until found
 log's reference (GMapping-corrected, not independent truth). CPU per scan excludes compilation.
 
     .venv/bin/python benchmarks/localization.py [--write BENCHMARKS.md]
+    .venv/bin/python benchmarks/localization.py --set lost_after=3   # a candidate setting, every row
 """
 
 from __future__ import annotations
@@ -66,11 +67,16 @@ def ate_in_frame(traj: Path, truth: Path, frame: np.ndarray | None, shift: float
     return float(absolute_trajectory_error(associate(t - shift, p, *read_tum(truth)), align=False)["translation_m"]["rmse"])
 
 
+#: localizer settings to measure instead of the defaults (``--set NAME=VALUE``)
+OVERRIDES: dict[str, object] = {}
+
+
 def localize(map_source: Path, data: Path, out: Path, method: str) -> dict:
     from slam2d.localization.localizer import LocalizationParams
     from slam2d.localization.run import localize_recording
 
-    return localize_recording(map_source, data, out, params=LocalizationParams(method=method)).record
+    params = LocalizationParams(method=method, **OVERRIDES)
+    return localize_recording(map_source, data, out, params=params).record
 
 
 def sim_rows(world: str, work: Path) -> list[str]:
@@ -217,7 +223,19 @@ def main() -> int:
     parser.add_argument("--worlds", default="office,corridor-loop")
     parser.add_argument("--no-real", action="store_true", help="skip fr079")
     parser.add_argument("--write", type=Path, metavar="BENCHMARKS.md")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a localizer setting to measure instead of its default (not with --write)")
     args = parser.parse_args()
+    if args.set and args.write:
+        parser.error("--set measures a candidate; the table in BENCHMARKS.md is the defaults'")
+    from slam2d.localization.localizer import LocalizationParams
+
+    defaults = LocalizationParams()
+    for item in args.set:
+        name, _, value = item.partition("=")
+        if not hasattr(defaults, name):
+            parser.error(f"--set {item}: LocalizationParams has no field {name!r}")
+        OVERRIDES[name] = type(getattr(defaults, name))(value)
     rows = ["| recording | map | method | localized from (share of scans in) | ATE after | times lost | CPU ms/scan (median) |",
             "|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="slam2d-localization-") as tmp:

@@ -18,7 +18,7 @@ Without an initial pose the particles spread over the map's free space, and ever
 becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there; one wins
 when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
 apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
-row means the robot is lost: the localizer says so, spreads particles over the map's free space and
+row (3 when they miss it by far) means the robot is lost: the localizer says so, spreads particles over the map's free space and
 searches again. Poses are reported only while localized.
 """
 
@@ -60,6 +60,11 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
 _CONFIRM_UPDATES = 5
+_FAR_MISFITS = 3
+_DRIFTED_STD = (2.0, 2.0, 0.5)  # m, m, rad: where a robot that drifted off the map's walls is looked for first
+# ... and the place found must lie within 3 m plus 20 % of the odometry's travel since of where the odometry says
+# it went: off the map (fr079's second half in the map of its first) a room alike another 20 m away fits as well
+_DRIFT_RADIUS = (3.0, 0.2)
 # the fraction of a scan on the map's walls a found place needs, at each of those updates (a right place fits
 # 0.9-1.0 in the simulated worlds and in fr079's mapped parts; wrong places that passed a 0.5 fit 0.45-0.75)
 _FOUND_FIT = 0.8
@@ -96,7 +101,8 @@ class LocalizationParams:
     lost_fit: float = param(0.3, low=0.0, high=1.0,
                             help="fraction of endpoints within 2 cells of a wall under which a scan does not fit "
                             "(or half the last 100 scans' median fit, when higher)")
-    lost_after: int = param(10, low=1, help="scans in a row that do not fit before the robot counts as lost")
+    lost_after: int = param(10, low=1, help="scans in a row that do not fit before the robot counts as lost "
+                            "(3 in a row that fit under half of that are enough: a robot carried off)")
 
 
 @dataclass
@@ -138,16 +144,20 @@ class Localizer:
         self.pose: NDArray[np.float64] | None = None  # the last reported pose (map frame)
         self.state = "searching"
         self.misfits = 0
+        self.far_misfits = 0  # scans in a row under half the lost floor (a robot carried off)
         self.events: list[dict[str, Any]] = []  # when it was localized, lost, found again
         self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
         self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
         self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
+        # a robot that drifted off the map's walls: where the odometry has taken it since, and how far it went
+        self.drifted: tuple[NDArray[np.float64], float] | None = None
         self.restart(initial_pose, said=False)
 
     def restart(self, initial_pose: NDArray[np.float64] | None = None, *, t: float | None = None,
                 said: bool = True) -> None:
         """Search again: around ``initial_pose`` (as RViz's "2D Pose Estimate" sends it), or over the whole map."""
-        self.state, self.pose, self.misfits = "searching", None, 0
+        self.state, self.pose, self.misfits, self.far_misfits = "searching", None, 0, 0
+        self.drifted = None
         self.hypotheses, self.challenger, self.filter_odom = [], None, None
         self.recent_fits.clear()
         self.w_slow = self.w_fast = 0.0
@@ -169,8 +179,9 @@ class Localizer:
         self.particles = np.column_stack([self.free_xy[cells] + jitter, self.rng.uniform(-np.pi, np.pi, n)])
         self.log_w = np.zeros(n)
 
-    def _spread_around(self, pose: NDArray[np.float64], std: tuple[float, float, float] = _INITIAL_STD) -> None:
-        n = max(self.p.min_particles, min(self.p.max_particles, 500))
+    def _spread_around(self, pose: NDArray[np.float64], std: tuple[float, float, float] = _INITIAL_STD,
+                       count: int = 500) -> None:
+        n = max(self.p.min_particles, min(self.p.max_particles, count))
         self.particles = pose + self.rng.standard_normal((n, 3)) * np.asarray(std)
         self.particles[:, 2] = se2.wrap_angle(self.particles[:, 2])
         self.log_w = np.zeros(n)
@@ -328,15 +339,27 @@ class Localizer:
             floor = max(self.p.lost_fit, 0.5 * float(np.median(self.recent_fits))) if self.recent_fits else self.p.lost_fit
             self.recent_fits.append(fit)
             self.misfits = self.misfits + 1 if fit < floor else 0
-            if self.misfits >= self.p.lost_after:
-                self._set_state("lost", t, f"{self.misfits} scans in a row fit the map under {floor:.0%}")
+            self.far_misfits = self.far_misfits + 1 if fit < 0.5 * floor else 0
+            # a scan that fits under half the floor is not a wall the map lacks or a passer-by: a few in a row
+            # and the robot is elsewhere (carried off); waiting lost_after scans lets the match slide to a twin
+            if self.misfits >= self.p.lost_after or self.far_misfits >= _FAR_MISFITS:
+                why = (f"{self.misfits} scans in a row fit the map under {floor:.0%}" if self.misfits >= self.p.lost_after
+                       else f"{self.far_misfits} scans in a row fit the map under half of {floor:.0%}")
+                self._set_state("lost", t, why)
                 self.recent_fits.clear()
-                self._spread_globally()
-                self.filter_odom, self.misfits, self.confirm = odom, 0, _CONFIRM_UPDATES
+                if self.far_misfits >= _FAR_MISFITS:
+                    self._spread_globally()  # carried off: anywhere
+                else:  # drifted off the map's walls: near where it was lost first
+                    self._spread_around(self.pose, _DRIFTED_STD, self.p.max_particles)
+                    self.drifted = (self.pose.copy(), 0.0)
+                self.filter_odom, self.misfits, self.far_misfits, self.confirm = odom, 0, 0, _CONFIRM_UPDATES
                 return ScanResult(t, "lost", None, fit, spread, len(self.particles))
             return ScanResult(t, "localized", self.pose.copy(), fit, spread,
                               len(self.particles) if self.p.method == "mcl" else 0)
         # searching (or lost)
+        if self.drifted is not None:
+            where, travelled = self.drifted
+            self.drifted = (se2.compose(where, step).reshape(3), travelled + math.hypot(step[0], step[1]))
         if self.confirm == 1:  # from a given initial pose: the particles need only gather there once
             pose, fit = self._refine(estimate, mx, my, wide=True)
             if moved and share > _FOUND_SHARE and spread < 0.5 and fit >= _FOUND_FIT:
@@ -350,7 +373,9 @@ class Localizer:
         if best is None:
             return ScanResult(t, self.state, None, float("nan"), spread, len(self.particles))
         h, lead = best
-        if h["updates"] >= _CONFIRM_UPDATES and h["fit"] >= _FOUND_FIT and lead >= _HYPOTHESIS_MARGIN:
+        if h["updates"] >= _CONFIRM_UPDATES and h["fit"] >= _FOUND_FIT and lead >= _HYPOTHESIS_MARGIN and (
+                self.drifted is None or _near(h["pose"], self.drifted[0], _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1]
+                                              * self.drifted[1], math.tau)):
             others = len(self.hypotheses) - 1
             return self._found(t, h["pose"], h["fit"], f"{h['fit']:.0%} of the scan on walls; "
                                + (f"{others} other places fit worse (by {lead:.1f} in log-likelihood)" if others
@@ -384,8 +409,8 @@ class Localizer:
 
     def _found(self, t: float, pose: NDArray[np.float64], fit: float, why: str, spread: float) -> ScanResult:
         self.pose = pose
-        self.misfits = 0
-        self.hypotheses, self.challenger = [], None
+        self.misfits = self.far_misfits = 0
+        self.hypotheses, self.challenger, self.drifted = [], None, None
         self._set_state("localized", t, why)
         if self.p.method == "mcl":  # the filter goes on from where the scan says the robot is
             self._spread_around(pose, _FOUND_STD)
