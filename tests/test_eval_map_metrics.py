@@ -397,6 +397,23 @@ def test_a_clean_room_has_four_corners_one_area_and_exact_fractions():
     assert result["observed_m2"] == pytest.approx(height * width * RES**2)
 
 
+def test_a_map_as_read_measures_the_same_as_its_grid(tmp_path):
+    """map_quality of a map_server image (one byte a cell, what `slam2d evaluate` reads) equals that of the
+    OccupancyGrid made from it, on every value 0..100 and unknown, thresholds' edges included."""
+    from slam2d.io.map_server import read_map, write_map
+
+    rng = np.random.default_rng(4)
+    values = room_values(50, 70)
+    values[5:45, 5:65] = rng.integers(-1, 101, (40, 60))  # every value, -1 unknown among them
+    values[20, 10:40] = 25  # exactly free_threshold * 100
+    values[21, 10:40] = 65  # exactly occupied_threshold * 100
+    write_map(tmp_path / "m.yaml", values, RES, (0.0, 0.0, 0.0), mode="raw")  # raw: every value as it is
+    image = read_map(tmp_path / "m.yaml")
+    assert np.array_equal(image.occupancy, values)
+    for thresholds in ({}, {"free_threshold": 0.3, "occupied_threshold": 0.5}):
+        assert map_quality(image, **thresholds) == map_quality(image.to_grid(), **thresholds)
+
+
 def test_uncertain_cells_are_counted_apart():
     values = room_values(40, 60)
     values[PAD + 10 : PAD + 15, PAD + 10 : PAD + 15] = 50  # 25 cells neither free nor occupied

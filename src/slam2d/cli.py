@@ -668,7 +668,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise InputError("is a folder; --out takes the name of the JSON file to write", path=args.out, field="--out")
     truth, relations = _load_truth_options(args)
     run = load_run(args.run)
-    if run.map is None and (truth is None or not truth.has_trajectory) and relations is None:
+    if run.map_image is None and (truth is None or not truth.has_trajectory) and relations is None:
         raise InputError(
             "nothing to evaluate: a bare trajectory needs --truth, --reference or --relations", path=args.run
         )

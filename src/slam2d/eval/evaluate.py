@@ -190,16 +190,32 @@ def load_reference(path: str | Path, *, truth_map: str | Path | None = None) -> 
     return GroundTruth("reference", Path(path), times, poses, grid, Path(truth_map) if truth_map else None)
 
 
-@dataclass
 class RunFiles:
-    """A run folder, loaded: what ``slam2d run`` wrote."""
+    """A run folder, loaded: what ``slam2d run`` wrote.
 
-    folder: Path
-    times: NDArray[np.float64]
-    poses: NDArray[np.float64]
-    map: Any  # OccupancyGrid or None
-    diagnostics: dict[str, Any]
-    run: dict[str, Any]
+    ``map_image`` is the map as read (:class:`~slam2d.io.map_server.MapImage`, one byte a cell); ``map`` the
+    :class:`~slam2d.grids.occupancy.OccupancyGrid` made from it on first use (six bytes a cell: the map quality
+    measures need only the image, and a diverged run's map can hold 40 million cells).
+    """
+
+    def __init__(self, folder: Path, times: NDArray[np.float64], poses: NDArray[np.float64], map_image: Any,
+                 diagnostics: dict[str, Any], run: dict[str, Any]) -> None:
+        self.folder, self.times, self.poses = folder, times, poses
+        self.map_image, self.diagnostics, self.run = map_image, diagnostics, run
+        self._map: Any = None
+
+    @property
+    def map(self) -> Any:
+        """The map as an OccupancyGrid (or what was assigned), None without one."""
+        if self._map is None and self.map_image is not None:
+            self._map = self.map_image.to_grid()
+        return self._map
+
+    @map.setter
+    def map(self, value: Any) -> None:
+        self._map = value
+        if value is None:
+            self.map_image = None
 
 
 def load_run(path: str | Path) -> RunFiles:
@@ -217,7 +233,9 @@ def load_run(path: str | Path) -> RunFiles:
     if not traj.is_file():
         raise InputError("not a run folder: trajectory.tum is missing (write one with 'slam2d run')", path=path)
     times, poses = read_tum(traj)
-    grid = read_map(path / "map.yaml").to_grid() if (path / "map.yaml").is_file() else None
+    image = read_map(path / "map.yaml") if (path / "map.yaml").is_file() else None
+    if image is not None and abs(image.origin[2]) > 1e-9:
+        image.to_grid()  # says what is wrong with a rotated map now, not at first use
     docs = {}
     for name in ("diagnostics", "run"):
         f = path / f"{name}.json"
@@ -231,7 +249,7 @@ def load_run(path: str | Path) -> RunFiles:
                 raise InputError(f"expected a JSON object, got {type(docs[name]).__name__}", path=f)
         else:
             docs[name] = {}
-    return RunFiles(path, times, poses, grid, docs["diagnostics"], docs["run"])
+    return RunFiles(path, times, poses, image, docs["diagnostics"], docs["run"])
 
 
 def _stats(values: NDArray[np.float64]) -> dict[str, float]:
@@ -331,7 +349,7 @@ def evaluate_run(
         rel = trajectory_metrics.relations_error(run.times, run.poses, relations, max_gap=max_gap,
                                                  est_name=str(run.folder))
         result["relations"] = {"file": str(relations.path), **rel}
-    if run.map is not None:
+    if run.map_image is not None:
         if truth is not None and truth.map is not None:
             try:
                 if alignment is None:
@@ -349,7 +367,7 @@ def evaluate_run(
                     raise
                 raise exc.in_file(truth.map_path) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
-        result["map_quality"] = map_metrics.map_quality(run.map)
+        result["map_quality"] = map_metrics.map_quality(run.map_image if run._map is None else run.map)
     if run.diagnostics:
         try:
             result["cost"] = cost_metrics(run.diagnostics, run.run)

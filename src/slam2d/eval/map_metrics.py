@@ -835,7 +835,7 @@ def region_sizes(mask):
     return out
 
 
-_HARRIS_BAND = 512  # rows per band of the corner response
+_HARRIS_BAND = 128  # rows per band of the corner response (each band's filters hold about 8 float copies of it)
 
 
 def _harris_response(image: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -919,6 +919,36 @@ def _count_blobs(mask):
     return count
 
 
+def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[NDArray[np.bool_], ...]:
+    """``(observed, occupied, free)`` cells of an OccupancyGrid, or of a map as read (MapImage, int8 values).
+
+    Compared in log-odds, as the grid stores them, so a loaded value of exactly 100 * free_threshold counts as
+    free. A MapImage's values are looked up in per-value tables that make the same float32 comparisons, a band
+    of rows at a time: no six-byte-a-cell grid for a map that is only measured."""
+    free_logodds = np.float32(math.log(free_p / (1.0 - free_p)))
+    occupied_logodds = np.float32(math.log(occ_p / (1.0 - occ_p)))
+    if callable(getattr(grid, "occupancy", None)):  # an OccupancyGrid
+        observed = np.asarray(grid.observed, dtype=np.bool_)
+        occupied = (grid.logodds > occupied_logodds) & observed
+        return observed, occupied, observed & (grid.logodds <= free_logodds) & ~occupied
+    from slam2d.core.arrays import row_bands
+    from slam2d.grids.occupancy import GridParams, logit
+
+    params = GridParams()  # what MapImage.to_grid() would use
+    table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max)).astype(np.float32)
+    occupied_table = np.append(table > occupied_logodds, False)  # index 101: unknown (-1, or over 100)
+    free_table = np.append((table <= free_logodds) & ~(table > occupied_logodds), False)
+    values = grid.occupancy
+    observed = np.empty(values.shape, dtype=np.bool_)
+    occupied, free = np.empty_like(observed), np.empty_like(observed)
+    for rows in row_bands(values.shape):
+        band = values[rows]
+        known = (band >= 0) & (band <= 100)
+        index = np.where(known, band, 101).astype(np.intp)
+        observed[rows], occupied[rows], free[rows] = known, occupied_table[index], free_table[index]
+    return observed, occupied, free
+
+
 def map_quality(
     grid: Any,
     *,
@@ -928,7 +958,8 @@ def map_quality(
 ) -> dict[str, Any]:
     """Map quality without ground truth (Filatov et al. 2017's measures).
 
-    ``grid`` is an :class:`~slam2d.grids.occupancy.OccupancyGrid`. Among
+    ``grid`` is an :class:`~slam2d.grids.occupancy.OccupancyGrid` or a map as read
+    (:class:`~slam2d.io.map_server.MapImage`: the same numbers, a sixth of the memory). Among
     observed cells, a cell is *occupied* when its probability is above
     ``occupied_threshold`` (as :meth:`OccupancyGrid.occupied` and map_server
     decide), *free* when it is at most ``free_threshold``, and *uncertain* in
@@ -981,12 +1012,7 @@ def map_quality(
         min_area = 0
     if min_area < 1 or min_area != min_area_cells:
         raise InputError(f"{min_area_cells!r} is not a positive whole number", field="min_area_cells")
-    observed = np.asarray(grid.observed, dtype=np.bool_)
-    occupied = np.asarray(grid.occupied(occ_p), dtype=np.bool_)
-    # Compared in log-odds, as the grid stores them, so a loaded value of
-    # exactly 100 * free_threshold counts as free.
-    free_logodds = np.float32(math.log(free_p / (1.0 - free_p)))
-    free = observed & (grid.logodds <= free_logodds) & ~occupied
+    observed, occupied, free = _cell_classes(grid, occ_p, free_p)
     n_observed = int(observed.sum())
     n_occupied = int(occupied.sum())
     n_free = int(free.sum())

@@ -241,9 +241,11 @@ def read_map(yaml_path: str | Path, *, loader: str = "nav2") -> MapImage:
             f"image file {image_path} not found", path=path, where=lines.get("image"), field="image"
         )
     color, alpha = _read_image(image_path, path)
+    # rows flipped before the conversion (a view): map_server's row 0 is the image's last; a grey image's
+    # lookup then makes the only copy
     occupancy = occupancy_from_pixels(
-        color,
-        alpha,
+        color[::-1],
+        None if alpha is None else alpha[::-1],
         mode=mode,
         negate=negate,
         occupied_thresh=occupied_thresh,
@@ -251,7 +253,7 @@ def read_map(yaml_path: str | Path, *, loader: str = "nav2") -> MapImage:
         loader=loader,
     )
     return MapImage(
-        occupancy=occupancy[::-1].copy(),
+        occupancy=np.ascontiguousarray(occupancy),
         resolution=resolution,
         origin=(float(origin[0]), float(origin[1]), float(origin[2])),
         negate=negate,

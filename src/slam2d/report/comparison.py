@@ -165,8 +165,8 @@ def _entries(outcomes: Sequence[MethodOutcome]) -> list[_Entry]:
         if outcome.ok:
             try:
                 entry.run = load_run(outcome.run_dir)
-                if entry.run.map is not None:  # the picture is all the report needs of a map
-                    entry.run.map = plots.MapRaster.of(entry.run.map)
+                if entry.run.map_image is not None:  # the picture is all the report needs of a map
+                    entry.run.map = plots.MapRaster.of(entry.run.map_image)
             except (InputError, OSError) as exc:
                 entry.run_error = f"run folder unreadable: {exc}"
         entries.append(entry)

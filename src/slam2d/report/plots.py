@@ -108,7 +108,9 @@ class MapRaster:
 
     @classmethod
     def of(cls, grid: Any) -> MapRaster:
-        return cls(grid.occupancy(), float(grid.resolution), tuple(grid.origin))
+        """From an OccupancyGrid, or from a map as read (MapImage: its values as the file has them)."""
+        values = grid.occupancy() if callable(grid.occupancy) else grid.occupancy
+        return cls(values, float(grid.resolution), (float(grid.origin[0]), float(grid.origin[1])))
 
     @property
     def shape(self) -> tuple[int, int]:
