@@ -919,8 +919,8 @@ def _count_blobs(mask):
     return count
 
 
-def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[NDArray[np.bool_], ...]:
-    """``(observed, occupied, free)`` cells of an OccupancyGrid, or of a map as read (MapImage, int8 values).
+def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[int, NDArray[np.bool_], NDArray[np.bool_]]:
+    """``(observed cells, occupied, free)`` of an OccupancyGrid, or of a map as read (MapImage, int8 values).
 
     Compared in log-odds, as the grid stores them, so a loaded value of exactly 100 * free_threshold counts as
     free. A MapImage's values are looked up in per-value tables that make the same float32 comparisons, a band
@@ -930,7 +930,7 @@ def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[NDArray[np.bo
     if callable(getattr(grid, "occupancy", None)):  # an OccupancyGrid
         observed = np.asarray(grid.observed, dtype=np.bool_)
         occupied = (grid.logodds > occupied_logodds) & observed
-        return observed, occupied, observed & (grid.logodds <= free_logodds) & ~occupied
+        return int(observed.sum()), occupied, observed & (grid.logodds <= free_logodds) & ~occupied
     from slam2d.core.arrays import row_bands
     from slam2d.grids.occupancy import GridParams, logit
 
@@ -939,13 +939,15 @@ def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[NDArray[np.bo
     occupied_table = np.append(table > occupied_logodds, False)  # index 101: unknown (-1, or over 100)
     free_table = np.append((table <= free_logodds) & ~(table > occupied_logodds), False)
     values = grid.occupancy
-    observed = np.empty(values.shape, dtype=np.bool_)
-    occupied, free = np.empty_like(observed), np.empty_like(observed)
+    occupied = np.empty(values.shape, dtype=np.bool_)
+    free = np.empty_like(occupied)
+    observed = 0
     for rows in row_bands(values.shape):
         band = values[rows]
         known = (band >= 0) & (band <= 100)
+        observed += int(np.count_nonzero(known))
         index = np.where(known, band, 101).astype(np.intp)
-        observed[rows], occupied[rows], free[rows] = known, occupied_table[index], free_table[index]
+        occupied[rows], free[rows] = occupied_table[index], free_table[index]
     return observed, occupied, free
 
 
@@ -1012,8 +1014,7 @@ def map_quality(
         min_area = 0
     if min_area < 1 or min_area != min_area_cells:
         raise InputError(f"{min_area_cells!r} is not a positive whole number", field="min_area_cells")
-    observed, occupied, free = _cell_classes(grid, occ_p, free_p)
-    n_observed = int(observed.sum())
+    n_observed, occupied, free = _cell_classes(grid, occ_p, free_p)
     n_occupied = int(occupied.sum())
     n_free = int(free.sum())
     n_uncertain = n_observed - n_occupied - n_free
@@ -1021,7 +1022,7 @@ def map_quality(
     # 4-connected free regions, sized from runs of free cells (no label image: 110 MB of int32 for a diverged
     # crsm map of 28 M cells)
     sizes = region_sizes(np.ascontiguousarray(free))
-    del free, observed  # before the corners: a map of 10^7 cells is 40 MB a copy
+    del free  # before the corners: a map of 10^7 cells is 10 MB a copy
     if sizes.size:
         enclosed = int(np.count_nonzero(sizes >= min_area))
         largest = float(sizes.max()) / n_free
