@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
+from slam2d.core.arrays import row_bands
 from slam2d.report.images import UNKNOWN_GRAY, by_occupancy, grey_levels
 
 __all__ = [
@@ -176,13 +177,15 @@ def common_canvas(
             # A pixel up to twice as wide as a pooled cell: the darkest of 2 x 2 samples.
             samples = max(1, math.ceil(mpp / resolution - 1e-9))
             inverse = se2.inverse(pose)
-            for a in range(samples):
-                for b in range(samples):
-                    fx = (np.arange(cols) + (a + 0.5) / samples) * mpp + xmin
-                    fy = ymax - (np.arange(rows) + (b + 0.5) / samples) * mpp
-                    points = np.stack(np.broadcast_arrays(fx[None, :], fy[:, None]), axis=-1)
-                    sample = _lookup(grey, origin, resolution, se2.transform_points(inverse, points))
-                    image = sample if (a, b) == (0, 0) else np.minimum(image, sample)
+            # a band of pixel rows at a time: a whole canvas's sample points are 16 bytes a pixel, several times
+            for band in row_bands((rows, cols), 1 << 16):
+                for a in range(samples):
+                    for b in range(samples):
+                        fx = (np.arange(cols) + (a + 0.5) / samples) * mpp + xmin
+                        fy = ymax - (np.arange(rows)[band] + (b + 0.5) / samples) * mpp
+                        points = np.stack(np.broadcast_arrays(fx[None, :], fy[:, None]), axis=-1)
+                        sample = _lookup(grey, origin, resolution, se2.transform_points(inverse, points))
+                        image[band] = sample if (a, b) == (0, 0) else np.minimum(image[band], sample)
         images.append(image)
     return MapCanvas(extent, float(mpp), images)
 
@@ -199,15 +202,21 @@ def _pooled_grey(grid: Any, metres_per_pixel: float) -> tuple[NDArray[np.float64
     rank = np.empty(levels.size, dtype=np.uint8)
     rank[np.argsort(levels, kind="stable")] = np.arange(levels.size, dtype=np.uint8)
     by_rank = np.sort(levels, kind="stable")
-    ranks = by_occupancy(rank, grid.occupancy())  # row 0 = lowest y
+    occupancy = grid.occupancy()  # row 0 = lowest y
     factor = max(1, int(metres_per_pixel / float(grid.resolution) + 1e-9))
     if factor == 1:
-        return by_rank[ranks], float(grid.resolution)
-    rows, cols = ranks.shape
-    padded = np.full((-(-rows // factor) * factor, -(-cols // factor) * factor), rank[0], dtype=np.uint8)
-    padded[:rows, :cols] = ranks
-    blocks = padded.reshape(padded.shape[0] // factor, factor, padded.shape[1] // factor, factor)
-    return by_rank[blocks.min(axis=(1, 3))], float(grid.resolution) * factor
+        return by_rank[by_occupancy(rank, occupancy)], float(grid.resolution)
+    rows, cols = occupancy.shape
+    out_rows, out_cols = -(-rows // factor), -(-cols // factor)
+    pooled = np.empty((out_rows, out_cols), dtype=np.uint8)
+    # a band of pooled rows at a time: a diverged map of 40 M cells had three whole-map byte copies at once
+    for band in row_bands((out_rows, out_cols * factor * factor)):
+        r0, r1 = band.start, min(band.stop, out_rows)
+        ranks = by_occupancy(rank, occupancy[r0 * factor : r1 * factor])
+        padded = np.full(((r1 - r0) * factor, out_cols * factor), rank[0], dtype=np.uint8)
+        padded[: ranks.shape[0], :cols] = ranks
+        pooled[r0:r1] = padded.reshape(-1, factor, out_cols, factor).min(axis=(1, 3))
+    return by_rank[pooled], float(grid.resolution) * factor
 
 
 def _lookup(
