@@ -18,8 +18,9 @@ Without an initial pose the particles spread over the map's free space, and ever
 becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there; one wins
 when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
 apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
-row (3 when they miss it by far) means the robot is lost: the localizer says so, spreads particles over the map's free space and
-searches again. Poses are reported only while localized.
+row means the robot is lost: the localizer says so and searches again, near where the odometry took it (it
+drifted off the map's walls). Three scans in a row that miss them by far mean it was carried off: the particles
+spread over the map's free space. Poses are reported only while localized.
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
 _CONFIRM_UPDATES = 5
+# scans in a row under half the lost floor that make the robot lost at once (carried off)
 _FAR_MISFITS = 3
 _DRIFTED_STD = (2.0, 2.0, 0.5)  # m, m, rad: where a robot that drifted off the map's walls is looked for first
 # ... and the place found must lie within 3 m plus 20 % of the odometry's travel since of where the odometry says
