@@ -214,8 +214,6 @@ class RunFiles:
     @map.setter
     def map(self, value: Any) -> None:
         self._map = value
-        if value is None:
-            self.map_image = None
 
 
 def load_run(path: str | Path) -> RunFiles:
@@ -234,8 +232,8 @@ def load_run(path: str | Path) -> RunFiles:
         raise InputError("not a run folder: trajectory.tum is missing (write one with 'slam2d run')", path=path)
     times, poses = read_tum(traj)
     image = read_map(path / "map.yaml") if (path / "map.yaml").is_file() else None
-    if image is not None and abs(image.origin[2]) > 1e-9:
-        image.to_grid()  # says what is wrong with a rotated map now, not at first use
+    if image is not None:
+        image.require_unrotated()  # said now, not at the grid's first use
     docs = {}
     for name in ("diagnostics", "run"):
         f = path / f"{name}.json"
@@ -367,7 +365,7 @@ def evaluate_run(
                     raise
                 raise exc.in_file(truth.map_path) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
-        result["map_quality"] = map_metrics.map_quality(run.map_image if run._map is None else run.map)
+        result["map_quality"] = map_metrics.map_quality(run.map_image)
     if run.diagnostics:
         try:
             result["cost"] = cost_metrics(run.diagnostics, run.run)

@@ -932,10 +932,9 @@ def _cell_classes(grid: Any, occ_p: float, free_p: float) -> tuple[int, NDArray[
         occupied = (grid.logodds > occupied_logodds) & observed
         return int(observed.sum()), occupied, observed & (grid.logodds <= free_logodds) & ~occupied
     from slam2d.core.arrays import row_bands
-    from slam2d.grids.occupancy import GridParams, logit
+    from slam2d.grids.occupancy import occupancy_logodds
 
-    params = GridParams()  # what MapImage.to_grid() would use
-    table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max)).astype(np.float32)
+    table = occupancy_logodds()  # what MapImage.to_grid() stores
     occupied_table = np.append(table > occupied_logodds, False)  # index 101: unknown (-1, or over 100)
     free_table = np.append((table <= free_logodds) & ~(table > occupied_logodds), False)
     values = grid.occupancy

@@ -44,7 +44,7 @@ from slam2d.params import param, validate
 if TYPE_CHECKING:
     from slam2d.grids.likelihood_field import LikelihoodField
 
-__all__ = ["GridParams", "OccupancyGrid", "logit"]
+__all__ = ["GridParams", "OccupancyGrid", "logit", "occupancy_logodds"]
 
 _STAMP_DTYPE = np.uint16
 _STAMP_LIMIT = int(np.iinfo(_STAMP_DTYPE).max)
@@ -59,6 +59,13 @@ def logit(p: ArrayLike) -> NDArray[np.float64]:
     """Log-odds ``log(p / (1 - p))`` of probabilities."""
     p = np.asarray(p, dtype=np.float64)
     return np.log(p / (1.0 - p))
+
+
+def occupancy_logodds(params: GridParams | None = None) -> NDArray[np.float32]:
+    """The log-odds a grid stores for each ``nav_msgs/OccupancyGrid`` value 0..100 (index = value), clamped to
+    ``[p_min, p_max]``."""
+    params = params if params is not None else GridParams()
+    return logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max)).astype(np.float32)
 
 
 @dataclass
@@ -190,8 +197,7 @@ class OccupancyGrid:
         grid = cls(params, origin=origin, shape=occ.shape)
         if np.issubdtype(occ.dtype, np.integer):
             # one log-odds per value 0..100, looked up a band of rows at a time (no float64 copy of a big map)
-            table = logit(np.clip(np.arange(101, dtype=np.float64) / 100.0, params.p_min, params.p_max))
-            table = table.astype(np.float32)
+            table = occupancy_logodds(params)
             for rows in row_bands(occ.shape):
                 band = occ[rows]
                 known = (band >= 0) & (band <= 100)

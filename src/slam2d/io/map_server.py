@@ -100,16 +100,20 @@ class MapImage:
     def shape(self) -> tuple[int, int]:
         return self.occupancy.shape  # type: ignore[return-value]
 
-    def to_grid(self, params: Any = None) -> Any:
-        """This map as an :class:`~slam2d.grids.occupancy.OccupancyGrid` (origin yaw must be 0)."""
-        from slam2d.grids.occupancy import OccupancyGrid
-
+    def require_unrotated(self) -> None:
+        """Raise :class:`InputError` (naming the YAML's ``origin``) when the map's origin yaw is not 0."""
         if abs(self.origin[2]) > 1e-9:
             raise InputError(
                 f"yaw {self.origin[2]} rad: rotated maps are not supported by the grids",
                 path=self.yaml_path,
                 field="origin",
             )
+
+    def to_grid(self, params: Any = None) -> Any:
+        """This map as an :class:`~slam2d.grids.occupancy.OccupancyGrid` (origin yaw must be 0)."""
+        from slam2d.grids.occupancy import OccupancyGrid
+
+        self.require_unrotated()
         return OccupancyGrid.from_occupancy(
             self.occupancy, self.resolution, (self.origin[0], self.origin[1]), params
         )

@@ -344,13 +344,13 @@ class Localizer:
             self.far_misfits = self.far_misfits + 1 if fit < 0.5 * floor else 0
             # a scan that fits under half the floor is not a wall the map lacks or a passer-by: a few in a row
             # and the robot is elsewhere (carried off); waiting lost_after scans lets the match slide to a twin
-            if self.misfits >= self.p.lost_after or self.far_misfits >= _FAR_MISFITS:
-                why = (f"{self.misfits} scans in a row fit the map under {floor:.0%}" if self.misfits >= self.p.lost_after
-                       else f"{self.far_misfits} scans in a row fit the map under half of {floor:.0%}")
-                self._set_state("lost", t, why)
+            carried_off = self.far_misfits >= _FAR_MISFITS
+            if carried_off or self.misfits >= self.p.lost_after:
+                self._set_state("lost", t, f"{self.far_misfits} scans in a row fit the map under half of {floor:.0%}"
+                                if carried_off else f"{self.misfits} scans in a row fit the map under {floor:.0%}")
                 self.recent_fits.clear()
-                if self.far_misfits >= _FAR_MISFITS:
-                    self._spread_globally()  # carried off: anywhere
+                if carried_off:
+                    self._spread_globally()  # anywhere
                 else:  # drifted off the map's walls: near where it was lost first
                     self._spread_around(self.pose, _DRIFTED_STD, self.p.max_particles)
                     self.drifted = (self.pose.copy(), 0.0)

@@ -397,7 +397,7 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
     grids.clear()
     for entry in entries:
         if entry.run is not None:
-            entry.run.map = None
+            entry.run.map = entry.run.map_image = None
     if not canvas.images:
         return [], "Every map is empty."
     images = [

@@ -177,13 +177,13 @@ def common_canvas(
             # A pixel up to twice as wide as a pooled cell: the darkest of 2 x 2 samples.
             samples = max(1, math.ceil(mpp / resolution - 1e-9))
             inverse = se2.inverse(pose)
-            # a band of pixel rows at a time: a whole canvas's sample points are 16 bytes a pixel, several times
-            for band in row_bands((rows, cols), 1 << 16):
-                for a in range(samples):
-                    for b in range(samples):
-                        fx = (np.arange(cols) + (a + 0.5) / samples) * mpp + xmin
-                        fy = ymax - (np.arange(rows)[band] + (b + 0.5) / samples) * mpp
-                        points = np.stack(np.broadcast_arrays(fx[None, :], fy[:, None]), axis=-1)
+            for a in range(samples):
+                for b in range(samples):
+                    fx = (np.arange(cols) + (a + 0.5) / samples) * mpp + xmin
+                    fy = ymax - (np.arange(rows) + (b + 0.5) / samples) * mpp
+                    # a band of pixel rows at a time: a whole canvas's sample points are 16 bytes a pixel, twice
+                    for band in row_bands((rows, cols), 1 << 16):
+                        points = np.stack(np.broadcast_arrays(fx[None, :], fy[band, None]), axis=-1)
                         sample = _lookup(grey, origin, resolution, se2.transform_points(inverse, points))
                         image[band] = sample if (a, b) == (0, 0) else np.minimum(image[band], sample)
         images.append(image)
