@@ -43,3 +43,13 @@ def room_scan(pose, n=361, fov=np.radians(240), max_range=20.0, t=0.0):
 
 def frame(scan, odometry=None, index=0):
     return Frame(index=index, scan=scan, odometry=None if odometry is None else np.asarray(odometry, dtype=np.float64))
+
+
+def boxes_grid(shape, origin, resolution, boxes):
+    """A boolean occupancy grid ``shape`` (rows, cols) with lower-left corner ``origin`` and cells of
+    ``resolution`` m, occupied inside each box ``(x0, y0, x1, y1)`` (metres, rounded to cells)."""
+    occ = np.zeros(shape, dtype=bool)
+    for x0, y0, x1, y1 in boxes:
+        occ[round((y0 - origin[1]) / resolution): round((y1 - origin[1]) / resolution),
+            round((x0 - origin[0]) / resolution): round((x1 - origin[0]) / resolution)] = True
+    return occ

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _room import boxes_grid
 from slam2d.core.frames import Frame
 from slam2d.core.scan import make_scan
 from slam2d.eval import scan_consistency
@@ -17,21 +18,9 @@ ANGLES = np.radians(np.arange(-120.0, 120.0, 0.5))
 
 def _two_rooms() -> np.ndarray:
     """Two 4 m x 3 m rooms joined by a 1 m door, with a pillar in each, at 1 cm."""
-    occ = np.zeros((450, 950), dtype=bool)
-
-    def box(x0, y0, x1, y1):
-        occ[round((y0 - ORIGIN[1]) / RES) : round((y1 - ORIGIN[1]) / RES),
-            round((x0 - ORIGIN[0]) / RES) : round((x1 - ORIGIN[0]) / RES)] = True
-
-    box(0.0, 0.0, 8.2, 0.05)
-    box(0.0, 3.0, 8.2, 3.05)
-    box(0.0, 0.0, 0.05, 3.05)
-    box(8.15, 0.0, 8.2, 3.05)
-    box(4.05, 0.0, 4.1, 1.0)
-    box(4.05, 2.0, 4.1, 3.05)
-    box(1.5, 2.4, 1.7, 2.6)
-    box(6.0, 0.5, 6.3, 0.7)
-    return occ
+    return boxes_grid((450, 950), ORIGIN, RES, [(0.0, 0.0, 8.2, 0.05), (0.0, 3.0, 8.2, 3.05), (0.0, 0.0, 0.05, 3.05),
+                                                (8.15, 0.0, 8.2, 3.05), (4.05, 0.0, 4.1, 1.0), (4.05, 2.0, 4.1, 3.05),
+                                                (1.5, 2.4, 1.7, 2.6), (6.0, 0.5, 6.3, 0.7)])
 
 
 @pytest.fixture(scope="module")

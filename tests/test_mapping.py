@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from _room import boxes_grid
 from slam2d.core.frames import Frame
 from slam2d.core.scan import make_scan
 from slam2d.errors import InputError
@@ -73,19 +74,9 @@ ANGLES = np.linspace(-3 * math.pi / 4, 3 * math.pi / 4, 271)
 
 def room_truth() -> np.ndarray:
     """8 m x 6 m room with 2 cm walls (off the 5 cm lattice on purpose) and a pillar, at 1 cm."""
-    occ = np.zeros((640, 840), dtype=bool)
-
-    def box(x0, y0, x1, y1):
-        r0, r1 = (round((v - TRUTH_ORIGIN[1]) / TRUTH_RES) for v in (y0, y1))
-        c0, c1 = (round((v - TRUTH_ORIGIN[0]) / TRUTH_RES) for v in (x0, x1))
-        occ[r0:r1, c0:c1] = True
-
-    box(0.01, 0.02, 8.01, 0.04)
-    box(0.01, 5.98, 8.01, 6.00)
-    box(0.01, 0.02, 0.03, 6.00)
-    box(7.99, 0.02, 8.01, 6.00)
-    box(3.53, 2.47, 4.51, 3.21)
-    return occ
+    return boxes_grid((640, 840), TRUTH_ORIGIN, TRUTH_RES, [(0.01, 0.02, 8.01, 0.04), (0.01, 5.98, 8.01, 6.00),
+                                                          (0.01, 0.02, 0.03, 6.00), (7.99, 0.02, 8.01, 6.00),
+                                                          (3.53, 2.47, 4.51, 3.21)])
 
 
 @pytest.fixture(scope="module")

@@ -230,7 +230,7 @@ def test_without_truth_maps_in_own_frames(comparison: Comparison, tmp_path: Path
 def test_markdown_images_exist_and_are_png(report: Path) -> None:
     md = (report / "report.md").read_text()
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
-    assert len(links) == 8  # 3 maps, trajectories, error along the run, time per scan, 2 diagnostics
+    assert len(links) == 9  # 3 maps, self-disagreement along the run, trajectories, error along the run, time per scan, 2 diagnostics
     for link in links:
         assert not link.startswith(("/", "http")), link
         path = report / link
@@ -244,7 +244,7 @@ def test_html_is_self_contained(report: Path) -> None:
     assert not re.search(r"""(src|href)\s*=\s*["']?(https?:|//)""", html, re.I)
     assert "<link" not in html and "@import" not in html and "url(" not in html
     sources = re.findall(r'<img [^>]*src="([^"]+)"', html)
-    assert len(sources) == 8
+    assert len(sources) == 9
     for src in sources:
         assert src.startswith("data:image/png;base64,")
         assert base64.b64decode(src.split(",", 1)[1])[:8] == PNG_SIGNATURE
@@ -253,7 +253,7 @@ def test_html_is_self_contained(report: Path) -> None:
 
 def test_browser_loads_every_image(report: Path) -> None:
     loaded, total = browser.images_loaded(report / "report.html")
-    assert total == 8
+    assert total == 9
     assert loaded == total
 
 
@@ -274,7 +274,7 @@ def test_browser_flags_a_broken_image(report: Path, tmp_path: Path) -> None:
     assert broken != html
     (tmp_path / "broken.html").write_text(broken)
     loaded, total = browser.images_loaded(tmp_path / "broken.html")
-    assert (loaded, total) == (7, 8)
+    assert (loaded, total) == (8, 9)
 
 
 # --------------------------------------------------------------------------- the common canvas

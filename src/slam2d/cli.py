@@ -650,52 +650,102 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
         description="Evaluate RUN (a folder 'slam2d run' wrote, or a TUM trajectory): ATE after the best SE(2) "
         "alignment and RPE per frame and per metre against --truth or --reference; the Kümmerle et al. 2009 "
         "relation metric with --relations; map error against a ground-truth map in both directions, with "
-        "precision and recall; map quality without ground truth (Filatov et al. 2017); time per scan, "
-        "real-time factor and peak memory. Writes RUN/evaluation.json (or --out) and prints a summary.",
+        "precision and recall; without any reference, how far the run's map disagrees with itself (read from "
+        "the recording run.json names) and map quality (Filatov et al. 2017); time per scan, real-time factor "
+        "and peak memory. Writes RUN/evaluation.json (or --out) and prints a summary. Several runs of one "
+        "recording are also ranked, as 'slam2d compare' does (--out then takes the comparison's JSON).",
     )
-    p.add_argument("run", type=Path, help="a run folder, or a TUM trajectory file")
+    p.add_argument("run", type=Path, nargs="+", help="a run folder, or a TUM trajectory file; several to rank them")
     _add_truth_options(p)
-    p.add_argument("--out", type=Path, help="where to write the JSON (default: RUN/evaluation.json for a folder)")
-    p.add_argument("--json", action="store_true", help="print the evaluation as JSON")
+    p.add_argument("--out", type=Path, help="where to write the JSON (default: RUN/evaluation.json for a folder; "
+                   "with several runs, the comparison, which is not written without it)")
+    p.add_argument("--json", action="store_true", help="print the evaluation (or the comparison) as JSON")
     p.set_defaults(handler=cmd_evaluate)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from slam2d.eval.evaluate import METRIC_COLUMNS, evaluate_run, load_run
+    from slam2d.eval.evaluate import METRIC_COLUMNS, evaluate_run, load_run, recording_frames
     from slam2d.io.atomic import json_text, write_json_atomic
 
     if args.out is not None and args.out.is_dir():
         raise InputError("is a folder; --out takes the name of the JSON file to write", path=args.out, field="--out")
+    if len(set(args.run)) != len(args.run):
+        raise InputError("a run is listed twice", field="run")
     truth, relations = _load_truth_options(args)
-    run = load_run(args.run)
-    if run.map_image is None and (truth is None or not truth.has_trajectory) and relations is None:
-        raise InputError(
-            "nothing to evaluate: a bare trajectory needs --truth, --reference or --relations", path=args.run
-        )
-    evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance)
-    target = args.out if args.out is not None else (args.run / "evaluation.json" if args.run.is_dir() else None)
-    if target is not None:
-        write_json_atomic(target, evaluation)
+    runs = [load_run(path) for path in args.run]  # every folder checked before any is judged
+    digests = {run.run["data"]["sha256"] for run in runs
+               if isinstance(run.run.get("data"), dict) and run.run["data"].get("sha256")}
+    if len(digests) > 1:
+        raise InputError("these runs read different recordings (run.json's data.sha256 differ): only runs of one "
+                         "recording can be ranked", field="run")
+    sources, notes = [], {}
+    for path, run in zip(args.run, runs):
+        frames, why_not = recording_frames(run) if run.run else (None, "a bare trajectory names no recording")
+        sources.append(frames)
+        if frames is None:
+            notes[path] = f"{path}: no reference-free measures: {why_not}"
+    for path, run, frames in zip(args.run, runs, sources):
+        if run.map_image is None and frames is None and (truth is None or not truth.has_trajectory) \
+                and relations is None:
+            raise InputError("nothing to evaluate: a bare trajectory needs --truth, --reference or --relations, "
+                             "and a run folder its recording", path=path)
+    evaluations = {}
+    for path, run, frames in zip(args.run, runs, sources):
+        evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance, frames=frames)
+        evaluations[path] = evaluation
+        target = path / "evaluation.json" if path.is_dir() and (args.out is None or len(runs) > 1) else None
+        if len(runs) == 1 and args.out is not None:
+            target = args.out
+        if target is not None:
+            write_json_atomic(target, evaluation)
+    document = None
+    if len(runs) > 1:
+        from slam2d.eval.compare import comparison_document
+        from slam2d.eval.self_consistency import verdict
+
+        names = _run_names(args.run, runs)
+        by_name = {names[path]: e for path, e in evaluations.items()}
+        document = comparison_document({"paths": [str(p) for p in args.run]}, by_name, verdict(by_name))
+        if args.out is not None:
+            write_json_atomic(args.out, document)
     if args.json:
-        print(json_text(evaluation))
+        print(json_text(document if document is not None else evaluations[args.run[0]]))
         return 0
     from rich.table import Table
 
     out = _console()
-    t = Table(title=f"{args.run}", show_header=False, title_justify="left")
-    t.add_column("metric", style="bold")
-    t.add_column("value")
-    t.add_column("meaning")
-    for col in METRIC_COLUMNS:
-        value = col.value(evaluation)
-        if value is not None:
-            t.add_row(col.label, f"{value:.{col.digits}f} {col.unit}".rstrip(), col.help)
-    out.print(t)
+    for path in args.run:
+        t = Table(title=f"{path}", show_header=False, title_justify="left")
+        t.add_column("metric", style="bold")
+        t.add_column("value")
+        t.add_column("meaning")
+        for col in METRIC_COLUMNS:
+            value = col.value(evaluations[path])
+            if value is not None:
+                t.add_row(col.label, f"{value:.{col.digits}f} {col.unit}".rstrip(), col.help)
+        out.print(t)
+        if path in notes:
+            out.print(notes[path], markup=False)
     if truth is not None and truth.kind == "reference":
         out.print("trajectory errors are against a reference trajectory, not independent ground truth", markup=False)
-    if target is not None:
-        _print_written(out, target)
+    if document is not None:
+        out.print(f"verdict: {document['verdict']}", markup=False)
+        out.print("ranking, most self-consistent first: " + ", ".join(document["ranking"]), markup=False)
+        if args.out is not None:
+            _print_written(out, args.out)
+    else:
+        path = args.run[0]
+        target = args.out if args.out is not None else (path / "evaluation.json" if path.is_dir() else None)
+        if target is not None:
+            _print_written(out, target)
     return 0
+
+
+def _run_names(paths: list[Path], runs: list[Any]) -> dict[Path, str]:
+    """A name per run for the ranking: its method, or its folder's name where methods repeat."""
+    methods = [str(run.run.get("method") or path.name) for path, run in zip(paths, runs)]
+    unique = len(set(methods)) == len(methods)
+    return {path: (m if unique else str(path)) for path, m in zip(paths, methods)}
 
 
 # --------------------------------------------------------------------------- compare
@@ -706,8 +756,10 @@ def _add_compare(sub: argparse._SubParsersAction) -> None:
         "compare",
         help=_HELP["compare"],
         description="Run every method of --methods on DATA in parallel processes, evaluate each run the same "
-        "way (see 'slam2d evaluate') and write OUT/report.html (self-contained), OUT/report.md and "
-        "OUT/runs/METHOD/ (each run's files). A method that fails is reported as failed; the others go on.",
+        "way (see 'slam2d evaluate') and write OUT/report.html (self-contained), OUT/report.md, "
+        "OUT/comparison.json (the verdict: which map to trust, ranked from the runs alone, without a reference; "
+        "with --reference or --truth also the ranking by ATE) and OUT/runs/METHOD/ (each run's files). A method "
+        "that fails is reported as failed; the others go on.",
     )
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
     p.add_argument("--methods", required=True, help="comma-separated method names (see 'slam2d methods')")

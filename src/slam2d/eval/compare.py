@@ -20,7 +20,7 @@ from typing import Any
 
 from slam2d.errors import InputError
 
-__all__ = ["MethodOutcome", "Comparison", "compare", "run_all"]
+__all__ = ["MethodOutcome", "Comparison", "compare", "comparison_document", "run_all"]
 
 
 @dataclass
@@ -68,6 +68,7 @@ class Comparison:
     wall_s: float = 0.0  # the whole comparison, runs and evaluation
     command: str = ""
     recording: dict[str, Any] = field(default_factory=dict)  # scans, duration_s, format, sha256 of the data
+    verdict: dict[str, Any] | None = None  # slam2d.eval.self_consistency.verdict of the finished runs
 
     @property
     def methods(self) -> list[str]:
@@ -229,6 +230,7 @@ def compare(
     """
 
     from slam2d.eval.evaluate import evaluate_run, load_run
+    from slam2d.eval.self_consistency import verdict
     from slam2d.io.atomic import write_json_atomic
     from slam2d.io.base import ReadOptions
     from slam2d.methods import get_method
@@ -272,20 +274,48 @@ def compare(
     n_jobs = max(1, min(len(methods), jobs if jobs else (os.cpu_count() or 1)))
     outcomes = run_all(methods, data, runs_dir, settings=per_method, seed=seed, options=as_dict(options),
                        jobs=n_jobs, command=command, on_done=on_done, sensor_model=sensor_model)
+    frames = None
+    if any(o.ok for o in outcomes):  # read once for every run's reference-free measures
+        from slam2d.io import open_recording
+
+        frames = list(open_recording(data, options).frames())
     for outcome in outcomes:
         if not outcome.ok:
             continue
         try:
             outcome.evaluation = evaluate_run(load_run(outcome.run_dir), truth, relations=relations,
-                                              tolerance=tolerance)
+                                              tolerance=tolerance, frames=lambda: frames)
         except InputError as exc:
             outcome.status, outcome.error = "failed", f"evaluation: {exc}"
             continue
         write_json_atomic(outcome.run_dir / "evaluation.json", outcome.evaluation)
+    del frames
+    evaluations = {o.method: o.evaluation for o in outcomes if o.ok and o.evaluation is not None}
+    judged = verdict(evaluations)
+    judged["failed"] = [o.method for o in outcomes if not o.ok]
+    write_json_atomic(out_dir / "comparison.json", comparison_document(recording, evaluations, judged))
     return Comparison(
         data=data, outcomes=outcomes, truth=truth, relations=getattr(relations, "path", None),
-        wall_s=time.perf_counter() - started, command=command, recording=recording,
+        wall_s=time.perf_counter() - started, command=command, recording=recording, verdict=judged,
     )
+
+
+def comparison_document(recording: dict[str, Any], evaluations: dict[str, dict[str, Any]],
+                        judged: dict[str, Any]) -> dict[str, Any]:
+    """``comparison.json``: the verdict first, then every run's measures (the per-scan curves and the
+    disagreement points stay in each run's ``evaluation.json``)."""
+    measures = {}
+    for name, e in evaluations.items():
+        sc = e.get("self_consistency") or {}
+        row = {k: sc.get(k) for k in ("inconsistency", "beams", "beams_judged", "scans", "scans_judged")}
+        ate = (e.get("trajectory") or {}).get("ate", {}).get("translation_m", {}).get("rmse")
+        if ate is not None:
+            row["ate_rmse_m"] = ate
+        measures[name] = row
+    return {"format": 1, "verdict": judged["sentence"], "ranking": judged["reference_free"]["ranking"],
+            "confidence": judged["reference_free"]["confidence"], "reference_free": judged["reference_free"],
+            "reference": judged["reference"], "failed": judged.get("failed", []), "recording": recording,
+            "measures": measures}
 
 
 def _recording_summary(data: Path, options: Any) -> dict[str, Any]:

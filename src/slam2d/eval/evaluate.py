@@ -17,11 +17,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -79,6 +80,16 @@ METRIC_COLUMNS: tuple[MetricColumn, ...] = (
                  help="Kümmerle et al. 2009 relation metric, mean absolute translational error"),
     MetricColumn(("relations", "rotation_abs_deg", "mean"), "Rel. rot.", "deg", "lower", 2,
                  help="Kümmerle et al. 2009 relation metric, mean absolute rotational error"),
+    MetricColumn(("self_consistency", "inconsistency"), "Self-disagreement", "%", "lower", 2, 100.0,
+                 help="share of beams, each judged against the map of the run's other visits (scans within 5 m "
+                 "of travel left out), that contradict it: a wall drawn twice, a bent corridor; no reference "
+                 "needed (docs/evaluation.md)"),
+    MetricColumn(("self_consistency", "travel_scale"), "Travel/odometry", "", None, 3,
+                 help="metres the trajectory moved per metre of odometry (over 2 m stretches): compare between "
+                 "runs; one that shrank along corridors moves less"),
+    MetricColumn(("self_consistency", "area_m2"), "Map area", "m2", None, 0,
+                 help="area the scans cover when mapped at the run's poses (0.1 m cells): compare between runs; "
+                 "places drawn twice add area"),
     MetricColumn(("map_truth", "truth_to_map_m", "mean"), "Map error", "m", "lower", 3,
                  help="mean distance from each true obstacle cell to the nearest map obstacle (Santos et al. 2013)"),
     MetricColumn(("map_truth", "map_to_truth_m", "mean"), "Ghost walls", "m", "lower", 3,
@@ -250,6 +261,29 @@ def load_run(path: str | Path) -> RunFiles:
     return RunFiles(path, times, poses, image, docs["diagnostics"], docs["run"])
 
 
+def recording_frames(run: RunFiles) -> tuple[Callable[[], Iterable[Any]] | None, str | None]:
+    """``(frames, None)``: a function reading the recording the run read (``run.json``'s ``data``, with its
+    read options), checked by its SHA-256; or ``(None, why not)`` when it cannot be found. Raises
+    InputError when the file there is not the one the run read."""
+    from slam2d.io import open_recording
+    from slam2d.io.base import ReadOptions
+    from slam2d.methods.runner import input_digest
+
+    data = run.run.get("data") if isinstance(run.run.get("data"), dict) else {}
+    if not data.get("path"):
+        return None, "run.json names no recording"
+    path = Path(data["path"])
+    if not path.exists():
+        return None, f"the recording {path} (named in run.json) is missing"
+    if data.get("sha256") and input_digest(path)["sha256"] != data["sha256"]:
+        raise InputError(f"{path} is not the recording this run read: its SHA-256 differs from run.json's",
+                         path=run.folder / "run.json", field="data.sha256")
+    known = {f.name for f in dataclasses.fields(ReadOptions)}
+    stored = run.run.get("read_options") if isinstance(run.run.get("read_options"), dict) else {}
+    options = ReadOptions(**{k: v for k, v in stored.items() if k in known})
+    return (lambda: open_recording(path, options).frames()), None
+
+
 def _stats(values: NDArray[np.float64]) -> dict[str, float]:
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
@@ -301,6 +335,7 @@ def evaluate_run(
     tolerance: float = 0.1,
     max_gap: float = 0.5,
     rpe_distance: float = 1.0,
+    frames: Callable[[], Iterable[Any]] | None = None,
 ) -> dict[str, Any]:
     """Every metric that the inputs allow, as a JSON-friendly dict.
 
@@ -318,6 +353,8 @@ def evaluate_run(
     * ``map_truth``: :func:`~slam2d.eval.map_metrics.map_to_truth`'s result.
     * ``map_quality``: :func:`~slam2d.eval.map_metrics.map_quality`'s result.
     * ``cost``: :func:`cost_metrics`'s result (run folders only).
+    * ``self_consistency``: :func:`~slam2d.eval.self_consistency.judge_trajectory`'s result, the
+      reference-free measures, when ``frames`` (a function giving the run's recording's frames) is given.
     """
     from slam2d.eval import map_metrics, trajectory_metrics
 
@@ -366,6 +403,10 @@ def evaluate_run(
                 raise exc.in_file(truth.map_path) from None
             result["map_truth"]["walls"] = "seen" if truth.visible_walls() is not None else "all"
         result["map_quality"] = map_metrics.map_quality(run.map_image)
+    if frames is not None and run.times.shape[0]:
+        from slam2d.eval.self_consistency import judge_trajectory
+
+        result["self_consistency"] = judge_trajectory(frames(), run.times, run.poses)
     if run.diagnostics:
         try:
             result["cost"] = cost_metrics(run.diagnostics, run.run)

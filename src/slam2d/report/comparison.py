@@ -106,6 +106,9 @@ class _MethodSection:
 class _Report:
     title: str
     facts: list[tuple[str, str]]
+    verdict: str | None  # the reference-free verdict in one sentence
+    evidence: list[list[str]]  # its table: one row per judged run, best first
+    disagreement: _Image | None  # the per-scan curves
     judged: str  # one paragraph: what the runs were judged against
     judged_warning: bool  # a reference (not ground truth) or nothing: shown as a warning
     columns: list[MetricColumn]
@@ -133,7 +136,8 @@ def write_report(comparison: Comparison, out_dir: Path) -> list[Path]:
     """
     out_dir = Path(out_dir)
     report = _build(comparison)
-    images = [*report.maps, report.trajectories, report.error, report.timing, *(s.figure for s in report.sections)]
+    images = [*report.maps, report.disagreement, report.trajectories, report.error, report.timing,
+              *(s.figure for s in report.sections)]
     images = [im for im in images if im is not None]
     written: list[Path] = []
     for image in images:
@@ -196,6 +200,16 @@ def _drawn_poses(entry: _Entry) -> NDArray[np.float64]:
     """The run's poses as the report draws them: moved by its alignment into the truth's frame when it has one."""
     alignment = _alignment(entry)
     return entry.run.poses if alignment is None else se2.compose(alignment, entry.run.poses)
+
+
+def _drawn_marks(entry: _Entry) -> NDArray[np.float64] | None:
+    """The beam ends where the run's map disagrees with itself, moved as its poses are drawn."""
+    sc = (entry.outcome.evaluation or {}).get("self_consistency") or {}
+    points = np.asarray(sc.get("disagreements") or [], dtype=np.float64).reshape(-1, 2)
+    if not len(points):
+        return None
+    alignment = _alignment(entry)
+    return points if alignment is None else se2.transform_points(alignment, points)
 
 
 def _fmt_number(value: Any) -> str:
@@ -262,9 +276,13 @@ def _build(comparison: Comparison) -> _Report:
     maps, maps_note = _map_images(entries, truth)
     trajectories, trajectories_note = _trajectory_image(entries, truth)
     t0 = _time_origin(entries)
+    judged = comparison.verdict or {}
     return _Report(
         title=f"slam2d comparison: {Path(str(comparison.data)).name}",
         facts=facts,
+        verdict=judged.get("sentence"),
+        evidence=_evidence_rows(judged, entries),
+        disagreement=_disagreement_image(entries),
         judged=_judged_long(truth, comparison.relations),
         judged_warning=truth is None or truth.kind != "truth",
         columns=columns,
@@ -279,6 +297,59 @@ def _build(comparison: Comparison) -> _Report:
         sections=[_method_section(e, t0, truth) for e in entries if e.outcome.ok],
         failures=[e for e in entries if not e.outcome.ok],
     )
+
+
+EVIDENCE_HEAD = ["rank", "method", "disagreement", "beams contradicting", "travel / odometry", "map area",
+                 "scans judged", "ATE (not used)"]
+VERDICT_NOTE = (
+    "Reference-free: every run's scans are mapped again at its poses by one mapper (0.1 m cells, beams cut at "
+    "10 m), and each scan is judged against the map of the scans taken more than 5 m of travel away. "
+    "Disagreement = the share of judged beams that contradict that map (an end where the other visits saw "
+    "free space, or a beam through their wall), plus a run's difference from the other runs' median travel "
+    "per metre of odometry (over 2 %: its map shrank or stretched) and map area (over 5 %: places drawn "
+    "twice). Magenta dots on the maps below mark the contradicting beam ends. See docs/evaluation.md.")
+
+
+def _evidence_rows(judged: dict[str, Any], entries: list[_Entry]) -> list[list[str]]:
+    ranked = judged.get("reference_free") or {}
+    evaluations = {e.outcome.method: e.outcome.evaluation or {} for e in entries if e.outcome.ok}
+    rows = []
+    for k, name in enumerate(ranked.get("ranking", []), start=1):
+        sc = evaluations.get(name, {}).get("self_consistency") or {}
+        scale, area = ranked.get("scale_off", {}).get(name), ranked.get("area_off", {}).get(name)
+        ate = ((evaluations.get(name, {}).get("trajectory") or {}).get("ate") or {}).get("translation_m", {})
+        rows.append([
+            str(k), name, f"{100 * ranked['score'][name]:.2f} %", f"{100 * sc.get('inconsistency', math.nan):.2f} %",
+            (f"{sc['travel_scale']:.3f}" if sc.get("travel_scale") else "n/a")
+            + (f" ({100 * scale:+.1f} % off the median)" if scale is not None else ""),
+            (f"{sc['area_m2']:.0f} m2" if sc.get("area_m2") else "n/a")
+            + (f" ({100 * area:+.1f} % off the median)" if area is not None else ""),
+            f"{sc.get('scans_judged', 0)} of {sc.get('scans', 0)}",
+            f"{ate['rmse']:.3f} m" if isinstance(ate.get("rmse"), (int, float)) else "-",
+        ])
+    for name in ranked.get("not_judged", []):
+        rows.append(["-", name, "not judged", "", "", "", "0", ""])
+    return rows
+
+
+def _disagreement_image(entries: list[_Entry]) -> _Image | None:
+    series = []
+    for entry in entries:
+        sc = (entry.outcome.evaluation or {}).get("self_consistency") if entry.outcome.ok else None
+        if not sc or not sc.get("per_scan", {}).get("frame"):
+            continue
+        per = sc["per_scan"]
+        judged = np.convolve(np.asarray(per["judged"], dtype=np.float64), np.ones(21), mode="same")
+        bad = np.convolve(np.asarray(per["disagreeing"], dtype=np.float64), np.ones(21), mode="same")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            percent = np.where(judged > 0, 100.0 * bad / judged, np.nan)
+        series.append((entry.label, np.asarray(per["frame"]), percent, entry.colour))
+    if not series:
+        return None
+    return _Image("disagreement-along-run.png", "self-disagreement along the run",
+                  plots.disagreement_along_run_png(series),
+                  "Where in the run each map disagrees with itself: the share of beams contradicting the map of the "
+                  "run's other visits, over 21-scan windows. A rise that stays is where a method went wrong.")
 
 
 def _judged_short(truth: Any) -> str:
@@ -364,6 +435,7 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
     transforms: list[Any] = []
     titles: list[tuple[str, str, str, str]] = []  # name, title, colour, caption
     tracks: list[NDArray[np.float64] | None] = []  # each map's trajectory, drawn on it
+    marks: list[NDArray[np.float64] | None] = []  # where each map disagrees with itself
     word = _word(truth)
     if truth is not None and truth.map is not None:
         grids.append(truth.map)
@@ -371,6 +443,7 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
         titles.append(("map-truth.png", f"{word} map", plots.TRUTH_COLOUR, f"{word} map"
                        + (f" and the {word} trajectory" if truth.has_trajectory else "")))
         tracks.append(np.asarray(truth.poses) if truth.has_trajectory else None)
+        marks.append(None)
     aligned_any = unaligned_any = False
     have_truth = truth is not None
     for entry in entries:
@@ -381,6 +454,7 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
         transforms.append(alignment)
         poses = _drawn_poses(entry)
         tracks.append(poses if len(poses) else None)
+        marks.append(_drawn_marks(entry))
         if alignment is not None:
             aligned_any = True
             caption = f"{entry.label} with its trajectory, aligned to the {word}"
@@ -401,7 +475,8 @@ def _map_images(entries: list[_Entry], truth: Any) -> tuple[list[_Image], str]:
     if not canvas.images:
         return [], "Every map is empty."
     images = [
-        _Image(name, f"map: {title}", plots.map_panel_png(canvas, k, title, colour=colour, track=tracks[k]), caption)
+        _Image(name, f"map: {title}", plots.map_panel_png(canvas, k, title, colour=colour, track=tracks[k],
+                                                         marks=marks[k]), caption)
         for k, (name, title, colour, caption) in enumerate(titles)
     ]
     if len(images) == 1 and titles[0][0] == "map-truth.png":
@@ -651,11 +726,25 @@ def _html(report: _Report) -> str:
         "<body>",
         '<div id="image-check" role="alert" hidden></div>',
         f"<h1>{_e(report.title)}</h1>",
-        _facts_html(report.facts),
     ]
+    if report.verdict:
+        out.append('<h2 id="verdict">Which map to trust</h2>')
+        out.append(f'<p class="verdict"><strong>{_e(report.verdict)}</strong></p>')
+        if report.evidence:
+            head = "".join(f"<th>{_e(h)}</th>" for h in EVIDENCE_HEAD)
+            out.append(f'<div class="scroll"><table class="metrics"><tr>{head}</tr>')
+            for row in report.evidence:
+                out.append("<tr>" + "".join(f'<td class="num">{_e(c)}</td>' if k != 1 else f"<td>{_e(c)}</td>"
+                                            for k, c in enumerate(row)) + "</tr>")
+            out.append("</table></div>")
+        out.append(f'<p class="note">{_e(VERDICT_NOTE)}</p>')
+        if report.disagreement is not None:
+            out.append(f"<figure>{_img_html(report.disagreement)}"
+                       f"<figcaption>{_e(report.disagreement.caption)}</figcaption></figure>")
+
+    out.append(_facts_html(report.facts))
     cls = "warning" if report.judged_warning else "note"
     out.append(f'<p class="{cls}">{_e(report.judged)}</p>')
-
     out.append('<h2 id="metrics">Metrics</h2>')
     if report.columns or report.rows:
         head = "".join(
@@ -765,9 +854,17 @@ def _md_image(image: _Image) -> str:
 
 def _markdown(report: _Report) -> str:
     out = [f"# {report.title}", ""]
+    if report.verdict:
+        out += ["## Which map to trust", "", f"**{_m(report.verdict)}**", ""]
+        if report.evidence:
+            out += _md_table(EVIDENCE_HEAD, [[_m(c) for c in row] for row in report.evidence]) + [""]
+        out += [VERDICT_NOTE, ""]
+        if report.disagreement is not None:
+            out += [_md_image(report.disagreement), "", report.disagreement.caption, ""]
     for k, v in report.facts:
         out.append(f"- **{_m(k)}:** {_m(v)}")
-    out += ["", f"> {one_line(report.judged)}", "", "## Metrics", ""]
+    out += ["", f"> {one_line(report.judged)}", ""]
+    out += ["## Metrics", ""]
     if report.columns or report.rows:
         head = ["method"] + ([_column_header(c) for c in report.columns] or ["result"])
         rows = []

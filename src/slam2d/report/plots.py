@@ -56,6 +56,10 @@ _PALETTE = (
 _BASE_STYLE = {"font.size": 8, "axes.titlesize": 9, "legend.fontsize": 8, "axes.grid": False, "text.parse_math": False}
 
 
+#: the dots marking where a map disagrees with itself
+DISAGREEMENT_COLOUR = "#ff00ff"  # magenta: none of the methods' colours
+
+
 def method_colours(count: int) -> list[str]:
     """One colour per method, the same in every figure of a report (cycles after ten)."""
     return [_PALETTE[i % len(_PALETTE)] for i in range(count)]
@@ -291,10 +295,11 @@ def map_panel_size(canvas: MapCanvas) -> tuple[float, float, tuple[float, float,
 
 
 def map_panel_png(canvas: MapCanvas, index: int, title: str, *, colour: str = TRUTH_COLOUR,
-                  track: NDArray[np.float64] | None = None) -> bytes:
+                  track: NDArray[np.float64] | None = None, marks: NDArray[np.float64] | None = None) -> bytes:
     """One map of a canvas as a PNG: title, axes in metres, a scale bar; every panel of a canvas has one size.
 
-    ``track`` (poses ``(N, 3)`` in the canvas frame) is drawn over the map in ``colour``, its start as a dot.
+    ``track`` (poses ``(N, 3)`` in the canvas frame) is drawn over the map in ``colour``, its start as a dot;
+    ``marks`` (points ``(M, 2)``, the same frame) as small magenta dots: where the map disagrees with itself.
     """
     from matplotlib.font_manager import FontProperties
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
@@ -309,6 +314,8 @@ def map_panel_png(canvas: MapCanvas, index: int, title: str, *, colour: str = TR
         if track is not None and len(track):
             ax.plot(track[:, 0], track[:, 1], color=colour, lw=1.0, alpha=0.85)
             ax.plot(track[:1, 0], track[:1, 1], "o", color=colour, ms=4)
+        if marks is not None and len(marks):
+            ax.plot(marks[:, 0], marks[:, 1], ".", color=DISAGREEMENT_COLOUR, ms=1.5, alpha=0.8)
         ax.set_xlim(xmin, xmax)
         ax.set_ylim(ymin, ymax)
         # Panels are shown at about 80 % of their size, side by side: larger type than the other figures.
@@ -431,4 +438,21 @@ def diagnostics_png(
             ax.set_xlabel("time [s]", fontsize=7)
             ax.tick_params(labelsize=7)
             ax.grid(True, lw=0.3, alpha=0.5)
+        return _png(fig)
+
+
+def disagreement_along_run_png(series: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64], str]]) -> bytes:
+    """Each run's self-disagreement (%) against the scan number, ``(label, scan, percent, colour)`` per method."""
+    with _style():
+        fig = _new_figure(7.5, 3.4)
+        ax = fig.add_axes((0.09, 0.15, 0.88, 0.75))
+        for label, scan, percent, colour in series:
+            ax.plot(scan, percent, color=colour, lw=1.0, label=label)
+        ax.set_xlabel("scan")
+        ax.set_ylabel("beams contradicting [%]")
+        ax.set_title("Where each map disagrees with itself (21-scan windows)")
+        ax.set_ylim(bottom=0.0)
+        ax.grid(True, which="major", lw=0.3, alpha=0.5)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper left", framealpha=0.85)
         return _png(fig)
