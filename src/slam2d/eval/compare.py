@@ -274,22 +274,21 @@ def compare(
     n_jobs = max(1, min(len(methods), jobs if jobs else (os.cpu_count() or 1)))
     outcomes = run_all(methods, data, runs_dir, settings=per_method, seed=seed, options=as_dict(options),
                        jobs=n_jobs, command=command, on_done=on_done, sensor_model=sensor_model)
-    frames = None
-    if any(o.ok for o in outcomes):  # read once for every run's reference-free measures
-        from slam2d.io import open_recording
+    from slam2d.io import open_recording
 
-        frames = list(open_recording(data, options).frames())
+    def frames():  # read again for each run's reference-free measures: a long recording is not held in memory
+        return open_recording(data, options).frames()
+
     for outcome in outcomes:
         if not outcome.ok:
             continue
         try:
             outcome.evaluation = evaluate_run(load_run(outcome.run_dir), truth, relations=relations,
-                                              tolerance=tolerance, frames=lambda: frames)
+                                              tolerance=tolerance, frames=frames)
         except InputError as exc:
             outcome.status, outcome.error = "failed", f"evaluation: {exc}"
             continue
         write_json_atomic(outcome.run_dir / "evaluation.json", outcome.evaluation)
-    del frames
     evaluations = {o.method: o.evaluation for o in outcomes if o.ok and o.evaluation is not None}
     judged = verdict(evaluations)
     judged["failed"] = [o.method for o in outcomes if not o.ok]
