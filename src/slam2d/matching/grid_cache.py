@@ -23,6 +23,10 @@ __all__ = ["GridCache"]
 # long-range log is 4-10 MB, and 32 of them held 233 MB of karto's 698 MB peak on fr101 (128 MB: the
 # same matches on every log; 64-96 MB changed one on csail, 0.149 -> 0.168 m).
 _MAX_BYTES = 128 << 20
+# The bound-grid blocks kept per node, at most (then only the nodes of the current query keep theirs; the rest
+# are computed again when asked): the shared logs use 1.5-9 MB, a log driven four times over 40 MB, growing
+# with the scans though the area is the same.
+_MAX_BLOCK_BYTES = 16 << 20
 
 
 class GridCache:
@@ -397,7 +401,13 @@ class GridCache:
         """Compute the bound-grid blocks of those ``nodes`` that have none yet (once per node until invalidated)."""
         self._block_span = grown(self._block_span, int(nodes.max()) + 1, fill=-1)
         res, default = self.matcher.resolution, float(self.matcher.smear_deviation)
-        for n in nodes[self._block_span[nodes, 0] < 0].tolist():
+        missing = nodes[self._block_span[nodes, 0] < 0]
+        row_bytes = sum(col.itemsize for col in self._block_store)
+        if missing.size and self._block_used * row_bytes > _MAX_BLOCK_BYTES:
+            keep = np.zeros(self._block_span.shape[0], dtype=np.bool_)
+            keep[nodes] = True
+            self._keep_blocks(keep)  # a pure cache: the dropped nodes' blocks are the same when computed again
+        for n in missing.tolist():
             pts, sig = self.points_of(n)
             # _node_blocks of the point columns at the largest sigma (the default when none), in one compiled call.
             got = _node_blocks_of(np.asarray(pts, dtype=np.float64), np.asarray(sig, dtype=np.float64), default, res,
