@@ -38,6 +38,11 @@ def test_wall_thickness_is_the_shorter_run_through_each_occupied_cell():
         m = rng.random((int(rng.integers(0, 30)), int(rng.integers(0, 30)))) < rng.random()
         by_runs = np.minimum(run_lengths(m)[m], run_lengths(m.T).T[m])
         np.testing.assert_array_equal(_thickness_of_occupied(m), by_runs)
+    for _ in range(6):  # wider than a band of columns (256), with runs across the bands' edges: the same values
+        m = rng.random((int(rng.integers(1, 40)), int(rng.integers(257, 700)))) < rng.random()
+        m[int(rng.integers(0, m.shape[0])), 200:600] = True
+        by_runs = np.minimum(run_lengths(m)[m], run_lengths(m.T).T[m])
+        np.testing.assert_array_equal(np.sort(_thickness_of_occupied(m)), np.sort(by_runs))
 
 
 @pytest.mark.parametrize("thickness", [1, 2, 3, 5])
