@@ -678,9 +678,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if len(digests) > 1:
         raise InputError("these runs read different recordings (run.json's data.sha256 differ): only runs of one "
                          "recording can be ranked", field="run")
-    sources, notes = [], {}
+    sources, notes, hashed = [], {}, {}
     for path, run in zip(args.run, runs):
-        frames, why_not = recording_frames(run) if run.run else (None, "a bare trajectory names no recording")
+        frames, why_not = (recording_frames(run, hashed) if run.run
+                           else (None, "a bare trajectory names no recording"))
         sources.append(frames)
         if frames is None:
             notes[path] = f"{path}: no reference-free measures: {why_not}"
@@ -689,15 +690,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                 and relations is None:
             raise InputError("nothing to evaluate: a bare trajectory needs --truth, --reference or --relations, "
                              "and a run folder its recording", path=path)
+    # each run's evaluation.json in its folder; --out takes a single run's evaluation, or several runs' comparison
+    targets = {path: args.out if len(runs) == 1 and args.out is not None
+               else (path / "evaluation.json" if path.is_dir() else None) for path in args.run}
     evaluations = {}
     for path, run, frames in zip(args.run, runs, sources):
-        evaluation = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance, frames=frames)
-        evaluations[path] = evaluation
-        target = path / "evaluation.json" if path.is_dir() and (args.out is None or len(runs) > 1) else None
-        if len(runs) == 1 and args.out is not None:
-            target = args.out
-        if target is not None:
-            write_json_atomic(target, evaluation)
+        evaluations[path] = evaluate_run(run, truth, relations=relations, tolerance=args.tolerance, frames=frames)
+        if targets[path] is not None:
+            write_json_atomic(targets[path], evaluations[path])
     document = None
     if len(runs) > 1:
         from slam2d.eval.compare import comparison_document
@@ -733,11 +733,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         out.print("ranking, most self-consistent first: " + ", ".join(document["ranking"]), markup=False)
         if args.out is not None:
             _print_written(out, args.out)
-    else:
-        path = args.run[0]
-        target = args.out if args.out is not None else (path / "evaluation.json" if path.is_dir() else None)
-        if target is not None:
-            _print_written(out, target)
+    elif targets[args.run[0]] is not None:
+        _print_written(out, targets[args.run[0]])
     return 0
 
 

@@ -231,6 +231,7 @@ def compare(
 
     from slam2d.eval.evaluate import evaluate_run, load_run
     from slam2d.eval.self_consistency import verdict
+    from slam2d.io import open_recording
     from slam2d.io.atomic import write_json_atomic
     from slam2d.io.base import ReadOptions
     from slam2d.methods import get_method
@@ -274,8 +275,6 @@ def compare(
     n_jobs = max(1, min(len(methods), jobs if jobs else (os.cpu_count() or 1)))
     outcomes = run_all(methods, data, runs_dir, settings=per_method, seed=seed, options=as_dict(options),
                        jobs=n_jobs, command=command, on_done=on_done, sensor_model=sensor_model)
-    from slam2d.io import open_recording
-
     def frames():  # read again for each run's reference-free measures: a long recording is not held in memory
         return open_recording(data, options).frames()
 
@@ -303,11 +302,13 @@ def comparison_document(recording: dict[str, Any], evaluations: dict[str, dict[s
                         judged: dict[str, Any]) -> dict[str, Any]:
     """``comparison.json``: the verdict first, then every run's measures (the per-scan curves and the
     disagreement points stay in each run's ``evaluation.json``)."""
+    from slam2d.eval.evaluate import ATE
+
     measures = {}
     for name, e in evaluations.items():
         sc = e.get("self_consistency") or {}
         row = {k: sc.get(k) for k in ("inconsistency", "beams", "beams_judged", "scans", "scans_judged")}
-        ate = (e.get("trajectory") or {}).get("ate", {}).get("translation_m", {}).get("rmse")
+        ate = ATE.value(e)
         if ate is not None:
             row["ate_rmse_m"] = ate
         measures[name] = row

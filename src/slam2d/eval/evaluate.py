@@ -66,10 +66,13 @@ class MetricColumn:
         return min(present) if self.better == "lower" else max(present)
 
 
+#: The trajectory's ATE (translation RMSE, m) in an evaluation: ``ATE.value(evaluation)``, None without one.
+ATE = MetricColumn(("trajectory", "ate", "translation_m", "rmse"), "ATE", "m", "lower", 3,
+                   help="absolute trajectory error (RMSE) after the best SE(2) alignment")
+
 #: The metric table of ``slam2d compare``, its report and the benchmarks, in order.
 METRIC_COLUMNS: tuple[MetricColumn, ...] = (
-    MetricColumn(("trajectory", "ate", "translation_m", "rmse"), "ATE", "m", "lower", 3,
-                 help="absolute trajectory error (RMSE) after the best SE(2) alignment"),
+    ATE,
     MetricColumn(("trajectory", "ate", "rotation_deg", "rmse"), "ATE rot.", "deg", "lower", 2,
                  help="heading error (RMSE) after alignment"),
     MetricColumn(("trajectory", "rpe_per_metre", "translation_percent", "mean"), "RPE", "%", "lower", 2,
@@ -261,10 +264,12 @@ def load_run(path: str | Path) -> RunFiles:
     return RunFiles(path, times, poses, image, docs["diagnostics"], docs["run"])
 
 
-def recording_frames(run: RunFiles) -> tuple[Callable[[], Iterable[Any]] | None, str | None]:
+def recording_frames(run: RunFiles, digests: dict[Path, str] | None = None,
+                     ) -> tuple[Callable[[], Iterable[Any]] | None, str | None]:
     """``(frames, None)``: a function reading the recording the run read (``run.json``'s ``data``, with its
     read options), checked by its SHA-256; or ``(None, why not)`` when it cannot be found. Raises
-    InputError when the file there is not the one the run read."""
+    InputError when the file there is not the one the run read. ``digests`` keeps each file's SHA-256
+    between calls (runs of one recording hash it once)."""
     from slam2d.io import open_recording
     from slam2d.io.base import ReadOptions
     from slam2d.methods.runner import input_digest
@@ -275,7 +280,11 @@ def recording_frames(run: RunFiles) -> tuple[Callable[[], Iterable[Any]] | None,
     path = Path(data["path"])
     if not path.exists():
         return None, f"the recording {path} (named in run.json) is missing"
-    if data.get("sha256") and input_digest(path)["sha256"] != data["sha256"]:
+    if digests is None:
+        digests = {}
+    if data.get("sha256") and path not in digests:
+        digests[path] = input_digest(path)["sha256"]
+    if data.get("sha256") and digests[path] != data["sha256"]:
         raise InputError(f"{path} is not the recording this run read: its SHA-256 differs from run.json's",
                          path=run.folder / "run.json", field="data.sha256")
     known = {f.name for f in dataclasses.fields(ReadOptions)}

@@ -105,19 +105,7 @@ def _thickness_of_occupied(m):
     n = 0
     for c0 in range(0, cols, _THICKNESS_BAND):
         c1 = min(c0 + _THICKNESS_BAND, cols)
-        for c in range(c0, c1):  # the band's column runs
-            r = 0
-            while r < rows:
-                if not m[r, c]:
-                    r += 1
-                    continue
-                end = r
-                while end < rows and m[end, c]:
-                    end += 1
-                length = min(end - r, 65535)
-                for k in range(r, end):
-                    down[k, c - c0] = length
-                r = end
+        _row_runs(m[:, c0:c1].T, down[:, : c1 - c0].T, 65535)  # the band's column runs: rows of the transposed views
         for r in range(rows):  # each row's runs where they cross the band
             c = c0
             while c < c1:

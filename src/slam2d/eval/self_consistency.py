@@ -254,19 +254,26 @@ def _cross_validate(hits, passes, stamp, origin_x, origin_y, resolution, origins
     return observed
 
 
+def _pooled(judged: NDArray[np.int64], disagreeing: NDArray[np.int64]) -> float:
+    total = judged.sum()
+    return float(disagreeing.sum() / total) if total else math.nan
+
+
 def cross_validated_consistency(rays: ScanRays, params: ConsistencyParams | None = None) -> dict[str, Any]:
     """Each scan judged against the map of the scans taken more than ``exclude`` m of travel away.
 
-    Returns ``{"inconsistency", "judged_share", "per_scan", "counts"}``: the pooled share of judged beams
-    that disagree, the share of scans judged, the per-scan inconsistency (NaN: not judged) and the
-    ``(scans, 3)`` confirmed / contradicted / through counts.
+    Returns ``{"inconsistency", "judged_share", "judged", "disagreeing", "labels", "area_m2"}``: the pooled
+    share of judged beams that disagree, the share of scans judged, per scan its judged and disagreeing
+    beams (both 0 for a scan not judged: under ``min_beams``), each beam's label and the area the scans
+    observed.
     """
     p = params or ConsistencyParams()
     n = rays.origin.shape[0]
     labels = np.zeros(rays.hit.shape[0], dtype=np.int8)
     if n == 0:
-        return {"inconsistency": float("nan"), "judged_share": 0.0, "per_scan": np.zeros(0),
-                "counts": np.zeros((0, 3), dtype=np.int64), "labels": labels}
+        none = np.zeros(0, dtype=np.int64)
+        return {"inconsistency": float("nan"), "judged_share": 0.0, "judged": none, "disagreeing": none,
+                "labels": labels, "area_m2": 0.0}
     lo_xy = np.minimum(rays.ends.min(axis=0), rays.origin.min(axis=0)) - 2 * p.resolution
     hi_xy = np.maximum(rays.ends.max(axis=0), rays.origin.max(axis=0)) + 2 * p.resolution
     shape = (int(math.ceil((hi_xy[1] - lo_xy[1]) / p.resolution)) + 1,
@@ -276,21 +283,18 @@ def cross_validated_consistency(rays: ScanRays, params: ConsistencyParams | None
     stamp = np.zeros(shape, dtype=np.int32)
     lo = np.searchsorted(rays.travel, rays.travel - p.exclude, side="left")
     hi = np.searchsorted(rays.travel, rays.travel + p.exclude, side="right") - 1
-    observed = _cross_validate(hits, passes, stamp, float(lo_xy[0]), float(lo_xy[1]), p.resolution, rays.origin, rays.start,
-                    np.ascontiguousarray(rays.ends[:, 0]), np.ascontiguousarray(rays.ends[:, 1]), rays.hit,
-                    lo.astype(np.int64), hi.astype(np.int64), p.tolerance, p.min_views, labels)
-    scan_of = np.repeat(np.arange(n), np.diff(rays.start))
-    counts = np.zeros((n, 4), dtype=np.int64)
-    np.add.at(counts, (scan_of, labels), 1)
-    counts = counts[:, 1:]
-    judged = counts.sum(axis=1)
-    bad = counts[:, 1] + counts[:, 2]
+    observed = _cross_validate(hits, passes, stamp, float(lo_xy[0]), float(lo_xy[1]), p.resolution, rays.origin,
+                               rays.start, np.ascontiguousarray(rays.ends[:, 0]),
+                               np.ascontiguousarray(rays.ends[:, 1]), rays.hit, lo.astype(np.int64),
+                               hi.astype(np.int64), p.tolerance, p.min_views, labels)
+    counts = np.zeros((n, 4), dtype=np.int64)  # per scan: unjudged, confirmed, contradicted, through
+    np.add.at(counts, (np.repeat(np.arange(n), np.diff(rays.start)), labels), 1)
+    judged = counts[:, CONFIRMED:].sum(axis=1)
+    disagreeing = counts[:, CONTRADICTED:].sum(axis=1)
     ok = judged >= p.min_beams
-    per_scan = np.full(n, np.nan)
-    per_scan[ok] = bad[ok] / judged[ok]
-    pooled = float(bad[ok].sum() / judged[ok].sum()) if ok.any() else float("nan")
-    return {"inconsistency": pooled, "judged_share": float(ok.mean()), "per_scan": per_scan, "counts": counts,
-            "labels": labels, "area_m2": observed * p.resolution ** 2}
+    judged, disagreeing = np.where(ok, judged, 0), np.where(ok, disagreeing, 0)
+    return {"inconsistency": _pooled(judged, disagreeing), "judged_share": float(ok.mean()), "judged": judged,
+            "disagreeing": disagreeing, "labels": labels, "area_m2": observed * p.resolution ** 2}
 
 
 #: most disagreeing beam ends kept for the report's pictures (evenly thinned beyond)
@@ -309,31 +313,22 @@ def judge_trajectory(frames: Iterable[Any], pose_times: ArrayLike, poses: ArrayL
     p = params or ConsistencyParams()
     rays = place_scans(frames, pose_times, poses, p, max_pose_gap)
     result = cross_validated_consistency(rays, p)
-    counts = result["counts"]
-    judged = counts.sum(axis=1)
-    disagreeing = counts[:, 1] + counts[:, 2]
-    ok = judged >= p.min_beams
     bad = np.flatnonzero(result["labels"] >= CONTRADICTED)
     if bad.shape[0] > _MARKS:
         bad = bad[np.linspace(0, bad.shape[0] - 1, _MARKS).astype(np.int64)]
     return {
         "inconsistency": result["inconsistency"],
         "travel_scale": travel_scale(rays),
-        "area_m2": result.get("area_m2"),
+        "area_m2": result["area_m2"],
         "beams": int(rays.hit.sum()),
-        "beams_judged": int(judged[ok].sum()),
+        "beams_judged": int(result["judged"].sum()),
         "scans": int(rays.index.shape[0]),
-        "scans_judged": int(ok.sum()),
-        "per_scan": {"frame": rays.index.tolist(), "judged": np.where(ok, judged, 0).tolist(),
-                     "disagreeing": np.where(ok, disagreeing, 0).tolist()},
+        "scans_judged": int(np.count_nonzero(result["judged"])),
+        "per_scan": {"frame": rays.index.tolist(), "judged": result["judged"].tolist(),
+                     "disagreeing": result["disagreeing"].tolist()},
         "disagreements": np.round(rays.ends[bad], 3).tolist(),
         "params": dataclasses.asdict(p),
     }
-
-
-def _pooled(judged: NDArray[np.int64], disagreeing: NDArray[np.int64]) -> float:
-    total = judged.sum()
-    return float(disagreeing.sum() / total) if total else math.nan
 
 
 #: a run whose travel_scale differs from the runs' median by more than this has the difference added to its score
@@ -443,8 +438,9 @@ def verdict(evaluations: dict[str, dict[str, Any]]) -> dict[str, Any]:
     measures = {name: e["self_consistency"] for name, e in evaluations.items() if e.get("self_consistency")}
     ranked = rank_runs(measures)
     ranked["not_judged"] = sorted(set(ranked["not_judged"]) | (set(evaluations) - set(measures)))
-    ate = {name: e["trajectory"]["ate"]["translation_m"]["rmse"] for name, e in evaluations.items()
-           if (e.get("trajectory") or {}).get("ate", {}).get("translation_m", {}).get("rmse") is not None}
+    from slam2d.eval.evaluate import ATE
+
+    ate = {name: ATE.value(e) for name, e in evaluations.items() if ATE.value(e) is not None}
     reference = None
     if ate:
         reference = {"measure": "ate_rmse_m", "ranking": sorted(ate, key=lambda n: (ate[n], n)), "ate_rmse_m": ate}

@@ -33,7 +33,8 @@ from numpy.typing import NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError, one_line
 from slam2d.eval.compare import Comparison, MethodOutcome
-from slam2d.eval.evaluate import METRIC_COLUMNS, MetricColumn, RunFiles, load_run
+from slam2d.eval.evaluate import ATE, METRIC_COLUMNS, MetricColumn, RunFiles, load_run
+from slam2d.eval.self_consistency import AREA_TOLERANCE, SCALE_TOLERANCE, ConsistencyParams
 from slam2d.io.atomic import write_bytes_atomic, write_text_atomic
 from slam2d.report import plots
 
@@ -301,13 +302,16 @@ def _build(comparison: Comparison) -> _Report:
 
 EVIDENCE_HEAD = ["rank", "method", "disagreement", "beams contradicting", "travel / odometry", "map area",
                  "scans judged", "ATE (not used)"]
+_JUDGING = ConsistencyParams()
 VERDICT_NOTE = (
-    "Reference-free: every run's scans are mapped again at its poses by one mapper (0.1 m cells, beams cut at "
-    "10 m), and each scan is judged against the map of the scans taken more than 5 m of travel away. "
-    "Disagreement = the share of judged beams that contradict that map (an end where the other visits saw "
-    "free space, or a beam through their wall), plus a run's difference from the other runs' median travel "
-    "per metre of odometry (over 2 %: its map shrank or stretched) and map area (over 5 %: places drawn "
-    "twice). Magenta dots on the maps below mark the contradicting beam ends. See docs/evaluation.md.")
+    f"Reference-free: every run's scans are mapped again at its poses by one mapper ({_JUDGING.resolution:g} m "
+    f"cells, beams cut at {_JUDGING.max_range:g} m), and each scan is judged against the map of the scans taken "
+    f"more than {_JUDGING.exclude:g} m of travel away. Disagreement = the share of judged beams that contradict "
+    "that map (an end where the other visits saw free space, or a beam through their wall), plus a run's "
+    f"difference from the other runs' median travel per metre of odometry (over {100 * SCALE_TOLERANCE:g} %: its "
+    "map shrank or stretched) and its map area's excess over the smallest of the runs in scale (over "
+    f"{100 * AREA_TOLERANCE:g} %: places drawn twice). Magenta dots on the maps below mark the contradicting "
+    "beam ends. See docs/evaluation.md.")
 
 
 def _evidence_rows(judged: dict[str, Any], entries: list[_Entry]) -> list[list[str]]:
@@ -317,15 +321,15 @@ def _evidence_rows(judged: dict[str, Any], entries: list[_Entry]) -> list[list[s
     for k, name in enumerate(ranked.get("ranking", []), start=1):
         sc = evaluations.get(name, {}).get("self_consistency") or {}
         scale, area = ranked.get("scale_off", {}).get(name), ranked.get("area_off", {}).get(name)
-        ate = ((evaluations.get(name, {}).get("trajectory") or {}).get("ate") or {}).get("translation_m", {})
+        ate = ATE.value(evaluations.get(name))
         rows.append([
             str(k), name, f"{100 * ranked['score'][name]:.2f} %", f"{100 * sc.get('inconsistency', math.nan):.2f} %",
             (f"{sc['travel_scale']:.3f}" if sc.get("travel_scale") else "n/a")
             + (f" ({100 * scale:+.1f} % off the median)" if scale is not None else ""),
             (f"{sc['area_m2']:.0f} m2" if sc.get("area_m2") else "n/a")
-            + (f" ({100 * area:+.1f} % off the median)" if area is not None else ""),
+            + (f" ({100 * area:+.1f} % over the smallest)" if area is not None else ""),
             f"{sc.get('scans_judged', 0)} of {sc.get('scans', 0)}",
-            f"{ate['rmse']:.3f} m" if isinstance(ate.get("rmse"), (int, float)) else "-",
+            f"{ate:.3f} m" if ate is not None else "-",
         ])
     for name in ranked.get("not_judged", []):
         rows.append(["-", name, "not judged", "", "", "", "0", ""])
@@ -863,8 +867,7 @@ def _markdown(report: _Report) -> str:
             out += [_md_image(report.disagreement), "", report.disagreement.caption, ""]
     for k, v in report.facts:
         out.append(f"- **{_m(k)}:** {_m(v)}")
-    out += ["", f"> {one_line(report.judged)}", ""]
-    out += ["## Metrics", ""]
+    out += ["", f"> {one_line(report.judged)}", "", "## Metrics", ""]
     if report.columns or report.rows:
         head = ["method"] + ([_column_header(c) for c in report.columns] or ["result"])
         rows = []
