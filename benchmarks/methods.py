@@ -34,6 +34,7 @@ class Dataset:
     source: str  # path under ../shared/datasets, or the world name
     duration: float | None = None  # simulated seconds (sim only; None = one pass of the world's path)
     laser: str = "urg-04lx"  # the simulated laser preset (sim only; see slam2d.sim.laser)
+    seed: int = 0  # the simulation's seed (sim only)
 
 
 DATASETS: tuple[Dataset, ...] = (
@@ -91,7 +92,8 @@ def prepare(ds: Dataset, workdir: Path) -> tuple[Path, object] | None:
 
         out = workdir / ds.name
         if not (out / "truth.tum").is_file():
-            write_outputs(simulate(ds.source, SimulationParams(duration=ds.duration, seed=0, laser=ds.laser)), out)
+            write_outputs(simulate(ds.source, SimulationParams(duration=ds.duration, seed=ds.seed, laser=ds.laser)),
+                          out)
         return out / "recording.log.gz", load_truth(out)
     data = SHARED / ds.source
     if not data.is_file():

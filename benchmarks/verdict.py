@@ -53,21 +53,13 @@ SECTION_END = "<!-- END verdict -->"
 
 
 def _recording(name: str, workdir: Path):
-    """``(data, truth)`` of a recording, simulated into ``workdir`` when it is one; None when missing."""
-    from slam2d.eval.evaluate import load_reference, load_truth
+    """``(data, truth)`` of a recording, simulated into ``workdir/NAME`` when it is one; None when missing."""
+    from methods import Dataset, prepare
 
     if name in SIMULATED:
-        from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
-
         world, seed, duration = SIMULATED[name]
-        out = workdir / f"truth-{name}"
-        if not (out / "truth.tum").is_file():
-            write_outputs(simulate(world, SimulationParams(duration=duration, seed=seed)), out)
-        return out / "recording.log.gz", load_truth(out)
-    data = SHARED / name / f"{name}.clf.gz"
-    if not data.is_file():
-        return None
-    return data, load_reference(data.parent / "reference.tum")
+        return prepare(Dataset(name, "sim", world, duration, seed=seed), workdir)
+    return prepare(Dataset(name, "shared", f"{name}/{name}.clf.gz"), workdir)
 
 
 def _rejudge(data: Path, folder: Path, truth, settings: dict) -> dict:
