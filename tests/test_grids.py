@@ -22,6 +22,7 @@ from slam2d.grids import (
     logit,
     trace_ray,
 )
+from slam2d.grids.crsm_map import CrsmMap
 
 FREE = round(100 * 0.4)  # one miss from unknown with the default p_miss
 HIT = round(100 * 0.7)  # one hit from unknown with the default p_hit
@@ -264,7 +265,28 @@ def test_growth_is_amortised():
     reallocations = 0
     for x in np.arange(10.0, 200.0, 0.1):  # a robot driving 190 m to the right
         reallocations += grid.ensure_contains(x, 0.0, x + 5.0, 1.0)
-    assert reallocations <= 6
+    assert reallocations <= 16  # 10 m steps, then an eighth of the grid: not one per cell or per metre
+
+
+@pytest.mark.parametrize("kind", ["occupancy", "values"])
+def test_a_big_map_pushed_on_both_sides_grows_by_an_eighth(kind):
+    # A drifting run pushes one edge and then the opposite one: each side gains at most
+    # max(GROWTH_CAP_M, an eighth of the grid) here,
+    # not half the grid (which made 5x the cells observed).
+    if kind == "occupancy":
+        grid = OccupancyGrid(GridParams(resolution=0.05, grow_margin=64))
+    else:
+        grid = CrsmMap(0.05, grow_margin=64)
+    grid.ensure_contains(0.0, 0.0, 100.0, 1.0)
+
+    def edges():
+        return grid.origin[0], grid.origin[0] + grid.shape[1] * 0.05
+
+    first = edges()[1] - edges()[0]
+    grid.ensure_contains(edges()[0] - 1.0, 0.0, 1.0, 1.0)  # a metre past the left edge
+    grid.ensure_contains(0.0, 0.0, edges()[1] + 1.0, 1.0)  # then a metre past the right one
+    grown = grid.shape[1] * 0.05 - first
+    assert 2.0 < grown <= 2.0 + 2 * 15.0  # an eighth of 100-115 m a side (half the grid a side: 100 m)
 
 
 def test_a_200_m_square_grid_at_5_cm():

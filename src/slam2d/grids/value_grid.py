@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from slam2d.core.memory import check_allocation
 from slam2d.errors import InputError
-from slam2d.grids.occupancy import GridParams, OccupancyGrid
+from slam2d.grids.occupancy import GridParams, OccupancyGrid, growth_step
 
 __all__ = ["ValueGrid"]
 
@@ -81,8 +81,9 @@ class ValueGrid:
     def ensure_contains(self, xmin: float, ymin: float, xmax: float, ymax: float, margin: int = 2) -> bool:
         """Grow so the world box plus ``margin`` cells lies inside; True if the grid grew.
 
-        A side that grows gains at least ``grow_margin`` cells and half the
-        grid's size, so a robot driving off an edge causes few copies.
+        A side that grows gains :func:`~slam2d.grids.occupancy.growth_step` cells
+        (at least ``grow_margin``, half the grid's size up to a cap), so a robot
+        driving off an edge causes few copies.
         """
         if not all(math.isfinite(v) for v in (xmin, ymin, xmax, ymax)):
             raise ValueError(f"bounds {(xmin, ymin, xmax, ymax)!r} are not finite")
@@ -97,8 +98,8 @@ class ValueGrid:
         if rows and cols and r0 >= h0 and c0 >= w0 and r1 <= h1 and c1 <= w1:
             return False
         if rows and cols:
-            gr = max(self.grow_margin, rows // 2)
-            gc = max(self.grow_margin, cols // 2)
+            gr = growth_step(rows, self.grow_margin, res)
+            gc = growth_step(cols, self.grow_margin, res)
             n_r0 = r0 - gr if r0 < h0 else h0
             n_c0 = c0 - gc if c0 < w0 else w0
             n_r1 = r1 + gr if r1 > h1 else h1
