@@ -1056,12 +1056,12 @@ def karto_sim_wall_end_revisits(workdir: Path) -> tuple[None, str]:
     Landmarks that are one wall end seen again on a later pass merged (docs/methods/karto.md,
     *URG-04LX: wall ends seen again*); compare with the URG cells of `karto-sim-wall-ends`. Per run
     also the merges and how many were wrong (the two parts' sightings, at the true poses of their
-    nodes, more than 0.05 m apart), as docs/measure_wall_end_revisits.py counts them.
+    nodes, more than 0.05 m apart), as benchmarks/studies/measure_wall_end_revisits.py counts them.
     """
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("measure_wall_end_revisits",
-                                                  Path(__file__).resolve().parents[1] / "docs" / "measure_wall_end_revisits.py")
+                                                  Path(__file__).resolve().parent / "studies" / "measure_wall_end_revisits.py")
     measure = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(measure)
     from slam2d.eval.evaluate import evaluate_run, load_run, load_truth

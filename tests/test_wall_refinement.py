@@ -258,8 +258,8 @@ def test_compiled_end_association_matches_the_numpy_loop():
 
 
 def test_frozen_and_given_associations(monkeypatch):
-    """The diagnostics' hooks (docs/measure_wall_refinement.py ``freeze=``): frozen associations are the first
-    round's, kept; given ones are used instead of the refinement's own."""
+    """The diagnostics' hooks (benchmarks/studies/measure_wall_refinement.py ``freeze=``): frozen associations are
+    the first round's, kept; given ones are used instead of the refinement's own."""
     from slam2d.graph import wall_refinement as wr
 
     truth, scans, graph = _room_problem()

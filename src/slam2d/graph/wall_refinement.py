@@ -59,8 +59,8 @@ __all__ = ["WallRefinementParams", "refine_path", "Segments", "extract_segments"
 
 _DEG = math.pi / 180.0
 
-# Diagnostics only (docs/measure_wall_refinement.py, a setting's ``freeze=walls,ends``), not a parameter: the
-# associations named here ("walls": segments to walls, "ends": wall-end sightings to landmarks) are made once,
+# Diagnostics only (benchmarks/studies/measure_wall_refinement.py, a setting's ``freeze=walls,ends``), not a
+# parameter: the associations named here ("walls": segments to walls, "ends": wall-end sightings to landmarks) are made once,
 # in refine_walls' first round, and kept for every later round instead of being redone at the new poses.
 _FREEZE: set[str] = set()
 # Diagnostics only, likewise: associations given from outside (e.g. the simulator's truth), ``"walls"``: a function of

@@ -731,7 +731,7 @@ def _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, s
     there); stops when the curvature is not positive. The data term: with ``end_info`` > 0 the
     wall ends ``ends`` (:func:`wall_end_terms`, each residual squared times ``end_info / 2``),
     else the end points' distances (:func:`along_terms`, weights ``end_w``: one-sided at a wall
-    end, kept for measuring, docs/measure_gmapping_wall_ends.py).
+    end, kept for measuring, benchmarks/studies/measure_gmapping_wall_ends.py).
     """
     off = 0.0
     for _ in range(iterations):
