@@ -586,7 +586,9 @@ def cmd_localize(args: argparse.Namespace) -> int:
     if rec["localized"]:
         first = rec["first_localized"]
         out.print(f"{params.method}: localized {rec['localized_scans']} of {rec['scans']} scans (from scan "
-                  f"{first['scan']}, {100 * first['fraction_of_scans']:.0f} % in), lost {rec['lost']} times; "
+                  f"{first['scan']}, {100 * first['fraction_of_scans']:.0f} % in), lost {rec['lost']} times"
+                  + (f", off the map {rec['off_map_scans']} scans (poses from the odometry)" if rec["off_map_scans"] else "")
+                  + "; "
                   f"{cpu['median']:.1f} ms CPU per scan (median)", markup=False)
     for path in summary.written:
         _print_written(out, path)

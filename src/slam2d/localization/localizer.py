@@ -20,7 +20,10 @@ when it leads every other clearly (a symmetric building keeps two alive until th
 apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
 row means the robot is lost: the localizer says so and searches again, near where the odometry took it (it
 drifted off the map's walls). Three scans in a row that miss them by far mean it was carried off: the particles
-spread over the map's free space. Poses are reported only while localized.
+spread over the map's free space. Where a localized robot's scans end mostly outside the map's known area
+(``_MIN_KNOWN``) it is off the map: its pose follows the odometry (state ``off_map``, reported with that
+state) until the scans reach the map again and matching takes over. Poses are reported only while localized
+or off the map.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from slam2d.sensors.motion_noise import draw_from_motion
 
 __all__ = ["LocalizationParams", "Localizer", "ScanResult", "STATES"]
 
-STATES = ("searching", "localized", "lost")
+STATES = ("searching", "localized", "off_map", "lost")
 
 # GMapping's odometry noise (srr, srt, str, stt): the same motion model the particle filters share
 _MOTION_NOISE = (0.1, 0.2, 0.1, 0.2)
@@ -81,6 +84,19 @@ _SEARCH_NEFF = 0.1
 _MAX_HYPOTHESES = 12
 _HYPOTHESIS_MARGIN = 3.0
 _HYPOTHESIS_DROP = 8.0
+# the share of a scan's beams that must end in the map's known area (each end pulled back _KNOWN_PULL towards the
+# laser: an end on a wall lies half in the unknown behind it) for matching to place the robot. Under it the robot
+# is off the map and its pose follows the odometry: matching the few beams that reach the map slid fr079's second
+# half 1-3 m into a mapped room while it drove through a hall its first half never saw (share there 0.05-0.17 at
+# the reference poses; 0.22-0.47 in the 10 % worst scans of the parts that were mapped)
+_MIN_KNOWN = 0.2
+_KNOWN_PULL = 0.3
+# ... and the share that brings it back: matching from a dead-reckoned pose on a fifth of a scan slid as well
+_BACK_KNOWN = 0.4
+# back on the map after more odometry than this (m) off it, the robot is searched for around where the odometry
+# took it, as from a given initial pose spread by a tenth of that travel (a match from there settled 4-12 m off
+# in fr079 after 50 m off the map)
+_OFF_MAP_TRUST = 1.0
 # the particles put around a found place (mcl goes on from there)
 _FOUND_STD = (0.1, 0.1, 0.05)
 # the spread (std) of the particles put around a given initial pose (AMCL's initial_cov: 0.5 m, pi/12)
@@ -132,10 +148,11 @@ class Localizer:
         self.resolution = float(grid.resolution)
         self.near = 2.0 * self.resolution + 0.02  # "on a wall": within two cells (and 2 cm)
         self.field: LikelihoodField = likelihood_field(grid, max_distance=max(1.0, 5.0 * p.hit_sigma))
+        self.known = np.ascontiguousarray(grid.observed)
         free = np.argwhere(grid.observed & ~grid.occupied(0.5) & (grid.occupancy() <= 25))
         if len(free) == 0:
             raise InputError("the map has no free cell to place the robot in", field="map")
-        ox, oy = grid.origin
+        ox, oy = self.known_origin = grid.origin
         self.free_xy = np.column_stack([ox + (free[:, 1] + 0.5) * self.resolution,
                                         oy + (free[:, 0] + 0.5) * self.resolution])
         self.particles = np.zeros((0, 3))
@@ -153,6 +170,7 @@ class Localizer:
         self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
         # a robot that drifted off the map's walls: where the odometry has taken it since, and how far it went
         self.drifted: tuple[NDArray[np.float64], float] | None = None
+        self.off_travel = 0.0  # odometry travel (m) since the robot went off the map
         self.restart(initial_pose, said=False)
 
     def restart(self, initial_pose: NDArray[np.float64] | None = None, *, t: float | None = None,
@@ -270,6 +288,18 @@ class Localizer:
         return float(fit_fraction(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
                                   float(pose[0]), float(pose[1]), float(pose[2]), bx, by, self.near))
 
+    def _known_share(self, pose: NDArray[np.float64], bx, by) -> float:
+        """The share of the endpoints (each pulled back ``_KNOWN_PULL`` towards the laser) in the map's known cells."""
+        rng = np.hypot(bx, by)
+        pull = np.maximum(rng - _KNOWN_PULL, 0.0) / np.maximum(rng, 1e-9)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        x, y = bx * pull, by * pull
+        ox, oy = self.known_origin
+        col = np.floor((pose[0] + c * x - s * y - ox) / self.resolution).astype(np.int64)
+        row = np.floor((pose[1] + s * x + c * y - oy) / self.resolution).astype(np.int64)
+        inside = (row >= 0) & (col >= 0) & (row < self.known.shape[0]) & (col < self.known.shape[1])
+        return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
+
     def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool) -> tuple[NDArray[np.float64], float]:
         """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly."""
         f = self.field
@@ -316,7 +346,10 @@ class Localizer:
                 self.pose = se2.compose(self.pose, step).reshape(3)
             return ScanResult(t, self.state, self.pose if self.state == "localized" else None, float("nan"),
                               float("nan"), len(self.particles))
-        filtering = self.p.method == "mcl" or self.state != "localized"
+        tracking = self.state in ("localized", "off_map")
+        # off the map the particles would be weighed on the few beams that reach it: they wait, and start again
+        # around the matched place when the robot is back
+        filtering = (self.p.method == "mcl" and self.state != "off_map") or not tracking
         spread, moved = float("nan"), False
         if filtering:
             if self.filter_odom is None or odom is None:
@@ -331,9 +364,36 @@ class Localizer:
             estimate, share, spread = self._cluster()
             if self.filter_odom is not None and odom is not None:  # the odometry since the update
                 estimate = se2.compose(estimate, se2.relative(self.filter_odom, odom)).reshape(3)
-        if self.state == "localized":
-            pose, fit = self._refine(se2.compose(self.pose, step).reshape(3), mx, my, wide=False)
-            if self.p.method == "mcl":
+        if tracking:
+            predicted = se2.compose(self.pose, step).reshape(3)
+            known = self._known_share(predicted, mx, my)
+            if known < (_BACK_KNOWN if self.state == "off_map" else _MIN_KNOWN):
+                # off the map: the odometry carries the pose until the scans reach the map again
+                if self.state != "off_map":
+                    self._set_state("off_map", t, f"{known:.0%} of the scan ends in the map's known area: "
+                                    "following the odometry")
+                    self.off_travel = 0.0
+                self.pose, self.challenger, self.misfits, self.far_misfits = predicted, None, 0, 0
+                self.off_travel += math.hypot(step[0], step[1])
+                return ScanResult(t, "off_map", predicted.copy(), self._fit(predicted, mx, my), spread,
+                                  len(self.particles) if self.p.method == "mcl" else 0)
+            back = self.state == "off_map"
+            if back and self.off_travel > _OFF_MAP_TRUST:
+                self._set_state("searching", t, f"back on the map after {self.off_travel:.1f} m off it: searching "
+                                "near where the odometry took it")
+                std = max(_DRIFTED_STD[0], 0.1 * self.off_travel)
+                self._spread_around(predicted, (std, std, _DRIFTED_STD[2]), self.p.max_particles)
+                self.drifted = (predicted.copy(), self.off_travel)
+                self.filter_odom, self.confirm = odom, 1
+                return ScanResult(t, "searching", None, self._fit(predicted, mx, my), spread, len(self.particles))
+            pose, fit = self._refine(predicted, mx, my, wide=back)
+            if back:  # the odometry drifted while off the map: the filter goes on from the matched place
+                self._set_state("localized", t, f"back on the map ({known:.0%} of the scan in its known area, "
+                                f"{fit:.0%} on walls)")
+                if self.p.method == "mcl":
+                    self._spread_around(pose, _FOUND_STD)
+                self.filter_odom = odom
+            elif self.p.method == "mcl":
                 pose, fit = self._challenge(pose, fit, estimate, step, mx, my, moved, t)
             self.pose = pose
             # lost: the scans fit under lost_fit, or under half of what they fitted lately (a map whose walls
@@ -362,6 +422,13 @@ class Localizer:
         if self.drifted is not None:
             where, travelled = self.drifted
             self.drifted = (se2.compose(where, step).reshape(3), travelled + math.hypot(step[0], step[1]))
+            if self._known_share(self.drifted[0], mx, my) < _MIN_KNOWN:
+                # where the odometry says it is, the scans miss the map: off it again rather than searching it
+                self._set_state("off_map", t, "the scans end outside the map's known area where the odometry "
+                                "took it: following the odometry")
+                self.pose, self.off_travel, self.drifted = self.drifted[0], self.drifted[1], None
+                return ScanResult(t, "off_map", self.pose.copy(), self._fit(self.pose, mx, my), spread,
+                                  len(self.particles) if self.p.method == "mcl" else 0)
         if self.confirm == 1:  # from a given initial pose: the particles need only gather there once
             pose, fit = self._refine(estimate, mx, my, wide=True)
             if moved and share > _FOUND_SHARE and spread < 0.5 and fit >= _FOUND_FIT:

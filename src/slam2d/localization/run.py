@@ -1,7 +1,7 @@
 """``slam2d localize``: a recording localized in a fixed map, written as a folder.
 
 Writes ``trajectory.tum`` (the poses while localized, in the map's frame), ``localization.csv`` (every
-scan: its state, pose, fit and particle spread) and ``localization.json`` (when it was localized,
+scan: its state, pose (also off the map: from the odometry), fit and particle spread) and ``localization.json`` (when it was localized,
 lost and found again; time per scan; the settings).
 """
 
@@ -113,6 +113,7 @@ def write_localization(out_dir: Path, log: LocalizationLog, localizer: Localizer
         "scans": len(rows),
         "data_span_s": [rows[0][0], rows[-1][0]] if rows else [None, None],
         "localized_scans": len(localized),
+        "off_map_scans": sum(1 for row in rows if row[1] == "off_map"),
         "localized": first is not None,
         "first_localized": None if first is None else {"scan": first + 1, "time": rows[first][0],
                                                        "fraction_of_scans": (first + 1) / len(rows)},
