@@ -65,8 +65,9 @@ def _recording(name: str, workdir: Path):
 def _rejudge(data: Path, folder: Path, truth, settings: dict) -> dict:
     """The verdict of an earlier comparison's runs, judged again with the current code (and ``settings`` of
     :class:`~slam2d.eval.self_consistency.ConsistencyParams`)."""
+    from slam2d.eval.compare import verdict
     from slam2d.eval.evaluate import evaluate_run, load_run
-    from slam2d.eval.self_consistency import ConsistencyParams, judge_trajectory, verdict
+    from slam2d.eval.self_consistency import ConsistencyParams, judge_trajectory
     from slam2d.io import open_recording
 
     frames = list(open_recording(data).frames())

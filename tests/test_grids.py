@@ -19,6 +19,7 @@ from slam2d.grids import (
     bilinear_gradient_at,
     cast_rays,
     distance_field,
+    likelihood_field,
     logit,
     trace_ray,
 )
@@ -400,7 +401,7 @@ def test_distance_field_matches_brute_force():
 def test_likelihood_field_lookups():
     grid = unit_grid()
     grid.integrate_scan([0.5, 4.5, 0.0], [6.0], [0.0])  # occupied cell (4, 6), centre (6.5, 4.5)
-    field = grid.likelihood_field(3.0)
+    field = likelihood_field(grid, 3.0)
     assert field.distance.shape == grid.shape
     got = field.lookup([[6.5, 4.5], [4.5, 4.5], [5.5, 4.5], [6.5, 6.5], [50.0, 50.0], [np.nan, 1.0]])
     np.testing.assert_allclose(got, [0.0, 2.0, 1.0, 2.0, 3.0, 3.0], atol=1e-6)

@@ -12,7 +12,8 @@ import pytest
 
 from slam2d.core import se2
 from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
-from slam2d.matching.correlative import GridCache, MatchResult
+from slam2d.matching.correlative import MatchResult
+from slam2d.matching.grid_cache import GridCache
 from tests.test_matching_bound import _walls
 
 

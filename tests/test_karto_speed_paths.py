@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from slam2d.graph.frontend import _runs, _within
-from slam2d.matching.correlative import CorrelativeMatcher, GridCache
+from slam2d.matching.correlative import CorrelativeMatcher
 from slam2d.matching.correlative_search import _COVARIANCE_BAND, _band_on_part_edge
+from slam2d.matching.grid_cache import GridCache
 
 
 def _concat(parts):

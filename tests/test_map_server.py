@@ -230,7 +230,7 @@ def test_save_grid_writes_a_cropped_map_that_loads_back(tmp_path):
     angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)
     for _ in range(3):
         grid.integrate_scan([1.0, 2.0, 0.0], np.full(360, 2.0), angles)
-    yaml_path, image = grid.save(tmp_path / "ring.yaml")
+    yaml_path, image = save_grid(grid, tmp_path / "ring.yaml")
     m = read_map(yaml_path)
     cropped = grid.crop_to_observed(1)
     assert m.shape == cropped.shape

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.matching.correlative import CorrelativeMatcher, GridCache, smear_points
+from slam2d.matching.correlative import CorrelativeMatcher, smear_points
 from slam2d.matching.correlative_search import _BOUND_BLOCK, _range_max, _range_max_levels, _responses
+from slam2d.matching.grid_cache import GridCache
 
 
 def _walls(rng, n_walls=8, extent=6.0, step=0.015):

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.matching.correlative import MAX_VARIANCE, CorrelativeMatcher, GridCache
+from slam2d.matching.correlative import MAX_VARIANCE, CorrelativeMatcher
+from slam2d.matching.grid_cache import GridCache
 
 
 def _segments(segs, step=0.02):

@@ -153,7 +153,7 @@ def _count_matches(kinds) -> None:
 def _time_steps(steps) -> None:
     """Wrap the front end's and the grid cache's main steps to add their inclusive CPU to ``steps``."""
     from slam2d.graph.frontend import GraphFrontend
-    from slam2d.matching.correlative import GridCache
+    from slam2d.matching.grid_cache import GridCache
 
     names = [(GraphFrontend, n) for n in ("_link_near_chains", "_near_outcome", "_sequential_estimate",
                                           "_seeded_match", "_try_close_loop", "optimize")]

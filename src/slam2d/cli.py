@@ -702,8 +702,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             write_json_atomic(targets[path], evaluations[path])
     document = None
     if len(runs) > 1:
-        from slam2d.eval.compare import comparison_document
-        from slam2d.eval.self_consistency import verdict
+        from slam2d.eval.compare import comparison_document, verdict
 
         names = _run_names(args.run, runs)
         by_name = {names[path]: e for path, e in evaluations.items()}

@@ -20,7 +20,7 @@ from typing import Any
 
 from slam2d.errors import InputError
 
-__all__ = ["MethodOutcome", "Comparison", "compare", "comparison_document", "run_all"]
+__all__ = ["MethodOutcome", "Comparison", "compare", "comparison_document", "run_all", "verdict"]
 
 
 @dataclass
@@ -68,7 +68,7 @@ class Comparison:
     wall_s: float = 0.0  # the whole comparison, runs and evaluation
     command: str = ""
     recording: dict[str, Any] = field(default_factory=dict)  # scans, duration_s, format, sha256 of the data
-    verdict: dict[str, Any] | None = None  # slam2d.eval.self_consistency.verdict of the finished runs
+    verdict: dict[str, Any] | None = None  # verdict() of the finished runs
 
     @property
     def methods(self) -> list[str]:
@@ -230,7 +230,6 @@ def compare(
     """
 
     from slam2d.eval.evaluate import evaluate_run, load_run
-    from slam2d.eval.self_consistency import verdict
     from slam2d.io import open_recording
     from slam2d.io.atomic import write_json_atomic
     from slam2d.io.base import ReadOptions
@@ -316,6 +315,26 @@ def comparison_document(recording: dict[str, Any], evaluations: dict[str, dict[s
             "confidence": judged["reference_free"]["confidence"], "reference_free": judged["reference_free"],
             "reference": judged["reference"], "failed": judged.get("failed", []), "recording": recording,
             "measures": measures}
+
+
+def verdict(evaluations: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The comparison's verdict from each run's evaluation (``evaluate_run`` with the recording's frames).
+
+    ``reference_free``: :func:`~slam2d.eval.self_consistency.rank_runs` of their ``self_consistency``;
+    ``reference``: the ranking by ATE where the evaluations have one (a reference or the truth), else
+    None; ``sentence``: the verdict in words.
+    """
+    from slam2d.eval.evaluate import ATE
+    from slam2d.eval.self_consistency import rank_runs, verdict_sentence
+
+    measures = {name: e["self_consistency"] for name, e in evaluations.items() if e.get("self_consistency")}
+    ranked = rank_runs(measures)
+    ranked["not_judged"] = sorted(set(ranked["not_judged"]) | (set(evaluations) - set(measures)))
+    ate = {name: ATE.value(e) for name, e in evaluations.items() if ATE.value(e) is not None}
+    reference = None
+    if ate:
+        reference = {"measure": "ate_rmse_m", "ranking": sorted(ate, key=lambda n: (ate[n], n)), "ate_rmse_m": ate}
+    return {"reference_free": ranked, "reference": reference, "sentence": verdict_sentence(ranked)}
 
 
 def _recording_summary(data: Path, options: Any) -> dict[str, Any]:

@@ -45,14 +45,14 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from slam2d.core import se2
-from slam2d.grids.raycast import _end_coords, _first_crossings, _step
+from slam2d.grids.raycast import end_coords, first_crossings, step
 from slam2d.io.tum import poses_at_scans
 
 #: what a beam says against the other scans' map (``labels`` of :func:`cross_validated_consistency`)
 UNJUDGED, CONFIRMED, CONTRADICTED, THROUGH = 0, 1, 2, 3
 
 __all__ = ["ConsistencyParams", "ScanRays", "place_scans", "cross_validated_consistency", "travel_scale",
-           "judge_trajectory", "rank_runs", "verdict", "verdict_sentence"]
+           "judge_trajectory", "rank_runs", "verdict_sentence"]
 
 
 @dataclass(frozen=True)
@@ -145,19 +145,19 @@ def _count_scan(hits, passes, stamp, stamp_id, origin_x, origin_y, resolution, s
     for i in range(ex.shape[0]):
         if not is_hit[i]:
             continue
-        u1, v1 = _end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, True)
+        u1, v1 = end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, True)
         col, row = int(math.floor(u1)), int(math.floor(v1))
         if 0 <= row < rows and 0 <= col < cols and stamp[row, col] != stamp_id:
             stamp[row, col] = stamp_id
             hits[row, col] += sign
     start_col, start_row = int(math.floor(u0)), int(math.floor(v0))
     for i in range(ex.shape[0]):
-        u1, v1 = _end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, is_hit[i])
+        u1, v1 = end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, is_hit[i])
         end_col, end_row = int(math.floor(u1)), int(math.floor(v1))
         du, dv = u1 - u0, v1 - v0
         step_c = 1 if du > 0.0 else -1
         step_r = 1 if dv > 0.0 else -1
-        t_max_x, t_delta_x, t_max_y, t_delta_y = _first_crossings(u0, v0, du, dv, start_col, start_row)
+        t_max_x, t_delta_x, t_max_y, t_delta_y = first_crossings(u0, v0, du, dv, start_col, start_row)
         col, row = start_col, start_row
         for _ in range(abs(end_col - col) + abs(end_row - row) + 1):
             at_end = col == end_col and row == end_row
@@ -168,8 +168,8 @@ def _count_scan(hits, passes, stamp, stamp_id, origin_x, origin_y, resolution, s
                 passes[row, col] += sign
             if at_end:
                 break
-            col, row, t_max_x, t_max_y = _step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x,
-                                               t_max_y, t_delta_y)
+            col, row, t_max_x, t_max_y = step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x,
+                                              t_max_y, t_delta_y)
 
 
 @njit(cache=True)
@@ -183,7 +183,7 @@ def _judge_scan(hits, passes, origin_x, origin_y, resolution, sx, sy, ex, ey, is
     for i in range(ex.shape[0]):
         if not is_hit[i]:
             continue
-        u1, v1 = _end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, True)
+        u1, v1 = end_coords(u0, v0, ex[i], ey[i], origin_x, origin_y, resolution, True)
         end_col, end_row = int(math.floor(u1)), int(math.floor(v1))
         wall_near = False
         for r in range(max(end_row - tolerance, 0), min(end_row + tolerance + 1, rows)):
@@ -197,7 +197,7 @@ def _judge_scan(hits, passes, origin_x, origin_y, resolution, sx, sy, ex, ey, is
         du, dv = u1 - u0, v1 - v0
         step_c = 1 if du > 0.0 else -1
         step_r = 1 if dv > 0.0 else -1
-        t_max_x, t_delta_x, t_max_y, t_delta_y = _first_crossings(u0, v0, du, dv, start_col, start_row)
+        t_max_x, t_delta_x, t_max_y, t_delta_y = first_crossings(u0, v0, du, dv, start_col, start_row)
         col, row = start_col, start_row
         crossed = False
         for _ in range(abs(end_col - col) + abs(end_row - row) + 1):
@@ -208,8 +208,8 @@ def _judge_scan(hits, passes, origin_x, origin_y, resolution, sx, sy, ex, ey, is
                 if h >= min_views and h > passes[row, col]:
                     crossed = True
                     break
-            col, row, t_max_x, t_max_y = _step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x,
-                                               t_max_y, t_delta_y)
+            col, row, t_max_x, t_max_y = step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x,
+                                              t_max_y, t_delta_y)
         if crossed:
             label[i] = THROUGH
         elif 0 <= end_row < rows and 0 <= end_col < cols and passes[end_row, end_col] >= min_views:
@@ -426,25 +426,6 @@ def _ahead(first: dict[str, list], other: dict[str, list], first_penalty: float,
 
 #: a first place the resampling overturns less often than this is not called a win
 CLEAR_WIN = 0.9
-
-
-def verdict(evaluations: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """The comparison's verdict from each run's evaluation (``evaluate_run`` with the recording's frames).
-
-    ``reference_free``: :func:`rank_runs` of their ``self_consistency``; ``reference``: the ranking by
-    ATE where the evaluations have one (a reference or the truth), else None; ``sentence``: the
-    verdict in words.
-    """
-    measures = {name: e["self_consistency"] for name, e in evaluations.items() if e.get("self_consistency")}
-    ranked = rank_runs(measures)
-    ranked["not_judged"] = sorted(set(ranked["not_judged"]) | (set(evaluations) - set(measures)))
-    from slam2d.eval.evaluate import ATE
-
-    ate = {name: ATE.value(e) for name, e in evaluations.items() if ATE.value(e) is not None}
-    reference = None
-    if ate:
-        reference = {"measure": "ate_rmse_m", "ranking": sorted(ate, key=lambda n: (ate[n], n)), "ate_rmse_m": ate}
-    return {"reference_free": ranked, "reference": reference, "sentence": verdict_sentence(ranked)}
 
 
 def verdict_sentence(ranked: dict[str, Any]) -> str:

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from slam2d.backends.spa import robust_objective, robust_weights
-from slam2d.graph.wall_refinement import floored_sigmas, place_points, tls_line, usable_returns
+from slam2d.graph.wall_geometry import floored_sigmas, place_points, tls_line, usable_returns
 from slam2d.params import param
 
 __all__ = ["DenseRefinementParams", "DenseTerm", "scan_normals"]

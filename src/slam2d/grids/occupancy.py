@@ -27,8 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,9 +39,6 @@ from slam2d.core.scan import LaserScan
 from slam2d.errors import InputError
 from slam2d.grids.raycast import HIT_NUDGE, integrate_rays
 from slam2d.params import param, validate
-
-if TYPE_CHECKING:
-    from slam2d.grids.likelihood_field import LikelihoodField
 
 __all__ = ["GridParams", "OccupancyGrid", "logit", "occupancy_logodds"]
 
@@ -536,24 +532,6 @@ class OccupancyGrid:
         logodds[sr0 - r0 : sr1 - r0, sc0 - c0 : sc1 - c0] = self.logodds[sr0:sr1, sc0:sc1]
         stamp[sr0 - r0 : sr1 - r0, sc0 - c0 : sc1 - c0] = self._stamp[sr0:sr1, sc0:sc1]
         return self._with_arrays(logodds, stamp, self._row0 + r0, self._col0 + c0)
-
-    def likelihood_field(
-        self, max_distance: float, *, occupied_threshold: float = 0.65
-    ) -> LikelihoodField:
-        """Distance (m) from every cell to the nearest occupied cell, capped at ``max_distance``."""
-        from slam2d.grids.likelihood_field import likelihood_field
-
-        return likelihood_field(self, max_distance, occupied_threshold=occupied_threshold)
-
-    def save(self, yaml_path: str | Path, **options: Any) -> tuple[Path, Path]:
-        """Write the grid as map_server files (YAML + image), cropped to what was observed.
-
-        Same options as :func:`slam2d.io.map_server.save_grid`; returns
-        ``(yaml_path, image_path)``.
-        """
-        from slam2d.io.map_server import save_grid
-
-        return save_grid(self, yaml_path, **options)
 
     def __repr__(self) -> str:
         rows, cols = self.shape

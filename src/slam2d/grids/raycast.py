@@ -30,6 +30,9 @@ __all__ = [
     "trace_ray",
     "cast_rays",
     "world_to_cell",
+    "first_crossings",
+    "step",
+    "end_coords",
 ]
 
 # Corner crossings closer than this (in cells) count as exact: step diagonally.
@@ -49,7 +52,7 @@ def world_to_cell(x, y, origin_x, origin_y, resolution):
 
 
 @njit(cache=True)
-def _first_crossings(u0, v0, du, dv, col, row):
+def first_crossings(u0, v0, du, dv, col, row):
     """Ray parameters (0..1 along the segment) of the first x and y cell-boundary crossings."""
     if du > 0.0:
         t_max_x = (col + 1.0 - u0) / du
@@ -73,7 +76,7 @@ def _first_crossings(u0, v0, du, dv, col, row):
 
 
 @njit(cache=True, inline="always")
-def _step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y):
+def step(col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y):
     """One traversal step to the next cell: ``(col, row, t_max_x, t_max_y)`` after it.
 
     Once the ray is in the end cell's column (row) it only moves along the
@@ -111,7 +114,7 @@ def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols
     dv = v1 - v0
     step_c = 1 if du > 0.0 else -1
     step_r = 1 if dv > 0.0 else -1
-    t_max_x, t_delta_x, t_max_y, t_delta_y = _first_crossings(u0, v0, du, dv, col, row)
+    t_max_x, t_delta_x, t_max_y, t_delta_y = first_crossings(u0, v0, du, dv, col, row)
     capacity = out_rows.shape[0]
     count = 0
     max_steps = abs(end_col - col) + abs(end_row - row)
@@ -122,14 +125,14 @@ def trace_ray(x0, y0, x1, y1, origin_x, origin_y, resolution, out_rows, out_cols
             count += 1
         if col == end_col and row == end_row:
             break
-        col, row, t_max_x, t_max_y = _step(
+        col, row, t_max_x, t_max_y = step(
             col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
         )
     return count
 
 
 @njit(cache=True, inline="always")
-def _end_coords(u0, v0, x, y, origin_x, origin_y, resolution, is_hit):
+def end_coords(u0, v0, x, y, origin_x, origin_y, resolution, is_hit):
     """A beam's end in cell units; a hit moved ``HIT_NUDGE`` cells on along the beam."""
     u1 = (x - origin_x) / resolution
     v1 = (y - origin_y) / resolution
@@ -182,7 +185,7 @@ def integrate_rays(
     for i in range(n):
         if not is_hit[i]:
             continue
-        u1, v1 = _end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, True)
+        u1, v1 = end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, True)
         col = int(math.floor(u1))
         row = int(math.floor(v1))
         if 0 <= row < rows and 0 <= col < cols and stamp[row, col] != scan_stamp:
@@ -193,14 +196,14 @@ def integrate_rays(
     start_col = int(math.floor(u0))
     start_row = int(math.floor(v0))
     for i in range(n):
-        u1, v1 = _end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, is_hit[i])
+        u1, v1 = end_coords(u0, v0, end_x[i], end_y[i], origin_x, origin_y, resolution, is_hit[i])
         end_col = int(math.floor(u1))
         end_row = int(math.floor(v1))
         du = u1 - u0
         dv = v1 - v0
         step_c = 1 if du > 0.0 else -1
         step_r = 1 if dv > 0.0 else -1
-        t_max_x, t_delta_x, t_max_y, t_delta_y = _first_crossings(
+        t_max_x, t_delta_x, t_max_y, t_delta_y = first_crossings(
             u0, v0, du, dv, start_col, start_row
         )
         col = start_col
@@ -217,7 +220,7 @@ def integrate_rays(
                 updated += 1
             if at_end:
                 break
-            col, row, t_max_x, t_max_y = _step(
+            col, row, t_max_x, t_max_y = step(
                 col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
             )
     return updated
@@ -248,7 +251,7 @@ def cast_rays(occupied, origin_x, origin_y, resolution, x, y, theta, angles, max
         end_row = int(math.floor(v0 + dv))
         step_c = 1 if du > 0.0 else -1
         step_r = 1 if dv > 0.0 else -1
-        t_max_x, t_delta_x, t_max_y, t_delta_y = _first_crossings(
+        t_max_x, t_delta_x, t_max_y, t_delta_y = first_crossings(
             u0, v0, du, dv, start_col, start_row
         )
         col = start_col
@@ -270,7 +273,7 @@ def cast_rays(occupied, origin_x, origin_y, resolution, x, y, theta, angles, max
             if col == end_col and row == end_row:
                 break
             previous_x, previous_y = t_max_x, t_max_y
-            col, row, t_max_x, t_max_y = _step(
+            col, row, t_max_x, t_max_y = step(
                 col, row, end_col, end_row, step_c, step_r, t_max_x, t_delta_x, t_max_y, t_delta_y
             )
             # the ray enters the new cell where it crossed the boundary it stepped over

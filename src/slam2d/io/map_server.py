@@ -50,6 +50,7 @@ from slam2d.io.atomic import atomic_path
 __all__ = [
     "MapImage",
     "read_map",
+    "load_map_grid",
     "write_map",
     "save_grid",
     "read_pgm",
@@ -267,6 +268,17 @@ def read_map(yaml_path: str | Path, *, loader: str = "nav2") -> MapImage:
         image_path=image_path,
         yaml_path=path,
     )
+
+
+def load_map_grid(source: str | Path) -> tuple[Any, Path]:
+    """The map of a run folder (its ``map.yaml``) or of a map_server YAML, as an occupancy grid."""
+    source = Path(source)
+    yaml_path = source / "map.yaml" if source.is_dir() else source
+    if source.is_dir() and not yaml_path.is_file():
+        raise InputError("is a folder without map.yaml: give a run folder or a map_server YAML", path=source)
+    if not yaml_path.exists():
+        raise InputError("no such map (a run folder or a map_server YAML)", path=source)
+    return read_map(yaml_path).to_grid(), yaml_path
 
 
 def occupancy_from_pixels(

@@ -20,6 +20,7 @@ import numpy as np
 
 from slam2d.core.compile_time import compile_clock
 from slam2d.errors import InputError
+from slam2d.io.map_server import load_map_grid
 from slam2d.localization.localizer import LocalizationParams, Localizer
 from slam2d.params import as_dict
 
@@ -37,19 +38,6 @@ def parse_pose(text: str, field: str = "--initial-pose") -> np.ndarray:
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise InputError(f"{text!r} is not X,Y,THETA (three numbers: metres, metres, radians)", field=field)
     return np.array(values)
-
-
-def load_map_grid(source: str | Path) -> tuple[Any, Path]:
-    """The map of a run folder (its ``map.yaml``) or of a map_server YAML, as an occupancy grid."""
-    from slam2d.io.map_server import read_map
-
-    source = Path(source)
-    yaml_path = source / "map.yaml" if source.is_dir() else source
-    if source.is_dir() and not yaml_path.is_file():
-        raise InputError("is a folder without map.yaml: give a run folder or a map_server YAML", path=source)
-    if not yaml_path.exists():
-        raise InputError("no such map (a run folder or a map_server YAML)", path=source)
-    return read_map(yaml_path).to_grid(), yaml_path
 
 
 @dataclass

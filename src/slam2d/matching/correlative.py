@@ -66,10 +66,9 @@ from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edg
     _PARALLEL_LOOKUPS, _PENALTY_GAIN, _pooled_smear, _PRUNE_CHUNK, _query_cells, _range_max_levels, _ranges,
     _rotated_extent, _score_blocks_stride, _score_poses, _score_poses_pruned, _search_window, _serial_blocks,
     _spaced, _spread_sums)
-from slam2d.matching.grid_cache import GridCache
 
 
-__all__ = ["CorrelativeMatcher", "GridCache", "MatchResult", "smear_points"]
+__all__ = ["CorrelativeMatcher", "MatchResult", "smear_points"]
 
 
 # Angle offsets that depend only on a matcher's settings, computed once (see _coarse_angles); never written to.
@@ -221,7 +220,7 @@ class CorrelativeMatcher:
         """The smeared grid of the reference points inside the world box (lo, hi): (grid, origin_x, origin_y).
 
         ``clip`` shrinks the box to the reference points' own extent (smaller
-        grid); a grid that will be extended later (:class:`GridCache`) keeps it.
+        grid); a grid that will be extended later (:class:`~slam2d.matching.grid_cache.GridCache`) keeps it.
         """
         res = self.resolution
         margin = 2.0 * float(ref_sigmas.max(initial=self.smear_deviation)) + 2.0 * res

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
 from slam2d.core.arrays import grown
+from slam2d.matching.correlative import CorrelativeMatcher
 from slam2d.matching.correlative_grid import _derive_grid, _inside, _inside_not, _smear
 from slam2d.matching.correlative_search import (_BOUND_BLOCK, _boxes_extent, _boxes_sigma, _node_blocks_of,
     _node_stats, _scatter_max_nodes, _unknown_nodes)
-
-if TYPE_CHECKING:
-    from slam2d.matching.correlative import CorrelativeMatcher
 
 __all__ = ["GridCache"]
 

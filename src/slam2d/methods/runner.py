@@ -436,7 +436,7 @@ def resume_run(
     from slam2d.io import detect_format, open_recording
     from slam2d.io.session import read_session
     from slam2d.localization.localizer import LocalizationParams, Localizer
-    from slam2d.localization.run import load_map_grid
+    from slam2d.io.map_server import load_map_grid
 
     run, data, out_dir = Path(run), Path(data), Path(out_dir)
     session = read_session(run, version=__version__, method=method)

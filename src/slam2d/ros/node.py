@@ -189,7 +189,8 @@ class _Node:
         self.session = SessionRecorder()
         self.replayed, self.shift, self.session_last_t = 0, 0.0, None
         if node.mode == "localization":
-            from slam2d.localization.run import LocalizationLog, load_map_grid
+            from slam2d.io.map_server import load_map_grid
+            from slam2d.localization.run import LocalizationLog
 
             if not node.session:
                 raise InputError("localization needs a map: a run folder or a map_server YAML", field="~session")
@@ -260,7 +261,7 @@ class _Node:
         from slam2d import __version__
         from slam2d.io.session import read_session
         from slam2d.localization.localizer import LocalizationParams, Localizer
-        from slam2d.localization.run import load_map_grid
+        from slam2d.io.map_server import load_map_grid
         from slam2d.methods.runner import replay_session
 
         saved = read_session(self.p.session, version=__version__, method=self.method_name)
