@@ -9,7 +9,8 @@ parameter tables cannot drift from what the program does:
   of ``slam2d calibrate laser --help``);
 * ``params:module:Class`` — the parameter table of a parameter dataclass (``params:module:Class:settings``:
   names as settings, ``name``, not flags);
-* ``method:NAME`` — a registered method's parameter table and the values it logs;
+* ``method:NAME`` — a registered method's parameter table (the advanced parameters folded, by group) and the
+  values it logs;
 * ``ros-params:ORIGIN:METHOD`` — how a slam_toolbox or slam_gmapping YAML is read for METHOD;
 * ``example:NAME`` — the output of an example command on a shared dataset
   (left as it is when ``../shared/datasets`` is absent).
@@ -59,13 +60,15 @@ def _params(spec: str) -> str:
 
 def _method(name: str) -> str:
     from slam2d.methods import get_method
-    from slam2d.params import markdown_table
+    from slam2d.params import describe, markdown_table
 
     cls = get_method(name)
     role = {"required": "needs odometry.", "optional": "odometry optional (see its parameters).",
             "ignored": "ignores the odometry."}[cls.odometry_role()]
     text = f"`slam2d run {cls.name} DATA --out DIR --set NAME=VALUE`; " + role + (" Stochastic: `--seed` picks the random stream." if cls.stochastic else "") + "\n\n"
     text += markdown_table(cls.Params, names="settings")
+    if any(p.advanced for p in describe(cls.Params)):
+        text += "\n`run.json` records an advanced parameter only where it differs from its default.\n"
     if cls.DIAGNOSTICS:
         text += "\nLogged per update in `diagnostics.json` (besides `timestamp`, `wall_s`, `cpu_s`):\n\n"
         text += "| name | meaning |\n|---|---|\n"

@@ -393,9 +393,12 @@ def _add_methods(sub: argparse._SubParsersAction) -> None:
         help=_HELP["methods"],
         description="Without a name: every registered method with a one-line summary. With a name: the "
         "method's parameters (name, default, unit, meaning) as 'slam2d run' and 'slam2d compare' take them "
-        "with --set NAME=VALUE, and the values it logs per update.",
+        "with --set NAME=VALUE, and the values it logs per update. The advanced parameters (features most runs "
+        "leave off, tuning knobs of slam2d's additions) are counted, and listed with --all.",
     )
     p.add_argument("name", nargs="?", help="a method name")
+    p.add_argument("--all", action="store_true",
+                   help="also list the advanced parameters, a table per feature they belong to")
     p.set_defaults(handler=cmd_methods)
 
 
@@ -403,7 +406,7 @@ def cmd_methods(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     from slam2d.methods import available, get_method
-    from slam2d.params import describe
+    from slam2d.params import advanced_groups, describe
 
     out = _console()
     if args.name is None:
@@ -417,15 +420,28 @@ def cmd_methods(args: argparse.Namespace) -> int:
         out.print("details: slam2d methods NAME", markup=False)
         return 0
     cls = get_method(args.name)
-    t = Table(title=f"{cls.name}: {cls.summary}", title_justify="left")
     params = describe(cls.Params)
+    groups = advanced_groups(cls.Params)
     # a name is what the user types: never cut it (the other columns fold instead)
-    t.add_column("parameter", no_wrap=True, min_width=max(len(p.name) for p in params))
-    for col in ("default", "unit", "meaning"):
-        t.add_column(col, overflow="fold")
-    for prm in params:
-        t.add_row(prm.name, str(prm.default), prm.unit or "-", prm.help)
-    out.print(t)
+    width = max(len(p.name) for p in params if args.all or not p.advanced)
+
+    def table(title: str, rows: list) -> Table:
+        t = Table(title=title, title_justify="left")
+        t.add_column("parameter", no_wrap=True, min_width=width)
+        for col in ("default", "unit", "meaning"):
+            t.add_column(col, overflow="fold")
+        for prm in rows:
+            t.add_row(prm.name, str(prm.default), prm.unit or "-", prm.help)
+        return t
+
+    out.print(table(f"{cls.name}: {cls.summary}", [p for p in params if not p.advanced]))
+    count = sum(map(len, groups.values()))
+    if groups and args.all:
+        for group, members in groups.items():
+            out.print(table(f"advanced: {group}", members))
+    elif groups:
+        out.print(f"and {count} advanced parameters ({', '.join(groups)}): 'slam2d methods {cls.name} --all' "
+                  "lists them", markup=False)
     if cls.DIAGNOSTICS:
         d = Table(title="logged per update (diagnostics.json)", title_justify="left")
         d.add_column("name")
@@ -456,7 +472,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         help=_HELP["run"],
         description="Run METHOD (see 'slam2d methods') over every scan of DATA and write OUT/trajectory.tum, "
         "OUT/map.yaml + map.pgm + preview.png, OUT/diagnostics.json (time and values per update) and "
-        "OUT/run.json (method, every parameter, seed, input SHA-256, versions, peak memory) and OUT/session/ "
+        "OUT/run.json (method, parameters (the advanced ones where changed), seed, input SHA-256, versions, "
+        "peak memory) and OUT/session/ "
         "(what the method needs to go on another day). '--params OUT/run.json' repeats a run exactly; "
         "'--resume OUT' maps DATA into OUT's map.",
     )
@@ -464,7 +481,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("data", type=Path, help="the recording: .log/.clf(.gz), .bag, or a ROS 2 bag folder")
     _add_out(p, "run")
     p.add_argument("--set", action="append", metavar="NAME=VALUE", dest="settings",
-                   help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable)")
+                   help="a method parameter, e.g. --set resolution=0.05 or --set max_range=4.5m (repeatable; "
+                   "'slam2d methods METHOD --all' lists them all)")
     p.add_argument("--params", type=Path, metavar="FILE",
                    help="YAML file of parameters (name: value), a slam_toolbox or slam_gmapping YAML (read "
                    "under slam2d's names and units), or a run.json to repeat; --set wins")

@@ -10,12 +10,19 @@ A parameter set is a plain dataclass whose fields are made with :func:`param`::
 :func:`from_arguments` builds the instance back, :func:`markdown_table` writes
 the table the docs show, and :func:`validate` checks types, choices and ranges
 with an :class:`~slam2d.errors.InputError` that names the parameter.
+
+A parameter made with ``param(..., advanced=True, group="wall refinement")`` is one
+most users never set (a slam2d addition that is off by default, a tuning knob of one):
+listings show the others first and the advanced ones after them, by group
+(:func:`describe`), and a run's record holds it only when it differs from its
+default (:func:`as_record`; :func:`from_mapping` fills in the defaults again).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
 import re
 import types
@@ -36,6 +43,8 @@ __all__ = [
     "markdown_table",
     "from_mapping",
     "as_dict",
+    "as_record",
+    "advanced_groups",
     "AUTO",
     "is_auto",
     "auto_fields",
@@ -69,16 +78,24 @@ def param(
     low: float | None = None,
     high: float | None = None,
     auto: str | None = None,
+    advanced: bool = False,
+    group: str = "",
 ) -> Any:
     """A dataclass field carrying its unit, help line, allowed choices and range.
+
+    ``advanced``: few users set it (listed after the others, under ``group``, the feature it
+    belongs to, e.g. ``"loop correction"``; recorded in a run only when changed). An advanced
+    parameter needs its group.
 
     With ``auto`` (a line saying what the value is resolved from), the field's default is
     :data:`AUTO`: the method resolves it from the recording before the run
     (:mod:`slam2d.sensors.recording_profile`), and ``default`` is the original's value it falls
     back to when the recording cannot tell. A user's explicit value always wins.
     """
+    if advanced and not group:
+        raise ValueError("an advanced parameter needs its group (the feature it belongs to)")
     meta = {"help": help, "unit": unit, "choices": choices, "low": low, "high": high,
-            "auto": auto, "fallback": default}
+            "auto": auto, "fallback": default, "advanced": advanced, "group": group}
     return dataclasses.field(default=AUTO if auto else default, metadata=meta)
 
 
@@ -94,6 +111,8 @@ class ParamInfo:
     high: float | None
     auto: str | None = None  # what an ``auto`` default resolves from (None: no auto default)
     fallback: Any = None  # the value an ``auto`` default takes when the recording cannot tell
+    advanced: bool = False  # few users set it: listed after the others, recorded only when changed
+    group: str = ""  # the feature it belongs to ("loop correction")
 
     @property
     def optional(self) -> bool:
@@ -115,11 +134,28 @@ def _base_type(tp: Any) -> Any:
     return tp
 
 
+def _by_class(cls: type) -> list[dataclasses.Field]:
+    """The fields of ``cls``, its own first, then each base class's (in method resolution order), each class's in
+    declaration order (a field redeclared by a subclass counts as the subclass's)."""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    ordered: dict[str, dataclasses.Field] = {}
+    for klass in cls.__mro__:
+        for name in inspect.get_annotations(klass):
+            if name in fields:
+                ordered.setdefault(name, fields[name])
+    return list(ordered.values())
+
+
 def describe(cls: type) -> list[ParamInfo]:
-    """The parameters of a parameter dataclass, in declaration order."""
+    """The parameters of a parameter dataclass, in listing order.
+
+    First the parameters that are not advanced: the class's own, then each base class's (so a
+    method's parameters come before those of the features it inherits), each in declaration
+    order; then the advanced ones, by group (the groups in the order they first appear).
+    """
     hints = typing.get_type_hints(cls)
     out = []
-    for f in dataclasses.fields(cls):
+    for f in _by_class(cls):
         m = f.metadata
         out.append(
             ParamInfo(
@@ -133,9 +169,21 @@ def describe(cls: type) -> list[ParamInfo]:
                 high=m.get("high"),
                 auto=m.get("auto"),
                 fallback=m.get("fallback", f.default),
+                advanced=m.get("advanced", False),
+                group=m.get("group", ""),
             )
         )
-    return out
+    groups = list(dict.fromkeys(p.group for p in out if p.advanced))
+    return [p for p in out if not p.advanced] + [p for g in groups for p in out if p.advanced and p.group == g]
+
+
+def advanced_groups(cls: type) -> dict[str, list[ParamInfo]]:
+    """The advanced parameters of ``cls`` by group, in listing order."""
+    groups: dict[str, list[ParamInfo]] = {}
+    for p in describe(cls):
+        if p.advanced:
+            groups.setdefault(p.group, []).append(p)
+    return groups
 
 
 def auto_fields(instance: Any) -> list[ParamInfo]:
@@ -274,26 +322,40 @@ def markdown_table(cls: type, *, names: str = "flags") -> str:
 
     ``names="flags"`` shows command-line options (``--max-range``);
     ``names="settings"`` shows the names ``--set NAME=VALUE`` takes (``max_range``).
+    The advanced parameters follow the table, a folded table per group.
     """
-    rows = ["| parameter | default | unit | meaning |", "|---|---|---|---|"]
-    for p in describe(cls):
-        meaning = p.help.rstrip()
-        if meaning and meaning[-1] not in ".!?)":
-            meaning += "."
-        if p.choices:
-            meaning += " One of: " + ", ".join(f"`{c}`" for c in p.choices) + "."
-        rng = []
-        if p.low is not None:
-            rng.append(f">= {p.low}")
-        if p.high is not None:
-            rng.append(f"<= {p.high}")
-        if rng:
-            meaning += " Range: " + ", ".join(rng) + "."
-        if p.auto:
-            meaning += f" `auto`: from {p.auto}; `{p.fallback}` when the recording cannot tell."
-        shown = _flag(p.name) if names == "flags" else p.name
-        rows.append(f"| `{shown}` | `{p.default}` | {p.unit or '-'} | {meaning} |")
+    params = describe(cls)
+    head = ["| parameter | default | unit | meaning |", "|---|---|---|---|"]
+    rows = head + [_markdown_row(p, names) for p in params if not p.advanced]
+    groups = advanced_groups(cls)
+    if groups:
+        count = sum(map(len, groups.values()))
+        rows += ["", f"**Advanced** ({count} parameters, by the feature they belong to; most runs leave them at "
+                 "their defaults):", ""]
+        for group, members in groups.items():
+            rows += [f"<details><summary>{group} ({len(members)})</summary>", "", *head,
+                     *(_markdown_row(p, names) for p in members), "", "</details>", ""]
+        rows.pop()
     return "\n".join(rows) + "\n"
+
+
+def _markdown_row(p: ParamInfo, names: str) -> str:
+    meaning = p.help.rstrip()
+    if meaning and meaning[-1] not in ".!?)":
+        meaning += "."
+    if p.choices:
+        meaning += " One of: " + ", ".join(f"`{c}`" for c in p.choices) + "."
+    rng = []
+    if p.low is not None:
+        rng.append(f">= {p.low}")
+    if p.high is not None:
+        rng.append(f"<= {p.high}")
+    if rng:
+        meaning += " Range: " + ", ".join(rng) + "."
+    if p.auto:
+        meaning += f" `auto`: from {p.auto}; `{p.fallback}` when the recording cannot tell."
+    shown = _flag(p.name) if names == "flags" else p.name
+    return f"| `{shown}` | `{p.default}` | {p.unit or '-'} | {meaning} |"
 
 
 def _suggest(name: str, valid) -> str:
@@ -305,7 +367,7 @@ def _suggest(name: str, valid) -> str:
         return "did you mean " + " or ".join(repr(c) for c in close) + "?"
     if len(valid) <= 20:
         return "valid: " + ", ".join(sorted(valid))
-    return f"none of the {len(valid)} parameters is close ('slam2d methods METHOD' lists them)"
+    return f"none of the {len(valid)} parameters is close ('slam2d methods METHOD --all' lists them)"
 
 
 def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None) -> Any:
@@ -313,7 +375,9 @@ def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None)
 
     Values may be strings (``--set name=value``, with an optional unit suffix
     such as ``25deg``) or already typed (a YAML file). Dashes in names are
-    accepted for underscores. An unknown name raises :class:`InputError`
+    accepted for underscores. A parameter not in ``values`` takes its default
+    (so a record of :func:`as_record`, without the unchanged advanced ones,
+    builds the same instance). An unknown name raises :class:`InputError`
     listing the valid ones; ``path``/``where`` say where the values came from.
     """
     if not isinstance(values, dict):
@@ -342,3 +406,21 @@ def from_mapping(cls: type, values: Any, *, path: Any = None, where: Any = None)
 def as_dict(instance: Any) -> dict[str, Any]:
     """Every parameter value of an instance, by name (JSON-friendly)."""
     return {p.name: getattr(instance, p.name) for p in describe(type(instance))}
+
+
+def as_record(instance: Any) -> dict[str, Any]:
+    """The parameter values a run records: every one that is not advanced, and the advanced ones only where they
+    differ from their default (:func:`from_mapping` fills those in again)."""
+    out = {}
+    for p in describe(type(instance)):
+        value = getattr(instance, p.name)
+        if p.advanced and _same(value, p.default):
+            continue
+        out[p.name] = value
+    return out
+
+
+def _same(value: Any, default: Any) -> bool:
+    if isinstance(value, float) and isinstance(default, float) and math.isnan(value) and math.isnan(default):
+        return True
+    return type(value) is type(default) and value == default

@@ -40,6 +40,10 @@ from slam2d.params import param
 __all__ = ["DenseRefinementParams", "DenseTerm", "scan_normals"]
 
 
+# a feature most runs leave off: its parameters are listed after the method's own, under its name
+_ADVANCED = {"advanced": True, "group": "dense refinement"}
+
+
 @dataclass
 class DenseRefinementParams:
     """The dense multi-scan alignment after the wall refinement (not in Karto)."""
@@ -51,49 +55,60 @@ class DenseRefinementParams:
         "graph edges (and walls, dense_refinement_walls): uses the returns the line model drops, round posts and "
         "short faces; only with wall_refinement (not in Karto; docs/methods/karto-measured.md, URG-04LX: a dense alignment "
         "after the wall refinement)",
+        **_ADVANCED,
     )
     dense_refinement_iterations: int = param(
-        3, unit="rounds", low=1, help="rounds of association then Levenberg-Marquardt steps (dense_refinement)"
+        3, unit="rounds", low=1, help="rounds of association then Levenberg-Marquardt steps (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_steps: int = param(
-        3, unit="steps", low=1, help="Levenberg-Marquardt steps per association round (dense_refinement)"
+        3, unit="steps", low=1, help="Levenberg-Marquardt steps per association round (dense_refinement)", **_ADVANCED
     )
     dense_refinement_beam_step: int = param(
-        2, unit="beams", low=1, help="every this-many-th return of a scan is used (dense_refinement)"
+        2, unit="beams", low=1, help="every this-many-th return of a scan is used (dense_refinement)", **_ADVANCED
     )
     dense_refinement_normal_beams: int = param(
         4, unit="beams", low=1,
         help="a return's normal is that of the line through the returns this many beams either side (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_break_distance: float = param(
         0.2, unit="m", low=0.0,
         help="neighbouring returns farther apart than this are not on one surface for a normal (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_normal_rms: float = param(
         0.01, unit="m", low=0.0,
         help="a normal whose line fits its returns with a larger RMS is not a target (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_max_distance: float = param(
-        0.1, unit="m", low=0.0, help="largest distance from a return to its target return (dense_refinement)"
+        0.1, unit="m", low=0.0, help="largest distance from a return to its target return (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_neighbours: int = param(
         16, unit="points", low=1,
         help="nearest returns looked at for a target (the nearest usable one wins) (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_frame_gap: int = param(
         20, unit="frames", low=1,
         help="a target is in a frame at least this many frames away from the return's (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_sigma: float = param(
-        0.05, unit="m", low=1e-6, help="sigma of a return's distance from its target's line (dense_refinement)"
+        0.05, unit="m", low=1e-6, help="sigma of a return's distance from its target's line (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_robust_delta: float = param(
-        2.0, unit="sigma", low=1e-6, help="Huber kernel width of the point-to-line residual (dense_refinement)"
+        2.0, unit="sigma", low=1e-6, help="Huber kernel width of the point-to-line residual (dense_refinement)",
+        **_ADVANCED,
     )
     dense_refinement_walls: bool = param(
         True,
         help="keep the wall refinement's walls and wall ends in the dense solve (off: the returns and the "
         "odometry / graph edges only) (dense_refinement)",
+        **_ADVANCED,
     )
 
 

@@ -29,6 +29,10 @@ from slam2d.params import param
 __all__ = ["LoopCorrectionParams", "LoopCorrectionResult", "correct_path", "spread_node_corrections"]
 
 
+# a feature most runs leave off: its parameters are listed after the method's own, under its name
+_ADVANCED = {"advanced": True, "group": "loop correction"}
+
+
 @dataclass
 class LoopCorrectionParams:
     """The loop correction of a finished path (not in GMapping); the loop search's other settings are karto's."""
@@ -39,21 +43,22 @@ class LoopCorrectionParams:
         "covariance times loop_correction_step_scale), karto's loop closure search runs over it node by node "
         "(coarse then fine correlative match, "
         "karto's response and variance thresholds) and SPA solves it after each closure; the trajectory (frames "
-        "between updates interpolated) and map follow the corrected path; off: the filter's path")
+        "between updates interpolated) and map follow the corrected path; off: the filter's path", **_ADVANCED)
     loop_correction_distance: float = param(
         12.0, unit="m", low=0.0, help="loop_correction: loop candidates lie within this distance of a node "
-        "(karto's loop_search_maximum_distance, 4 m there; 12 m chosen on aces seeds 0-4, docs)")
+        "(karto's loop_search_maximum_distance, 4 m there; 12 m chosen on aces seeds 0-4, docs)", **_ADVANCED)
     loop_correction_step_scale: float = param(
         0.1, low=1e-6, help="loop_correction: factor on the motion model's standard deviations of the path's steps "
         "(floored at 1 cm, 0.005 rad): the filter's steps are scan matches, far better than the odometry noise they "
-        "were drawn with (0.1 chosen on aces seeds 0-4 with fr101 and fr079 not made worse, docs)")
+        "were drawn with (0.1 chosen on aces seeds 0-4 with fr101 and fr079 not made worse, docs)", **_ADVANCED)
     loop_correction_closure_scale: float = param(
         100.0, low=1e-6, help="loop_correction: factor on the covariance of every loop closure (karto's "
         "match_covariance_scale): the correlative matcher's covariance is centimetres and tenths of a degree, tighter "
-        "than a closure's error against the steps it bends (100 chosen with loop_correction_step_scale, docs)")
+        "than a closure's error against the steps it bends (100 chosen with loop_correction_step_scale, docs)",
+        **_ADVANCED)
     loop_correction_range: float = param(
         20.0, unit="m", low=0.0, help="loop_correction: returns beyond this are not matched by the loop search "
-        "(karto's range_threshold, 12 m there; 20 m chosen on aces seeds 0-4, docs)")
+        "(karto's range_threshold, 12 m there; 20 m chosen on aces seeds 0-4, docs)", **_ADVANCED)
 
 
 @dataclass

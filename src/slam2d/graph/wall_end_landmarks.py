@@ -38,6 +38,10 @@ from slam2d.params import param
 __all__ = ["WallEndParams", "WallEndLandmarks"]
 
 
+# a feature most runs leave off: its parameters are listed after the method's own, under its name
+_ADVANCED = {"advanced": True, "group": "wall-end landmarks"}
+
+
 @dataclass
 class WallEndParams:
     """The wall-end landmark parameters of the graph front end (not in Karto)."""
@@ -48,72 +52,86 @@ class WallEndParams:
         "track them as landmarks over the nodes that see them and add them to the pose graph as 2-DOF nodes "
         "with point edges (spa; lago ignores them) (not in Karto): they pin the position along corridors "
         "longer than the laser's reach, where the correlative match follows the odometry",
+        **_ADVANCED,
     )
     wall_end_auto_range: float = param(
         0.0, unit="m", low=0.0,
         help="with wall_end_landmarks false, turn them on for a laser whose maximum range (the first scan's "
         "range_max) is under this; 0 = never (not in Karto). 8 m takes the URG-04LX (5.6 m), where they help in "
         "the simulated office, and leaves the RPLidar A1 (12 m) and the SICK logs (50-81.8 m) exactly as they are",
+        **_ADVANCED,
     )
     wall_end_jump: float = param(
-        0.3, unit="m", low=0.0, help="least range step from a wall end's beam to the next two beams (wall_end_landmarks)"
+        0.3, unit="m", low=0.0, help="least range step from a wall end's beam to the next two beams (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_run: int = param(
-        5, unit="beams", low=2, help="beams without a jump on the near wall before its end (wall_end_landmarks)"
+        5, unit="beams", low=2, help="beams without a jump on the near wall before its end (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_maximum_incidence: float = param(
         80.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi / 2,
         help="largest angle between the end's beam and the wall's normal (wall_end_landmarks): at grazing "
         "incidence the end is ill-defined along the wall (its along-wall sigma, the gap between two beams "
         "over the square root of 12, grows as 1 / cos)",
+        **_ADVANCED,
     )
     wall_end_open_incidence: float = param(
         70.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi / 2,
         help="where no return follows a wall end for three beams (a door into a room beyond the reach, or a "
         "grazing wall losing its returns), the largest incidence at which it is taken (wall_end_landmarks): "
         "in the simulated corridor loop a grazing wall's lost returns otherwise pass for doors",
+        **_ADVANCED,
     )
     wall_end_maximum_range: float = param(
-        math.inf, unit="m", low=0.0, help="wall ends farther than this are not used (wall_end_landmarks)"
+        math.inf, unit="m", low=0.0, help="wall ends farther than this are not used (wall_end_landmarks)", **_ADVANCED
     )
     wall_end_range_sigma: float = param(
         0.01, unit="m", low=0.0,
         help="least range sigma of a wall end (a sensor model's per-beam sigma is used when larger) "
         "(wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_bearing_sigma: float = param(
         0.0, unit="rad", low=0.0,
         help="bearing sigma of a wall end added in quadrature to the beam gap's uniform error (a real beam's "
         "width: partly on the edge it can still return the near surface) (wall_end_landmarks); 0 = rays, as "
         "the simulator's",
+        **_ADVANCED,
     )
     wall_end_pose_sigma: float = param(
         0.05, unit="m", low=0.0,
         help="the new scan's position uncertainty against the landmarks, added in quadrature when associating "
         "(wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_gate: float = param(
         3.0, unit="sigma", low=0.0,
         help="a wall end is associated with the nearest landmark within this Mahalanobis distance, and only "
         "when it is the only one within it (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_track_nodes: int = param(
         10, unit="nodes", low=1,
         help="a landmark is looked for only while it was seen in the last this many nodes (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_minimum_sightings: int = param(
         3, unit="nodes", low=2,
         help="a landmark enters the pose graph once seen from this many nodes (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_optimize_interval: int = param(
         10, unit="nodes", low=1,
         help="optimise the graph when new landmark edges were added and this many nodes passed since the last "
         "optimisation (wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_reject_chi2: float = param(
         16.0, low=0.0,
         help="after an optimisation a landmark sighting whose chi-square (2 DOF) exceeds this is dropped "
         "(wall_end_landmarks)",
+        **_ADVANCED,
     )
     wall_end_information_scale: float = param(
         1.0, low=0.0,
@@ -121,6 +139,7 @@ class WallEndParams:
         "the pose graph (wall_end_landmarks): the scan matches' covariances are too wide for their errors "
         "(mean chi-square at the truth 0.19 of 3 in the simulated office), so the landmarks weigh more than "
         "the matches than they should (0.3, 0.1, 0.03 measured: no gain, docs/methods/karto-measured.md)",
+        **_ADVANCED,
     )
     wall_end_revisits: bool = param(
         False,
@@ -129,28 +148,33 @@ class WallEndParams:
         "marginal covariance in the pose graph, never seen from one node, walls within "
         "wall_end_revisit_direction and wall_end_revisit_radius, and so every pair of its group (those within "
         "wall_end_revisit_rival sigmas)",
+        **_ADVANCED,
     )
     wall_end_revisit_radius: float = param(
         0.15, unit="m", low=0.0,
         help="landmarks farther apart than this are not merged (wall_end_revisits): along a corridor the "
         "marginal covariance is wide (its largest sigma 0.4-0.7 m in the simulated corridor loop) and the "
         "gate alone let two box corners 0.1 m apart merge from 0.34 m",
+        **_ADVANCED,
     )
     wall_end_revisit_maximum_sigma: float = param(
         math.inf, unit="m", low=0.0,
         help="merge only where the largest sigma of the two landmarks' difference (marginal covariance) is "
         "under this (wall_end_revisits): once the passes are tied by the loop closer; inf = any",
+        **_ADVANCED,
     )
     wall_end_revisit_rival: float = param(
         6.0, unit="sigma", low=0.0,
         help="landmarks this close (Mahalanobis distance of their difference) form a group, merged only when "
         "every pair in it passes the merge tests (wall_end_revisits)",
+        **_ADVANCED,
     )
     wall_end_revisit_direction: float = param(
         120.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
         help="largest angle between the two landmarks' wall directions (from the end into the wall) "
         "(wall_end_revisits): a box corner is the end of either face (90 deg), the two jambs of a door "
         "point opposite ways (180 deg)",
+        **_ADVANCED,
     )
 
 

@@ -70,6 +70,10 @@ _FREEZE: set[str] = set()
 _GIVEN: dict[str, Any] = {}
 
 
+# a feature most runs leave off: its parameters are listed after the method's own, under its name
+_ADVANCED = {"advanced": True, "group": "wall refinement"}
+
+
 @dataclass
 class WallRefinementParams:
     """The wall bundle adjustment's parameters (not in Karto)."""
@@ -80,58 +84,69 @@ class WallRefinementParams:
         "walls fitted to their scans and the wall ends they see (every beam on a wall against its line, every "
         "end against its point, and the odometry or the pose graph's edges) by a batch least squares; the "
         "trajectory and map follow (not in Karto; docs/methods/karto-measured.md, URG-04LX: a wall bundle adjustment)",
+        **_ADVANCED,
     )
     wall_refinement_frames: bool = param(
         True,
         help="refine every placed frame (its scan, and the odometry between consecutive frames), not only the "
         "graph's nodes: several times the readings (wall_refinement); needs odometry on every frame, else "
         "the nodes alone are refined",
+        **_ADVANCED,
     )
     wall_refinement_iterations: int = param(
-        5, unit="rounds", low=1, help="rounds of association then Levenberg-Marquardt steps (wall_refinement)"
+        5, unit="rounds", low=1, help="rounds of association then Levenberg-Marquardt steps (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_steps: int = param(
-        3, unit="steps", low=1, help="Levenberg-Marquardt steps per association round (wall_refinement)"
+        3, unit="steps", low=1, help="Levenberg-Marquardt steps per association round (wall_refinement)", **_ADVANCED
     )
     wall_refinement_minimum_points: int = param(
-        10, unit="beams", low=3, help="fewest beams of a line segment (wall_refinement)"
+        10, unit="beams", low=3, help="fewest beams of a line segment (wall_refinement)", **_ADVANCED
     )
     wall_refinement_break_distance: float = param(
         0.2, unit="m", low=0.0,
         help="neighbouring returns farther apart than this are on different segments (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_split_distance: float = param(
         0.04, unit="m", low=0.0,
         help="a run of returns is split at its point farthest from the chord while it is this far off "
         "(wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_fit_rms: float = param(
-        0.02, unit="m", low=0.0, help="largest RMS distance of a segment's returns from its line (wall_refinement)"
+        0.02, unit="m", low=0.0, help="largest RMS distance of a segment's returns from its line (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_angle_gate: float = param(
         4.0 * _DEG, unit="rad", low=0.0,
         help="a segment joins a wall whose direction is within this of its own (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_offset_gate: float = param(
         0.1, unit="m", low=0.0,
         help="... and whose line passes within this of both of the segment's end points (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_overlap_gap: float = param(
         1.0, unit="m", low=0.0,
         help="... and whose extent along the line is at most this far from the segment's (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_minimum_nodes: int = param(
         3, unit="scans", low=2,
-        help="walls and wall ends seen from fewer scans are not used (wall_refinement)"
+        help="walls and wall ends seen from fewer scans are not used (wall_refinement)", **_ADVANCED
     )
     wall_refinement_range_sigma: float = param(
         0.04, unit="m", low=1e-6,
         help="least sigma of a beam's distance from its wall (a sensor model's per-beam range sigma is used when "
         "larger) (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_robust_delta: float = param(
         2.0, unit="sigma", low=1e-6,
         help="Huber kernel width of a beam's point-to-line residual (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_ends: bool = param(
         True,
@@ -139,27 +154,32 @@ class WallRefinementParams:
         "wall_refinement_end_incidence and wall_refinement_end_open_incidence), associate them over all scans "
         "within wall_refinement_end_gate and add them as points to the refinement (wall_refinement); off: "
         "with wall_end_landmarks on, that tracker's landmarks are used, else none",
+        **_ADVANCED,
     )
     wall_refinement_end_incidence: float = param(
         85.0 * _DEG, unit="rad", low=0.0, high=math.pi / 2,
         help="largest incidence of a wall end (wall_refinement_ends; wall_end_maximum_incidence for the refinement): "
         "the jambs far ahead along a corridor are seen at grazing incidence, and at 80 deg each is lost before the "
         "next is seen, which leaves the stretch between them to the odometry",
+        **_ADVANCED,
     )
     wall_refinement_end_open_incidence: float = param(
         80.0 * _DEG, unit="rad", low=0.0, high=math.pi / 2,
         help="largest incidence of a wall end with no return after it (wall_refinement_ends; "
         "wall_end_open_incidence for the refinement)",
+        **_ADVANCED,
     )
     wall_refinement_end_jump: float = param(
         0.3, unit="m", low=0.0,
         help="least range step from a wall end's beam to the next two (wall_refinement_ends; wall_end_jump for the "
         "refinement): a box 0.25 m in front of a wall is missed at 0.3 m",
+        **_ADVANCED,
     )
     wall_refinement_end_run: int = param(
         5, unit="beams", low=2,
         help="returns without a jump on the near wall before its end (wall_refinement_ends; wall_end_run for the "
         "refinement): a lost return among them (a grazing wall far ahead) loses the end",
+        **_ADVANCED,
     )
     wall_refinement_end_two_pass: bool = param(
         False,
@@ -168,11 +188,13 @@ class WallRefinementParams:
         "detector adds (a box close in front of a wall, a jamb far ahead after a lost return) are associated at the "
         "first pass's poses, not at the run's, where they can join the wrong landmark "
         "(docs/methods/karto-measured.md, URG-04LX: which inputs hold the last centimetres)",
+        **_ADVANCED,
     )
     wall_refinement_end_gate: float = param(
         0.15, unit="m", low=0.0,
         help="a wall end joins the nearest landmark (mean of its sightings) within this, never two of one scan "
         "(wall_refinement_ends)",
+        **_ADVANCED,
     )
     wall_refinement_edges: str = param(
         "graph", choices=("graph", "odometry", "odometry+loops"),
@@ -180,22 +202,28 @@ class WallRefinementParams:
         "matches, loop closures; over all frames, plus the odometry between consecutive frames with the "
         "wall_refinement_odometry_* noise model), odometry = that odometry alone, odometry+loops = it and the "
         "loop closures' edges",
+        **_ADVANCED,
     )
     wall_refinement_odometry_srr: float = param(
-        0.1, unit="m/m", low=0.0, help="odometry noise: translation from translation (GMapping srr) (wall_refinement_edges)"
+        0.1, unit="m/m", low=0.0, help="odometry noise: translation from translation (GMapping srr) (wall_refinement_edges)",
+        **_ADVANCED,
     )
     wall_refinement_odometry_srt: float = param(
-        0.2, unit="rad/m", low=0.0, help="odometry noise: rotation from translation (GMapping srt) (wall_refinement_edges)"
+        0.2, unit="rad/m", low=0.0, help="odometry noise: rotation from translation (GMapping srt) (wall_refinement_edges)",
+        **_ADVANCED,
     )
     wall_refinement_odometry_str: float = param(
-        0.1, unit="m/rad", low=0.0, help="odometry noise: translation from rotation (GMapping str) (wall_refinement_edges)"
+        0.1, unit="m/rad", low=0.0, help="odometry noise: translation from rotation (GMapping str) (wall_refinement_edges)",
+        **_ADVANCED,
     )
     wall_refinement_odometry_stt: float = param(
-        0.2, unit="rad/rad", low=0.0, help="odometry noise: rotation from rotation (GMapping stt) (wall_refinement_edges)"
+        0.2, unit="rad/rad", low=0.0, help="odometry noise: rotation from rotation (GMapping stt) (wall_refinement_edges)",
+        **_ADVANCED,
     )
     wall_refinement_edge_scale: float = param(
         1.0, low=0.0,
         help="factor on the information of the edges that tie the poses (wall_refinement_edges) (wall_refinement)",
+        **_ADVANCED,
     )
     wall_refinement_carry_damping: bool = param(
         False,
@@ -203,6 +231,7 @@ class WallRefinementParams:
         "each round at 1e-4 (wall_refinement): the along-track modes of a long chain of frames are far weaker than "
         "the diagonal the damping scales, so restarted they barely move in 3 steps a round and the solve stops "
         "short of its optimum (docs/methods/karto-measured.md, URG-04LX: is it the association?)",
+        **_ADVANCED,
     )
 
 

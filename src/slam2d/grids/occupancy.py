@@ -97,9 +97,10 @@ class GridParams:
         low=0.001,
         high=0.499,
         help="lower clamp of a cell's probability (keeps maps updatable)",
+        advanced=True, group="occupancy grid",
     )
     p_max: float = param(
-        0.97, low=0.501, high=0.999, help="upper clamp of a cell's probability"
+        0.97, low=0.501, high=0.999, help="upper clamp of a cell's probability", advanced=True, group="occupancy grid"
     )
     max_range: float | None = param(
         None,
@@ -110,7 +111,8 @@ class GridParams:
         "beams with no return are skipped",
     )
     grow_margin: int = param(
-        64, unit="cells", low=1, help="the least a grid grows by on a side when it must grow"
+        64, unit="cells", low=1, help="the least a grid grows by on a side when it must grow", advanced=True,
+        group="map growth",
     )
     max_extent: float = param(
         2000.0,
@@ -118,6 +120,7 @@ class GridParams:
         low=1.0,
         help="largest width or height a grid may grow to; a larger request is an error "
         "(it means corrupt poses or ranges)",
+        advanced=True, group="map growth",
     )
 
 

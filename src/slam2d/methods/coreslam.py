@@ -62,6 +62,7 @@ class CoreSlamParams(OdometryGapParams):
     hole_sigmas: float = param(
         3.0, low=0.0, high=20.0,
         help="with a sensor model: a beam's hole half-width is sqrt((hole_width/2)^2 + (hole_sigmas*sigma)^2)",
+        advanced=True, group="sensor model",
     )
     sigma_xy: float = param(0.1, unit="m", low=0.0, high=10.0, help="initial spread of the position mutations")
     sigma_theta: float = param(
@@ -79,10 +80,12 @@ class CoreSlamParams(OdometryGapParams):
         help="how much later than its scan each odometry reading was taken (a laser stamped late): the "
         "prediction and the de-skew use the odometry interpolated this long before each scan's stamp "
         "('slam2d calibrate odometry-lag' measures it)",
+        advanced=True, group="prediction",
     )
     motion_model: str = param(
         "none", choices=("none", "constant_velocity"),
         help="prediction without odometry: the last pose (BreezySLAM) or the last pose plus the last matched motion",
+        advanced=True, group="prediction",
     )
     refine: bool = param(
         True, help="end each search with a deterministic compass search (one cell and 1/3 cell per 3 m of heading, "
@@ -105,9 +108,11 @@ class CoreSlamParams(OdometryGapParams):
         help="beams with no return clear free space up to this range (BreezySLAM's distance_no_detection); "
         "unset: they are skipped",
     )
-    grow_margin: int = param(64, unit="cells", low=1, help="the least the map grows by on a side when it must grow")
+    grow_margin: int = param(64, unit="cells", low=1, help="the least the map grows by on a side when it must grow",
+                             advanced=True, group="map growth")
     max_extent: float = param(
-        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
+        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)",
+        advanced=True, group="map growth",
     )
 
 

@@ -82,22 +82,27 @@ class CrsmParams:
     robot_width: float = param(0.6, unit="m", low=0.0, help="width of the initial free patch under the robot")
     robot_length: float = param(0.75, unit="m", low=0.0, help="length of the initial free patch under the robot")
     warmup_scans: int = param(
-        40, low=0, help="first scans whose pose is held at the start while the map builds (the original's 40)"
+        40, low=0, help="first scans whose pose is held at the start while the map builds (the original's 40)",
+        advanced=True, group="warm-up",
     )
     warmup_density_scans: int = param(
-        10, low=0, help="first scans written with the strongest update gain (the original's 10)"
+        10, low=0, help="first scans written with the strongest update gain (the original's 10)",
+        advanced=True, group="warm-up",
     )
     warmup_end_translation: float = param(
         0.04, unit="m", low=0.0,
         help="the warm-up ends early when a match moves the robot further than this from the start",
+        advanced=True, group="warm-up",
     )
     warmup_end_rotation: float = param(
         0.035, unit="rad", low=0.0,
         help="the warm-up ends early when a match turns the robot more than this",
+        advanced=True, group="warm-up",
     )
     warmup_end_confirm: int = param(
         2, low=1, help="consecutive scans that must see the motion before the warm-up ends early "
         "(a match on a one-scan map can jump spuriously)",
+        advanced=True, group="warm-up",
     )
     min_range: float = param(
         0.02, unit="m", low=0.0,
@@ -108,6 +113,7 @@ class CrsmParams:
         0, low=0, high=1000,
         help="rounds of a final deterministic climb over the 26 neighbours (1 cell, 1/180 rad) after the "
         "random search; 0 = the original (headings stay on the restart lattice)",
+        advanced=True, group="refinement",
     )
     dense_refine_rounds: int = param(
         10, low=0, high=1000,
@@ -117,6 +123,7 @@ class CrsmParams:
     motion_model: str = param(
         "none", choices=("none", "constant_velocity"),
         help="search centre: the last pose (the original) or the last pose plus the last matched motion",
+        advanced=True, group="prediction",
     )
     unknown_rays: str = param(
         "drop", choices=("score", "drop"),
@@ -124,7 +131,8 @@ class CrsmParams:
         "left out of this scan's fitness, so new walls neither pull the fit back onto mapped ones nor push it; "
         "score: every ray counts, one on an unknown cell as a miss (the original)",
     )
-    known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays")
+    known_margin: int = param(2, unit="cells", low=0, high=50, help="see unknown_rays",
+                              advanced=True, group="unknown rays")
     turn_sigma: float = param(
         0.035, unit="rad", low=0.0, high=10.0,
         help="scatter of the turn per scan about the prediction (turn_null): a match whose turn differs from the "
@@ -138,18 +146,22 @@ class CrsmParams:
         "last matched motion (last_motion), or plus this scan's interval times the mean velocity of the last "
         "velocity_scans motions from the scan timestamps (velocity), or plus the motion that registers this scan "
         "on the previous one alone (scan_to_scan, no map); each settled by the every-beam climb",
+        advanced=True, group="turn test",
     )
     turn_starts: str = param(
         "prediction", choices=("prediction", "translations"),
         help="where the every-beam climb for the turn test's alternative starts: the prediction only, or also at the "
         "match's position and at the last pose plus the mean recent translation, each at the prediction's heading",
+        advanced=True, group="turn test",
     )
     velocity_scans: int = param(
         3, low=1, high=100,
         help="motions averaged for the velocity of turn_null=velocity and turn_starts=translations",
+        advanced=True, group="turn test",
     )
     max_extent: float = param(
-        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)"
+        2000.0, unit="m", low=1.0, help="largest width or height the map may grow to (beyond: corrupt data)",
+        advanced=True, group="map growth",
     )
 
 

@@ -84,10 +84,10 @@ _AUTO_BETWEEN = (f"the scans per filter update and the laser's reach: guided at 
 
 
 @dataclass
-class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapParams):
+class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapParams):
     """GMapping's parameters, with the names and defaults of slam_gmapping (and, not in GMapping, the loop
     correction of the finished best path by a pose graph, ``loop_correction``, and its wall refinement,
-    ``wall_refinement``, over the odometry between frames)."""
+    ``wall_refinement``, over the odometry between frames: advanced parameters, listed after GMapping's)."""
 
     particles: int = param(30, low=1, high=10000, help="number of particles")
     islands: int = param(
@@ -96,7 +96,7 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         "seed, the others with seeds drawn from it) and report the one whose best particle has the largest "
         "accumulated log-likelihood per update (GMapping's weightSum, its own choice of the best particle); "
         "1 = GMapping. A filter that lost the right map early scores far lower (docs/methods/gmapping-measured.md, "
-        "Islands); costs islands x the CPU and the memory")
+        "Islands); costs islands x the CPU and the memory", advanced=True, group="islands")
     maxUrange: float | None = param(
         None, unit="m", low=0.0, help="usable range: beams are cut here for mapping and ignored beyond it "
         "for matching; unset: maxRange")
@@ -106,7 +106,8 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         None, unit="m", low=0.0, help="not in GMapping: beams longer than this are not used for matching and the "
         "likelihood (they are still mapped up to maxUrange). Set it a linearUpdate below the laser's reach and every "
         "matched beam ends where the previous updates' scans have mapped, so moving the pose back does not gain map "
-        "points at the edge of the mapped area (a short laser's corridors otherwise shrink); unset: maxUrange")
+        "points at the edge of the mapped area (a short laser's corridors otherwise shrink); unset: maxUrange",
+        advanced=True, group="scan matching")
     sigma: float = param(
         0.05, unit="m^2", low=1e-9, help="scan-matcher score divisor: a beam scores exp(-d^2/sigma) "
         "(= 2 s^2 for a standard deviation s; 0.05 is s = 0.158 m)")
@@ -116,42 +117,47 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
     iterations: int = param(5, low=0, high=30, help="step halvings before the hill climb stops")
     angular_search: float = param(
         0.0, unit="rad", low=0.0, high=3.2, help="not in GMapping: the hill climb starts from the best heading "
-        "within +-this of the particle's (steps of astep); 0: the original's climb")
+        "within +-this of the particle's (steps of astep); 0: the original's climb",
+        advanced=True, group="scan matching")
     angular_search_every: int = param(
         1, low=1, help="not in GMapping: only every k-th particle does the angular_search, the others climb as "
-        "the original (a mixture proposal); 1: all particles")
+        "the original (a mixture proposal); 1: all particles", advanced=True, group="scan matching")
     linearOdometryReliability: float = param(
         0.0, unit="1/m^2", low=0.0, help="GMapping core (not in the ROS node): the hill climb multiplies a pose's "
-        "score by exp(-this * d^2), d its distance from where the climb started; 0: off")
+        "score by exp(-this * d^2), d its distance from where the climb started; 0: off",
+        advanced=True, group="scan matching")
     angularOdometryReliability: float = param(
-        0.0, unit="1/rad^2", low=0.0, help="GMapping core: the same for the heading change")
+        0.0, unit="1/rad^2", low=0.0, help="GMapping core: the same for the heading change",
+        advanced=True, group="scan matching")
     odometry_prior: float = param(
         0.0, low=0.0, help="not in GMapping: the particles' climb maximises score - this * half the squared "
         "Mahalanobis distance from the particle's predicted pose, with the motion model's (srr...stt) covariance of "
-        "the odometry increment since the last update (the mode of likelihood x motion prior); 0: the original's climb")
+        "the odometry increment since the last update (the mode of likelihood x motion prior); 0: the original's climb",
+        advanced=True, group="scan matching")
     tracking_prior: float = param(
         0.0, low=0.0, help="not in GMapping: the same odometry prior for the climbs of the scans between updates "
         "(between_updates=matched or guided), with the covariance of the odometry increment since the last matched "
-        "scan; 0: off")
+        "scan; 0: off", advanced=True, group="scan matching")
     flat_ratio: float = param(
         0.0, low=0.0, high=1.0, help="not in GMapping: after every climb (the particles' and the tracked scans') "
         "the score's translation curvature at the optimum is taken by central differences of one cell; when its "
         "smaller eigenvalue is below this times the larger (a corridor longer than the laser's reach) the climb's "
-        "move along that direction is undone, the odometry's kept (counted as degenerate_matches); 0: off")
+        "move along that direction is undone, the odometry's kept (counted as degenerate_matches); 0: off",
+        advanced=True, group="flat directions")
     flat_sigma: float = param(
         0.0, unit="m", low=0.0, help="not in GMapping: with flat_ratio, a held climb is not left at the odometry's "
         "position along its flat direction but moved to where the scan's wall ends (a straight wall's last hit "
         "next to a beam that passes it) meet the same walls' ends in the particle's map, each a Gaussian of this "
         "standard deviation, against the motion model's prior: the few beams that say where along a corridor the "
         "robot is, which the whole score's curvature cannot tell from the walls' ripple; 0: off, held at the "
-        "odometry's")
+        "odometry's", advanced=True, group="flat directions")
     flat_wall_ends: str = param(
         "line", choices=("line", "landmark"),
         help="not in GMapping: the wall ends flat_sigma matches. line: a beam on a straight wall (four before it "
         "within 2 cm of a line) whose next two pass 0.5 m beyond, each with flat_sigma; landmark: the wall-end "
         "detector karto's wall_end_landmarks use (least-squares wall, mixed-return and occlusion checks, "
         "lost-return doorways; at most 60 deg from the wall's normal, as line), each with sqrt(flat_sigma^2 + its "
-        "along-wall sigma^2) (the beam gap's)")
+        "along-wall sigma^2) (the beam gap's)", advanced=True, group="flat directions")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -159,7 +165,7 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         0, unit="cells", low=0, high=10, help="not in GMapping: each particle also climbs from a second start, found "
         "by a climb at the first steps (lstep, astep) whose beams search this many cells around their ends, and "
         "keeps whichever of the two climbs scores higher; reaches walls a few cells beyond kernelSize's window "
-        "(a loop coming back to old map); 0: off, the original's one climb")
+        "(a loop coming back to old map); 0: off, the original's one climb", advanced=True, group="scan matching")
     ogain: float = param(3.0, low=1e-6, help="weight smoothing: weights are exp(loglik / (ogain N))")
     lskip: int = param(0, low=0, help="use every (lskip+1)-th beam for matching and likelihood")
     minimumScore: float = param(
@@ -188,9 +194,10 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         0.0, unit="std", low=0.0, high=10.0, help="not in GMapping: proposal=gaussian samples on a grid of +-this "
         "many of the motion model's standard deviations (of the odometry increment since the last update; forward, "
         "left, heading, in the optimum's frame), at least the ll/la sample ranges, so the fitted Gaussian can be as "
-        "wide as the odometry where the scan is flat; 0: the original's ll/la grid")
+        "wide as the odometry where the scan is flat; 0: the original's ll/la grid", advanced=True, group="proposal")
     proposal_points: int = param(
-        5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)")
+        5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)",
+        advanced=True, group="proposal")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
         "hill-climb", choices=("hill-climb", "gaussian", "laplace"),
@@ -199,21 +206,24 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
         "of the scan's Gaussian (the log-likelihood's curvature at the optimum by finite differences, +-delta "
         "forward, +-llsamplerange sideways, +-lasamplerange in heading; a direction without curvature carries no "
-        "information) and the odometry's, sampled and weighted in closed form")
+        "information) and the odometry's, sampled and weighted in closed form", advanced=True, group="proposal")
     generateMap: bool = param(
-        False, help="particle maps also record free space (slam_gmapping: off, only hit cells)")
+        False, help="particle maps also record free space (slam_gmapping: off, only hit cells)",
+        advanced=True, group="maps")
     map_output: str = param(
         "rebuilt", choices=("rebuilt", "best-particle"),
         help="rebuilt: the map re-drawn along the best particle's whole path with free space (as the ROS "
-        "node publishes); best-particle: that particle's own map")
+        "node publishes); best-particle: that particle's own map", advanced=True, group="maps")
     free_cell_check: bool = param(
         False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
-        "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)")
+        "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)",
+        advanced=True, group="scan matching")
     motion_noise: str = param(
         "scan", choices=("update", "scan"),
         help="update: one draw of the motion noise for the whole odometry increment since the last filter "
         "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
-        "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))")
+        "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))",
+        advanced=True, group="proposal")
     between_updates: str = param(
         "matched", choices=("matched", "odometry", "guided"), auto=_AUTO_BETWEEN,
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
@@ -222,7 +232,8 @@ class GMappingParams(WallRefinementParams, LoopCorrectionParams, OdometryGapPara
         "every scan is climbed so, and the climbed increment replaces the odometry's in the motion model and "
         "the update gating (scan-matched odometry)")
     jump_warning: float = param(
-        2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted")
+        2.0, unit="m", low=0.0, help="an odometry step longer than this between two scans is warned and counted",
+        advanced=True, group="odometry checks")
 
 
 @register

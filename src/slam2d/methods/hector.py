@@ -62,37 +62,48 @@ class HectorParams(GridParams, OdometryGapParams):
     laser_min_dist: float = param(0.4, unit="m", low=0.0, help="returns shorter than this are ignored")
     laser_max_dist: float = param(30.0, unit="m", low=0.0, help="returns longer than this are ignored")
     iterations_coarse: int = param(10, low=1, high=1000,
-                                   help="most Gauss-Newton steps on each coarse level (the original: 3, fixed)")
+                                   help="most Gauss-Newton steps on each coarse level (the original: 3, fixed)",
+                                   advanced=True, group="scan matching")
     iterations_fine: int = param(10, low=1, high=1000,
-                                 help="most Gauss-Newton steps on the finest level (the original: 5, fixed)")
+                                 help="most Gauss-Newton steps on the finest level (the original: 5, fixed)",
+                                 advanced=True, group="scan matching")
     convergence_xy: float = param(1e-4, unit="m", low=0.0,
-                                  help="a level stops when a step moves less than this and ...")
-    convergence_theta: float = param(1e-4, unit="rad", low=0.0, help="... turns less than this")
-    max_angle_step: float = param(0.2, unit="rad", low=0.001, help="largest heading change of one step")
+                                  help="a level stops when a step moves less than this and ...",
+                                  advanced=True, group="scan matching")
+    convergence_theta: float = param(1e-4, unit="rad", low=0.0, help="... turns less than this",
+                                     advanced=True, group="scan matching")
+    max_angle_step: float = param(0.2, unit="rad", low=0.001, help="largest heading change of one step",
+                                  advanced=True, group="scan matching")
     max_step_cells: float = param(2.0, low=0.01,
-                                  help="longest translation of one step, in cells of the level being matched")
+                                  help="longest translation of one step, in cells of the level being matched",
+                                  advanced=True, group="scan matching")
     range_sigma: float = param(0.01, unit="m", low=1e-6,
                                help="range noise of every beam when no sensor model is given; a beam's "
-                               "residual weight is (range_sigma / its sigma)^2")
+                               "residual weight is (range_sigma / its sigma)^2", advanced=True, group="scan matching")
     degeneracy_threshold: float = param(
         0.01, low=0.0, high=1.0,
         help="a match is degenerate when an eigenvalue of its Hessian (heading scaled by the scan's RMS "
-        "point distance) is below this fraction of the largest")
+        "point distance) is below this fraction of the largest", advanced=True, group="degeneracy")
     normal_baseline: float = param(
         0.2, unit="m", low=0.0,
-        help="surface normals for the geometric degeneracy test come from endpoints about this far apart")
+        help="surface normals for the geometric degeneracy test come from endpoints about this far apart",
+        advanced=True, group="degeneracy")
     constant_velocity: bool = param(
         True, help="without (usable) odometry, start each match from the last pose plus the last scan-to-scan "
         "motion (the original starts from the last pose)")
     use_odometry: bool = param(False, help="predict with odometry, use it as a prior and along "
                                            "degenerate directions")
     odometry_sigma_xy: float = param(0.05, unit="m", low=1e-6,
-                                     help="prior standard deviation of the odometry's position increment per scan")
+                                     help="prior standard deviation of the odometry's position increment per scan",
+                                     advanced=True, group="odometry")
     odometry_sigma_theta: float = param(0.05, unit="rad", low=1e-6,
-                                        help="prior standard deviation of the odometry's heading increment per scan")
+                                        help="prior standard deviation of the odometry's heading increment per scan",
+                                        advanced=True, group="odometry")
     odometry_max_step: float = param(2.0, unit="m", low=0.0,
-                                     help="an odometry increment longer than this is a jump and is ignored")
-    min_points: int = param(10, low=3, help="scans with fewer usable returns are not matched")
+                                     help="an odometry increment longer than this is a jump and is ignored",
+                                     advanced=True, group="odometry")
+    min_points: int = param(10, low=3, help="scans with fewer usable returns are not matched",
+                            advanced=True, group="scan matching")
 
 
 @register

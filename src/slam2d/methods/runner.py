@@ -5,7 +5,8 @@ A run folder holds
 * ``trajectory.tum``: the estimated robot base pose at every scan that got one;
 * ``map.yaml`` + ``map.pgm`` (map_server), ``preview.png``, ``map.json``;
 * ``diagnostics.json``: per-update timing and the method's own values;
-* ``run.json``: the method, every parameter value, the seed, the input file's
+* ``run.json``: the method, its parameter values (the advanced ones only where
+  changed from their defaults), the seed, the input file's
   SHA-256, the reading options, the versions of slam2d, Python and every
   dependency, and the peak memory. ``slam2d run METHOD DATA --params run.json``
   repeats the run with the same parameters and seed.
@@ -38,11 +39,11 @@ from slam2d.io.base import ProgressCallback, ReadOptions
 from slam2d.io.session import SessionRecorder
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import get_method
-from slam2d.params import as_dict, from_mapping
+from slam2d.params import as_dict, as_record, from_mapping
 from slam2d.sensors.recording_profile import measure_profile
 
-__all__ = ["RunSummary", "build_method", "build_method_for", "read_params_file", "run_method", "write_live_run",
-           "input_digest", "versions"]
+__all__ = ["RunSummary", "build_method", "build_method_for", "json_params", "read_params_file", "run_method",
+           "write_live_run", "input_digest", "versions"]
 
 RUN_FORMAT = 1
 _DEPENDENCIES = ("numpy", "scipy", "numba", "rosbags", "matplotlib", "pyyaml", "pillow", "rich")
@@ -313,6 +314,18 @@ def write_live_run(slam: SlamMethod, out_dir: Path, *, source: str, frames: int,
     return summary
 
 
+def json_params(values: Mapping[str, Any]) -> dict[str, Any]:
+    """Parameter values as a run records them: as text where not finite ("inf"), as JSON has no infinity and a
+    rerun with --params run.json reads it back."""
+    return {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v) for k, v in values.items()}
+
+
+def _recorded_params(slam: SlamMethod) -> dict[str, Any]:
+    """The parameters ``run.json`` and the session record: :func:`~slam2d.params.as_record`'s, the advanced ones
+    only where changed (:func:`build_method` fills in the rest)."""
+    return json_params(as_record(slam.params))
+
+
 def _write_run(
     slam: SlamMethod,
     out_dir: Path,
@@ -355,10 +368,8 @@ def _write_run(
         from slam2d import __version__
         from slam2d.io.session import write_session
 
-        params = {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v)
-                  for k, v in slam.parameters().items()}
-        written += write_session(out_dir / "session", session, method=slam.name, params=params, seed=slam.seed,
-                                 version=__version__)
+        written += write_session(out_dir / "session", session, method=slam.name, params=_recorded_params(slam),
+                                 seed=slam.seed, version=__version__)
     slam.diagnostics.summary.update({"peak_rss_mb": peak, "rss_before_mb": rss_before})
     diag = {"method": slam.name, "descriptions": {**slam.COMMON_DIAGNOSTICS, **slam.DIAGNOSTICS},
             **slam.diagnostics.as_dict()}
@@ -370,9 +381,7 @@ def _write_run(
     record = {
         "format": RUN_FORMAT,
         "method": slam.name,
-        # as text where not finite ("inf"): JSON has no infinity, and a rerun with --params run.json reads it back
-        "params": {k: (str(v) if isinstance(v, float) and not math.isfinite(v) else v)
-                   for k, v in slam.parameters().items()},
+        "params": _recorded_params(slam),
         "seed": slam.seed,
         "auto": slam.auto,
         "sensor_model": describe_sensor_model(slam.sensor_model),

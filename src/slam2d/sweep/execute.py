@@ -181,7 +181,7 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
     try:
         from slam2d.eval.evaluate import evaluate_run, load_run
         from slam2d.io.atomic import write_json_atomic
-        from slam2d.methods.runner import run_method
+        from slam2d.methods.runner import json_params, run_method
 
         from slam2d.methods.registry import get_method
         from slam2d.params import as_dict, from_mapping
@@ -195,7 +195,8 @@ def execute_run(task: dict[str, Any]) -> dict[str, Any]:
         row["params"] = as_dict(from_mapping(get_method(task["method"]).Params, settings))  # every value, even if it fails
         summary = run_method(task["method"], data["recording"], run_dir, settings=settings, seed=task["seed"],
                              command=f"slam2d sweep (run {task['id']})")
-        row["params"] = summary.record["params"]
+        # every value as run (run.json holds the advanced ones only where changed)
+        row["params"] = json_params(as_dict(from_mapping(get_method(task["method"]).Params, summary.record["params"])))
         row["scans"] = summary.frames
         row["run_s"] = summary.seconds
         t1 = time.perf_counter()
