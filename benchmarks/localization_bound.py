@@ -39,12 +39,26 @@ def half_turn(poses: np.ndarray, centre: tuple[float, float]) -> np.ndarray:
     return out
 
 
+def filter_updates(frames, params):
+    """``(index, frame)`` of the scans the localizer's filter (and its search's scores) update on."""
+    from slam2d.core import se2
+
+    last = None
+    for i, frame in enumerate(frames):
+        odom = np.asarray(frame.odometry, dtype=np.float64)
+        if last is not None:
+            d = se2.relative(last, odom).reshape(3)
+            if math.hypot(d[0], d[1]) < params.update_distance and abs(d[2]) < params.update_angle:
+                continue
+        last = odom
+        yield i, frame
+
+
 def bound(world: str, work: Path) -> str:
     import yaml
 
     import slam2d.localization.localizer as lz
     from localization import second_drive
-    from slam2d.core import se2
     from slam2d.io import open_recording
     from slam2d.io.map_server import read_map
     from slam2d.io.tum import read_tum
@@ -61,20 +75,11 @@ def bound(world: str, work: Path) -> str:
     frames = list(open_recording(d2 / "recording.log.gz").frames())
     k = np.searchsorted(tt, [f.timestamp for f in frames]).clip(0, len(tt) - 1)
     truth, twin = tp[k], half_turn(tp[k], centre)
-    lead, leads, last_odom = 0.0, np.zeros(len(frames)), None
-    p = loc.p
-    for i, f in enumerate(frames):
-        odom = np.asarray(f.odometry, dtype=np.float64)
-        moved = last_odom is None
-        if last_odom is not None:
-            d = se2.relative(last_odom, odom).reshape(3)
-            moved = math.hypot(d[0], d[1]) >= p.update_distance or abs(d[2]) >= p.update_angle
-        if moved:  # the search scores a hypothesis at each filter update
-            last_odom = odom
-            mx, my = loc._beams(f.scan.points_in_base(), p.match_beams)
-            ll = loc._log_likelihoods(np.array([truth[i], twin[i]]), mx, my)
-            lead += lz._INDEPENDENT_BEAMS * float(ll[0] - ll[1])
-        leads[i] = lead
+    leads, p = np.zeros(len(frames)), loc.p
+    for i, f in filter_updates(frames, p):  # the search scores a hypothesis at each filter update
+        mx, my = loc._beams(f.scan.points_in_base(), p.match_beams)
+        ll = loc._log_likelihoods(np.array([truth[i], twin[i]]), mx, my)
+        leads[i:] += lz._INDEPENDENT_BEAMS * float(ll[0] - ll[1])
     behind = np.flatnonzero(leads < lz._HYPOTHESIS_MARGIN)
     half_sure = int(behind[-1]) + 1 if len(behind) else 0
     sure, worst = every_twin(loc, frames, truth, grid)
@@ -96,7 +101,6 @@ def bound(world: str, work: Path) -> str:
 def every_twin(loc, frames, truth: np.ndarray, grid) -> tuple[int, str]:
     """The first scan from which the truth leads every far twin by the margin for good, and the last twin to fall."""
     import slam2d.localization.localizer as lz
-    from slam2d.core import se2
     from slam2d.localization.kernels import particle_log_likelihoods
 
     (x0, y0), res = grid.origin, grid.resolution
@@ -118,16 +122,8 @@ def every_twin(loc, frames, truth: np.ndarray, grid) -> tuple[int, str]:
     poses = np.empty((len(a), 3))
     ll = np.empty(len(a))
     own = np.empty(1)
-    sure, last_odom, worst = 0, None, "-"
-    for i, frame in enumerate(frames):
-        odom = np.asarray(frame.odometry, dtype=np.float64)
-        moved = last_odom is None
-        if last_odom is not None:
-            d = se2.relative(last_odom, odom).reshape(3)
-            moved = math.hypot(d[0], d[1]) >= p.update_distance or abs(d[2]) >= p.update_angle
-        if not moved:
-            continue
-        last_odom = odom
+    sure, worst = 0, "-"
+    for i, frame in filter_updates(frames, p):
         q = truth[i]
         poses[:, 0] = ca * q[0] - sa * q[1] + tx
         poses[:, 1] = sa * q[0] + ca * q[1] + ty
