@@ -712,6 +712,6 @@ def test_crsm_mines_exp2_map_is_as_consistent_as_hector(hector_mines_exp2):
     turn at scan 236: hector's trajectory with that turn taken out scores 18.3 against hector's. Measured with the
     defaults: heading p95 21.2 / 16.5 / 18.2 / 21.0 / 16.2 degrees (bound 23), consistency 0.730 / 0.733 / 0.743 /
     0.736 / 0.711 (bar 0.624). The runs are chaotic (a change anywhere moves which seed is worst); with the
-    smeared-field scan-to-scan step, which shrank turns, seed 4 failed at 24.0: docs/methods/crsm.md."""
+    smeared-field scan-to-scan step, which shrank turns, seed 4 failed at 24.0: docs/methods/what-was-tried.md."""
     failures = _check_mines_target("mines-exp2", hector_mines_exp2)
     assert not failures, failures

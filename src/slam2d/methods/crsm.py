@@ -63,7 +63,7 @@ class CrsmParams:
     desired_number_of_picked_rays: int = param(
         120, low=1, high=100_000,
         help="rays the density walk aims to pick per scan (kept within +-25 %); the original's 40 leaves the "
-        "URG-04LX's mines maps less consistent (docs/methods/crsm.md)",
+        "URG-04LX's mines maps less consistent (docs/methods/what-was-tried.md)",
     )
     ray_count_control: str = param(
         "additive", choices=("additive", "proportional"),
