@@ -198,25 +198,28 @@ def fr079_rows(work: Path) -> list[str]:
     run_method("karto", work / "fr079-1.log", work / "fr079-karto")
     ref = SHARED / "fr079" / "reference.tum"
     frame = frame_of(work / "fr079-karto" / "trajectory.tum", ref)
+    from slam2d.core import se2
+    from slam2d.io.tum import read_tum
+
+    rt, rp = read_tum(ref)
+
+    def against_reference(path: Path) -> tuple[np.ndarray, np.ndarray]:
+        """Each pose's distance to the reference (in the map's frame as karto's first half fixes it), and the
+        reference pose it was compared with."""
+        t, p = read_tum(path)
+        p = se2.compose(frame, p)
+        k = np.searchsorted(rt, t).clip(0, len(rt) - 1)
+        return np.hypot(p[:, 0] - rp[k, 0], p[:, 1] - rp[k, 1]), k
+
+    # what a perfect localizer in this map would score: the map's own error (karto's first-half pose against
+    # the reference) at the first-half pose nearest each localized pose
+    karto_err, kk = against_reference(work / "fr079-karto" / "trajectory.tum")
     rows = []
     for method in ("mcl", "match"):
         out = work / f"fr079-{method}"
         rec = localize(work / "fr079-karto", work / "fr079-2.log", out, method)
         ate = ate_in_frame(out / "trajectory.tum", ref, frame) if rec["localized"] else float("nan")
-        from slam2d.core import se2
-        from slam2d.io.tum import read_tum
-
-        t, p = read_tum(out / "trajectory.tum")
-        rt, rp = read_tum(ref)
-        p = se2.compose(frame, p)
-        k = np.searchsorted(rt, t).clip(0, len(rt) - 1)
-        err = np.hypot(p[:, 0] - rp[k, 0], p[:, 1] - rp[k, 1])
-        # what a perfect localizer in this map would score: the map's own error (karto's first-half pose against
-        # the reference, in the same frame) at the first-half pose nearest each localized pose
-        kt, kp = read_tum(work / "fr079-karto" / "trajectory.tum")
-        kp = se2.compose(frame, kp)
-        kk = np.searchsorted(rt, kt).clip(0, len(rt) - 1)
-        karto_err = np.hypot(kp[:, 0] - rp[kk, 0], kp[:, 1] - rp[kk, 1])
+        err, k = against_reference(out / "trajectory.tum")
         nearest = np.argmin(np.hypot(rp[k, 0][:, None] - rp[kk, 0][None], rp[k, 1][:, None] - rp[kk, 1][None]), axis=1)
         floor = float(np.sqrt(np.mean(karto_err[nearest] ** 2)))
         rows.append(f"| fr079 (2nd half) | karto map of the 1st half | `{method}` | "

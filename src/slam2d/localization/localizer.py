@@ -292,11 +292,9 @@ class Localizer:
         """The share of the endpoints (each pulled back ``_KNOWN_PULL`` towards the laser) in the map's known cells."""
         rng = np.hypot(bx, by)
         pull = np.maximum(rng - _KNOWN_PULL, 0.0) / np.maximum(rng, 1e-9)
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        x, y = bx * pull, by * pull
-        ox, oy = self.known_origin
-        col = np.floor((pose[0] + c * x - s * y - ox) / self.resolution).astype(np.int64)
-        row = np.floor((pose[1] + s * x + c * y - oy) / self.resolution).astype(np.int64)
+        ends = se2.transform_points(pose, np.column_stack([bx * pull, by * pull]))
+        col = np.floor((ends[:, 0] - self.known_origin[0]) / self.resolution).astype(np.int64)
+        row = np.floor((ends[:, 1] - self.known_origin[1]) / self.resolution).astype(np.int64)
         inside = (row >= 0) & (col >= 0) & (row < self.known.shape[0]) & (col < self.known.shape[1])
         return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
 
@@ -369,14 +367,9 @@ class Localizer:
             known = self._known_share(predicted, mx, my)
             if known < (_BACK_KNOWN if self.state == "off_map" else _MIN_KNOWN):
                 # off the map: the odometry carries the pose until the scans reach the map again
-                if self.state != "off_map":
-                    self._set_state("off_map", t, f"{known:.0%} of the scan ends in the map's known area: "
-                                    "following the odometry")
-                    self.off_travel = 0.0
-                self.pose, self.challenger, self.misfits, self.far_misfits = predicted, None, 0, 0
-                self.off_travel += math.hypot(step[0], step[1])
-                return ScanResult(t, "off_map", predicted.copy(), self._fit(predicted, mx, my), spread,
-                                  len(self.particles) if self.p.method == "mcl" else 0)
+                travel = self.off_travel if self.state == "off_map" else 0.0
+                return self._off_map(t, predicted, travel + math.hypot(step[0], step[1]), mx, my, spread,
+                                     f"{known:.0%} of the scan ends in the map's known area: following the odometry")
             back = self.state == "off_map"
             if back and self.off_travel > _OFF_MAP_TRUST:
                 self._set_state("searching", t, f"back on the map after {self.off_travel:.1f} m off it: searching "
@@ -424,11 +417,8 @@ class Localizer:
             self.drifted = (se2.compose(where, step).reshape(3), travelled + math.hypot(step[0], step[1]))
             if self._known_share(self.drifted[0], mx, my) < _MIN_KNOWN:
                 # where the odometry says it is, the scans miss the map: off it again rather than searching it
-                self._set_state("off_map", t, "the scans end outside the map's known area where the odometry "
-                                "took it: following the odometry")
-                self.pose, self.off_travel, self.drifted = self.drifted[0], self.drifted[1], None
-                return ScanResult(t, "off_map", self.pose.copy(), self._fit(self.pose, mx, my), spread,
-                                  len(self.particles) if self.p.method == "mcl" else 0)
+                return self._off_map(t, *self.drifted, mx, my, spread, "the scans end outside the map's known "
+                                     "area where the odometry took it: following the odometry")
         if self.confirm == 1:  # from a given initial pose: the particles need only gather there once
             pose, fit = self._refine(estimate, mx, my, wide=True)
             if moved and share > _FOUND_SHARE and spread < 0.5 and fit >= _FOUND_FIT:
@@ -450,6 +440,16 @@ class Localizer:
                                + (f"{others} other places fit worse (by {lead:.1f} in log-likelihood)" if others
                                   else "no other place fits"), spread)
         return ScanResult(t, self.state, None, h["fit"], spread, len(self.particles))
+
+    def _off_map(self, t: float, pose: NDArray[np.float64], travel: float, mx, my, spread: float,
+                 why: str) -> ScanResult:
+        """The robot at ``pose``, ``travel`` m of odometry since it left the map: said when it just left."""
+        if self.state != "off_map":
+            self._set_state("off_map", t, why)
+        self.pose, self.off_travel = pose, travel
+        self.challenger, self.drifted, self.misfits, self.far_misfits = None, None, 0, 0
+        return ScanResult(t, "off_map", pose.copy(), self._fit(pose, mx, my), spread,
+                          len(self.particles) if self.p.method == "mcl" else 0)
 
     def _challenge(self, pose, fit, estimate, step, mx, my, moved: bool, t: float):
         """The tracked pose against the particles' place when they disagree: theirs takes over only when
