@@ -5,8 +5,8 @@ the truth, only the scans can. Until every twin that lies elsewhere (over 1 m or
 at that scan) fits the scans clearly worse, no localizer can say which one the robot drives, whatever its
 method. This script takes the second drive of each world (as benchmarks/localization.py makes it, in the
 world's true map), scores each filter update's scan at the true pose and at every twin's pose with
-`slam2d localize`'s own beam model (mean log-likelihood per beam of its filter's beams, the score its
-global search sums), and reports the first scan from which the truth leads every far twin by the search's
+`slam2d localize`'s own beam model (mean log-likelihood per matched beam, the score its global search
+sums for each hypothesis), and reports the first scan from which the truth leads every far twin by the search's
 margin (e^3) for good: the share of the scans no method with that margin can beat on that recording.
 The twins are a grid (turns of 0, 90, 180 and 270 degrees, each +-3 degrees; shifts every 0.25 m over
 the map), so finer twins could only push the bound later: it is a lower bound. Each row also gives the
@@ -101,7 +101,6 @@ def bound(world: str, work: Path) -> str:
 def every_twin(loc, frames, truth: np.ndarray, grid) -> tuple[int, str]:
     """The first scan from which the truth leads every far twin by the margin for good, and the last twin to fall."""
     import slam2d.localization.localizer as lz
-    from slam2d.localization.kernels import particle_log_likelihoods
 
     (x0, y0), res = grid.origin, grid.resolution
     rows, cols = grid.shape
@@ -116,24 +115,18 @@ def every_twin(loc, frames, truth: np.ndarray, grid) -> tuple[int, str]:
     q0 = truth[0]
     ca, sa = np.cos(a), np.sin(a)
     tx, ty = sx - (ca * q0[0] - sa * q0[1]), sy - (sa * q0[0] + ca * q0[1])
-    f = loc.field
     p = loc.p
     lead = np.zeros(len(a))
     poses = np.empty((len(a), 3))
-    ll = np.empty(len(a))
-    own = np.empty(1)
     sure, worst = 0, "-"
     for i, frame in filter_updates(frames, p):
         q = truth[i]
         poses[:, 0] = ca * q[0] - sa * q[1] + tx
         poses[:, 1] = sa * q[0] + ca * q[1] + ty
         poses[:, 2] = q[2] + a
-        bx, by = loc._beams(frame.scan.points_in_base(), p.beams)
-        args = (f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance)
-        tail = (bx, by, 1.0 / (2.0 * p.hit_sigma ** 2), lz._Z_HIT, lz._Z_RAND)
-        particle_log_likelihoods(*args, poses, *tail, ll)
-        particle_log_likelihoods(*args, q.reshape(1, 3).copy(), *tail, own)
-        lead += lz._INDEPENDENT_BEAMS * (own[0] - ll)
+        mx, my = loc._beams(frame.scan.points_in_base(), p.match_beams)  # as the search scores its hypotheses
+        lead += lz._INDEPENDENT_BEAMS * (loc._log_likelihoods(q.reshape(1, 3), mx, my)[0]
+                                         - loc._log_likelihoods(poses, mx, my))
         far = (np.hypot(poses[:, 0] - q[0], poses[:, 1] - q[1]) > 1.0) | (
             np.abs(np.remainder(poses[:, 2] - q[2] + math.pi, 2 * math.pi) - math.pi) > 0.3)
         close = far & (lead < lz._HYPOTHESIS_MARGIN)
