@@ -7,7 +7,9 @@ method. This script takes the second drive of each world (as benchmarks/localiza
 world's true map), scores each filter update's scan at the true pose and at every twin's pose with
 `slam2d localize`'s own beam model (mean log-likelihood per matched beam, the score its global search
 sums for each hypothesis), and reports the first scan from which the truth leads every far twin by the search's
-margin (e^3) for good: the share of the scans no method with that margin can beat on that recording.
+margin (e^3) for good: the share of the scans no method with that margin can beat on that recording if it
+grants every twin the true path's exact shape (slam2d's search traces places back along the odometry instead,
+and can decide sooner).
 The twins are a grid (turns of 0, 90, 180 and 270 degrees, each +-3 degrees; shifts every 0.25 m over
 the map), so finer twins could only push the bound later: it is a lower bound. Each row also gives the
 half-turn twin alone (a rectangle's symmetry).
@@ -159,8 +161,10 @@ def main() -> int:
                  "The second drives of the localization table in their true maps: from which scan on the scans "
                  "rule out, by the global search's margin (e^3 in summed log-likelihood per beam), every twin of "
                  "the true path (the whole path turned by 0, 90, 180 or 270 degrees +-3 and shifted anywhere on a "
-                 "0.25 m grid, over 1 m or 0.3 rad from the truth). No localizer deciding on that margin can be "
-                 "sure earlier; the grid makes it a lower bound. Compare with 'localized from' above; the 'carried off' "
+                 "0.25 m grid, over 1 m or 0.3 rad from the truth). A localizer that grants every twin the true path's "
+                 "exact shape cannot be sure earlier on that margin (the grid makes it a lower bound). slam2d's search "
+                 "traces each place back along the odometry, matched to the map at every step, so a twin that only "
+                 "the true shape would fit also pays for the odometry's drift, and it can decide sooner. Compare with 'localized from' above; the 'carried off' "
                  "rows count from where the robot landed in the table's kidnapping (target: found again within 50 "
                  "scans of it). Measured "
                  f"{when}; command: `.venv/bin/python benchmarks/localization_bound.py --write BENCHMARKS.md`.",

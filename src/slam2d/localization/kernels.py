@@ -13,7 +13,8 @@ from numba import njit
 
 from slam2d.grids.likelihood_field import bilinear_gradient_at
 
-__all__ = ["particle_log_likelihoods", "refine_on_field", "fit_fraction"]
+__all__ = ["particle_log_likelihoods", "traced_path_log_likelihood", "scan_log_likelihood_grid", "refine_on_field",
+           "fit_fraction"]
 
 
 @njit(cache=True)
@@ -106,3 +107,67 @@ def refine_on_field(field, ox, oy, res, max_d, x, y, th, bx, by, iterations, hub
             break
     th = (th + math.pi) % (2.0 * math.pi) - math.pi
     return x, y, th, used
+
+
+
+@njit(cache=True)
+def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, by, starts, iterations, huber,
+                               prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand):
+    """The summed mean log-likelihood per beam of scans ``0..n-1``, traced back from the last one at ``(x, y, th)``.
+
+    Each earlier pose is the later one moved by ``steps[k]`` (scan ``k``'s pose in scan ``k + 1``'s frame, from the
+    odometry) and matched to the map from there (:func:`refine_on_field`, the prediction as its prior), as a
+    hypothesis is tracked forwards: odometry alone drifts a tenth of a radian in a second. Scan ``k``'s endpoints
+    are ``bx[starts[k]:starts[k + 1]], by[...]`` (base frame).
+    """
+    rows, cols = field.shape
+    n = starts.shape[0] - 1
+    total = 0.0
+    prior = np.empty(3)
+    for k in range(n - 1, -1, -1):
+        lo, hi = starts[k], starts[k + 1]
+        if k < n - 1:
+            c, s = math.cos(th), math.sin(th)
+            x, y, th = x + c * steps[k, 0] - s * steps[k, 1], y + s * steps[k, 0] + c * steps[k, 1], th + steps[k, 2]
+            prior[0], prior[1], prior[2] = x, y, th
+            x, y, th, _ = refine_on_field(field, ox, oy, res, max_d, x, y, th, bx[lo:hi], by[lo:hi], iterations,
+                                          huber, prior, prior_xy, prior_th)
+        c, s = math.cos(th), math.sin(th)
+        acc = 0.0
+        for b in range(lo, hi):
+            col = int(math.floor((x + c * bx[b] - s * by[b] - ox) / res))
+            row = int(math.floor((y + s * bx[b] + c * by[b] - oy) / res))
+            d = max_d
+            if 0 <= row < rows and 0 <= col < cols:
+                d = field[row, col]
+            acc += math.log(z_hit * math.exp(-d * d * inv_two_sigma2) + z_rand)
+        total += acc / max(hi - lo, 1)
+    return total
+
+
+
+@njit(cache=True)
+def scan_log_likelihood_grid(log_likelihood, ox, oy, res, off_map, xy, headings, bx, by, out):
+    """The mean log-likelihood per beam of one scan at every position ``xy (P, 2)`` and heading: ``out (P, H)``.
+
+    ``log_likelihood``: each cell's beam log-likelihood (the model of :func:`particle_log_likelihoods` drawn once
+    per map), ``off_map`` the value outside it.
+    """
+    rows, cols = log_likelihood.shape
+    m = bx.shape[0]
+    rx, ry = np.empty(m), np.empty(m)
+    for h in range(headings.shape[0]):
+        c, s = math.cos(headings[h]), math.sin(headings[h])
+        for b in range(m):  # the scan turned once per heading
+            rx[b] = c * bx[b] - s * by[b] - ox
+            ry[b] = s * bx[b] + c * by[b] - oy
+        for p in range(xy.shape[0]):
+            acc = 0.0
+            for b in range(m):
+                col = int(math.floor((xy[p, 0] + rx[b]) / res))
+                row = int(math.floor((xy[p, 1] + ry[b]) / res))
+                if 0 <= row < rows and 0 <= col < cols:
+                    acc += log_likelihood[row, col]
+                else:
+                    acc += off_map
+            out[p, h] = acc / max(m, 1)

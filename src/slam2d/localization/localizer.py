@@ -15,8 +15,10 @@ update.
 slam_toolbox's localization mode tracks.
 
 Without an initial pose the particles spread over the map's free space, and every place they gather
-becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there; one wins
-when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
+becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there (a place found
+late also on the earlier scans, along its path traced back through the odometry); every few updates,
+and before one wins, the scan is scored over the whole free space for places the particles missed. One
+wins when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
 apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
 row means the robot is lost: the localizer says so and searches again, near where the odometry took it (it
 drifted off the map's walls). Three scans in a row that miss them by far mean it was carried off: the particles
@@ -39,7 +41,8 @@ from numpy.typing import NDArray
 from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.grids.likelihood_field import LikelihoodField, likelihood_field
-from slam2d.localization.kernels import fit_fraction, particle_log_likelihoods, refine_on_field
+from slam2d.localization.kernels import (fit_fraction, particle_log_likelihoods, refine_on_field,
+                                         scan_log_likelihood_grid, traced_path_log_likelihood)
 from slam2d.params import param
 from slam2d.sensors.motion_noise import draw_from_motion
 
@@ -84,6 +87,19 @@ _SEARCH_NEFF = 0.1
 _MAX_HYPOTHESES = 12
 _HYPOTHESIS_MARGIN = 3.0
 _HYPOTHESIS_DROP = 8.0
+# a hypothesis found during a search is scored on the scans before it too, at the poses the odometry puts its path
+# (its twin of the robot's path): at most this many scans back. Starting newcomers level with the best instead kept
+# corridor-loop's search open until 44 % of its scans, though the scans had ruled out every twin by 14 %
+# (benchmarks/localization_bound.py)
+_SEARCH_HISTORY = 400
+# ... so a search that has met its margin has compared the winner only with the places its particles found. Before it
+# ends, the scan is scored over the whole free space (every _RIVAL_STEP m, every _RIVAL_TURN rad) and the best
+# _RIVALS places elsewhere are traced back as hypotheses are: one within the margin keeps the search open
+_RIVAL_STEP = 0.25
+_RIVAL_TURN = math.radians(2.5)
+_RIVALS = 24
+# ... and every _RIVAL_EVERY filter updates of a search, places the particles have not found are looked for so
+_RIVAL_EVERY = 10
 # the share of a scan's beams that must end in the map's known area (each end pulled back _KNOWN_PULL towards the
 # laser: an end on a wall lies half in the unknown behind it) for matching to place the robot. Under it the robot
 # is off the map and its pose follows the odometry: matching the few beams that reach the map slid fr079's second
@@ -155,6 +171,10 @@ class Localizer:
         ox, oy = self.known_origin = grid.origin
         self.free_xy = np.column_stack([ox + (free[:, 1] + 0.5) * self.resolution,
                                         oy + (free[:, 0] + 0.5) * self.resolution])
+        every = max(1, int(round(_RIVAL_STEP / self.resolution)))
+        self.rival_xy = np.ascontiguousarray(self.free_xy[(free[:, 0] % every == 0) & (free[:, 1] % every == 0)])
+        self.rival_headings = np.arange(-math.pi, math.pi, _RIVAL_TURN)
+        self.rival_table: NDArray[np.float64] | None = None  # each cell's beam log-likelihood, drawn at the first check
         self.particles = np.zeros((0, 3))
         self.log_w = np.zeros(0)
         self.w_slow = self.w_fast = 0.0
@@ -166,6 +186,9 @@ class Localizer:
         self.far_misfits = 0  # scans in a row under half the lost floor (a robot carried off)
         self.events: list[dict[str, Any]] = []  # when it was localized, lost, found again
         self.hypotheses: list[dict[str, Any]] = []  # a global search's candidate places (see _track_hypotheses)
+        # the search's scans: (odometry, matched endpoints x, y), to score a newcomer's path before it was found
+        self.search_scans: deque[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=_SEARCH_HISTORY)
         self.recent_fits: deque[float] = deque(maxlen=100)  # the fits of the last scans while localized
         self.challenger: dict[str, Any] | None = None  # while localized (mcl): where the particles say instead
         # a robot that drifted off the map's walls: where the odometry has taken it since, and how far it went
@@ -179,6 +202,8 @@ class Localizer:
         self.state, self.pose, self.misfits, self.far_misfits = "searching", None, 0, 0
         self.drifted = None
         self.hypotheses, self.challenger, self.filter_odom = [], None, None
+        self.search_scans.clear()
+        self.search_updates = 0
         self.recent_fits.clear()
         self.w_slow = self.w_fast = 0.0
         self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
@@ -428,13 +453,17 @@ class Localizer:
         # a global search: every place the particles gather becomes a hypothesis, tracked by matching and
         # scored scan after scan; one wins only when every other fits clearly worse (a symmetric building
         # keeps two alive until a door or a pillar tells them apart)
-        best = self._track_hypotheses(step, mx, my, moved)
+        best = self._track_hypotheses(odom, step, fx, fy, mx, my, moved)
         if best is None:
             return ScanResult(t, self.state, None, float("nan"), spread, len(self.particles))
         h, lead = best
         if h["updates"] >= _CONFIRM_UPDATES and h["fit"] >= _FOUND_FIT and lead >= _HYPOTHESIS_MARGIN and (
                 self.drifted is None or _near(h["pose"], self.drifted[0], _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1]
                                               * self.drifted[1], math.tau)):
+            rivals = self._unseen_rivals(h["score"] - _HYPOTHESIS_MARGIN, fx, fy, mx, my)
+            if rivals:  # places the particles missed fit the scans as well: the search goes on with them
+                self.hypotheses = sorted(self.hypotheses + rivals, key=lambda r: -r["score"])[:_MAX_HYPOTHESES]
+                return ScanResult(t, self.state, None, h["fit"], spread, len(self.particles))
             others = len(self.hypotheses) - 1
             return self._found(t, h["pose"], h["fit"], f"{h['fit']:.0%} of the scan on walls; "
                                + (f"{others} other places fit worse (by {lead:.1f} in log-likelihood)" if others
@@ -480,6 +509,8 @@ class Localizer:
         self.pose = pose
         self.misfits = self.far_misfits = 0
         self.hypotheses, self.challenger, self.drifted = [], None, None
+        self.search_scans.clear()
+        self.search_updates = 0
         self._set_state("localized", t, why)
         if self.p.method == "mcl":  # the filter goes on from where the scan says the robot is
             self._spread_around(pose, _FOUND_STD)
@@ -499,24 +530,79 @@ class Localizer:
             modes.append(self._mean_pose(inverse == b, w)[0])
         return modes
 
-    def _track_hypotheses(self, step, mx, my, moved: bool) -> tuple[dict, float] | None:
+    def _path_score(self, pose: NDArray[np.float64]) -> float:
+        """The summed log-likelihood of the search's scans along the path traced back from ``pose`` (now)."""
+        odoms = np.array([s[0] for s in self.search_scans])
+        steps = np.ascontiguousarray(se2.relative(odoms[1:], odoms[:-1]).reshape(-1, 3))
+        bx = np.concatenate([s[1] for s in self.search_scans])
+        by = np.concatenate([s[2] for s in self.search_scans])
+        starts = np.zeros(len(odoms) + 1, dtype=np.int64)
+        np.cumsum([len(s[1]) for s in self.search_scans], out=starts[1:])
+        f = self.field
+        return _INDEPENDENT_BEAMS * float(traced_path_log_likelihood(
+            f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, float(pose[0]), float(pose[1]),
+            float(pose[2]), steps, bx, by, starts, 20, 0.1, _PRIOR_XY, _PRIOR_TH, 1.0 / (2.0 * self.p.hit_sigma ** 2),
+            _Z_HIT, _Z_RAND))
+
+    def _unseen_rivals(self, floor: float, fx, fy, mx, my) -> list[dict]:
+        """New hypotheses: places the scan fits well whose paths score over ``floor`` on the search's scans."""
+        if not self.search_scans or len(self.rival_xy) == 0:
+            return []
+        f = self.field
+        inv = 1.0 / (2.0 * self.p.hit_sigma ** 2)
+        if self.rival_table is None:
+            self.rival_table = np.log(_Z_HIT * np.exp(-f.distance ** 2 * inv) + _Z_RAND)
+        grid = np.empty((len(self.rival_xy), len(self.rival_headings)))
+        scan_log_likelihood_grid(self.rival_table, f.origin[0], f.origin[1], f.resolution,
+                                 math.log(_Z_HIT * math.exp(-f.max_distance ** 2 * inv) + _Z_RAND), self.rival_xy,
+                                 self.rival_headings, fx, fy, grid)
+        turn = np.argmax(grid, axis=1)
+        best = grid[np.arange(len(grid)), turn]
+        rivals: list[dict] = []
+        picked: list[NDArray[np.float64]] = []
+        for i in np.argsort(best)[::-1]:  # the best places first, one per metre and turn
+            start = np.array([self.rival_xy[i, 0], self.rival_xy[i, 1], self.rival_headings[turn[i]]])
+            if any(_near(start, q, 1.0, 0.3) for q in picked):
+                continue
+            picked.append(start)
+            if len(picked) > _RIVALS:
+                break
+            pose, fit = self._refine(start, mx, my, wide=True)
+            if fit < _FOUND_FIT or any(_near(pose, q["pose"], 1.0, 0.3) for q in self.hypotheses + rivals):
+                continue
+            score = self._path_score(pose)
+            if score > floor:
+                rivals.append({"pose": pose, "fit": fit, "score": score, "updates": 0})
+        return rivals
+
+    def _track_hypotheses(self, odom, step, fx, fy, mx, my, moved: bool) -> tuple[dict, float] | None:
         """Move and match every hypothesis, score it, add the particles' new places, drop the hopeless."""
         for h in self.hypotheses:
             h["pose"], h["fit"] = self._refine(se2.compose(h["pose"], step).reshape(3), mx, my, wide=False)
-        if self.hypotheses:
-            ll = self._log_likelihoods(np.array([h["pose"] for h in self.hypotheses]), mx, my)
-            for h, v in zip(self.hypotheses, ll):
-                h["score"] += _INDEPENDENT_BEAMS * float(v)
-                h["updates"] += int(moved)
-        if moved:
+        if moved:  # scored at the filter's updates only: a robot standing still sees the same scan again
+            if odom is not None:
+                self.search_scans.append((odom, mx, my))
+                self.search_updates += 1
+            else:  # without odometry a path cannot be traced back
+                self.search_scans.clear()
+            if self.hypotheses:
+                ll = self._log_likelihoods(np.array([h["pose"] for h in self.hypotheses]), mx, my)
+                for h, v in zip(self.hypotheses, ll):
+                    h["score"] += _INDEPENDENT_BEAMS * float(v)
+                    h["updates"] += 1
             top = max((h["score"] for h in self.hypotheses), default=0.0)
             for mode in self._modes():
                 if any(_near(mode, h["pose"], 0.5, 0.3) for h in self.hypotheses):
                     continue
                 pose, fit = self._refine(mode, mx, my, wide=True)
                 if fit >= _FOUND_FIT and not any(_near(pose, h["pose"], 0.2, 0.1) for h in self.hypotheses):
-                    # a newcomer starts level with the best: what it missed cannot count against it
-                    self.hypotheses.append({"pose": pose, "fit": fit, "score": top, "updates": 0})
+                    # a newcomer is scored on the search's scans along its path so far (the incumbents' scores
+                    # began the same way); without them it starts level with the best
+                    score = self._path_score(pose) if self.search_scans else top
+                    self.hypotheses.append({"pose": pose, "fit": fit, "score": score, "updates": 0})
+            if self.search_scans and self.search_updates % _RIVAL_EVERY == 0:
+                floor = max((h["score"] for h in self.hypotheses), default=math.inf) - _HYPOTHESIS_DROP
+                self.hypotheses += self._unseen_rivals(floor if math.isfinite(floor) else -math.inf, fx, fy, mx, my)
         if not self.hypotheses:
             return None
         self.hypotheses.sort(key=lambda h: -h["score"])
