@@ -624,8 +624,8 @@ def karto_aces_spread(_: Path) -> tuple[float, str]:
 
     With Karto's fixed smear and 0.8 loop thresholds aces's graph was an open chain (the loop
     back to the start responded 0.63-0.80 and was rejected) and the ATE moved 0.12-0.24 m within
-    3 mm. The later looks in docs/methods/karto-measured.md (third to fifth) trace what is left of the
-    spread to single sequential steps; the row shows where it stands now.
+    3 mm. The later looks (docs/methods/what-was-tried.md, "karto: the real logs", third to fifth)
+    trace what is left of the spread to single sequential steps; the row shows where it stands now.
     """
     import numpy as np
 
@@ -932,8 +932,8 @@ def gmapping_sim_urg_wall_ends(workdir: Path) -> tuple[None, str]:
 def gmapping_sim_urg_wall_refinement(workdir: Path) -> tuple[None, str]:
     """gmapping-sim-urg-wall-ends' runs with wall_refinement=true (the best path refined against the walls).
 
-    The refinement's settings were chosen on karto's runs (docs/methods/karto-measured.md); none was chosen on
-    gmapping's, so every seed here is held out for them.
+    The refinement's settings were chosen on karto's runs (docs/methods/what-was-tried.md, "karto,
+    `wall_refinement`"); none was chosen on gmapping's, so every seed here is held out for them.
     """
     return _gmapping_sim_urg_set(workdir, {**GMAPPING_SHORT_RANGE_FLAT, "flat_sigma": "0.03", "wall_refinement": "true"},
                                  "wall-refinement")
@@ -967,8 +967,8 @@ def _gmapping_sim_urg_set(workdir: Path, settings: dict[str, str], tag: str) -> 
 def karto_sim_urg_buffer20(workdir: Path) -> tuple[None, str]:
     """karto with scan_buffer_size=20 on office 120 s and corridor-loop, URG-04LX, seeds 0-2.
 
-    The best of the existing parameters swept for the URG-04LX in docs/methods/karto-measured.md
-    (*URG-04LX: a sweep of the existing parameters*); compare with `karto-sim-lasers`' URG cells.
+    The best of the existing parameters swept for the URG-04LX (docs/methods/what-was-tried.md, *karto, a
+    sweep of the existing parameters*); compare with `karto-sim-lasers`' URG cells.
     """
     cells: dict[str, list[str]] = {}
     for _, world, _, _, _, e in _sim_laser_runs(workdir, "karto", {"scan_buffer_size": "20"}, lasers=("urg-04lx",)):
@@ -1028,8 +1028,8 @@ def map_floor(_: Path) -> tuple[None, str]:
 def karto_sim_wall_ends(workdir: Path) -> tuple[None, str]:
     """karto with ``wall_end_landmarks=true`` on the `karto-sim-lasers` recordings (both lasers, seeds 0-2).
 
-    Door jambs and box corners tracked as landmarks with point edges in SPA (docs/methods/karto-measured.md,
-    *URG-04LX: wall ends as landmarks*); compare with `karto-sim-lasers`. Also counts the loop
+    Door jambs and box corners tracked as landmarks with point edges in SPA (docs/methods/what-was-tried.md,
+    *karto, `wall_end_landmarks`*); compare with `karto-sim-lasers`. Also counts the loop
     closures within 0.2 m and 1 deg of the truth and the landmarks in the graph.
     """
     from slam2d.graph.evaluation import loop_closure_precision
@@ -1053,8 +1053,8 @@ def karto_sim_wall_ends(workdir: Path) -> tuple[None, str]:
 def karto_sim_wall_end_revisits(workdir: Path) -> tuple[None, str]:
     """karto with ``wall_end_landmarks=true wall_end_revisits=true`` on the URG-04LX `karto-sim-lasers` recordings.
 
-    Landmarks that are one wall end seen again on a later pass merged (docs/methods/karto-measured.md,
-    *URG-04LX: wall ends seen again*); compare with the URG cells of `karto-sim-wall-ends`. Per run
+    Landmarks that are one wall end seen again on a later pass merged (docs/methods/what-was-tried.md,
+    *karto, `wall_end_revisits`*); compare with the URG cells of `karto-sim-wall-ends`. Per run
     also the merges and how many were wrong (the two parts' sightings, at the true poses of their
     nodes, more than 0.05 m apart), as benchmarks/studies/measure_wall_end_revisits.py counts them.
     """
@@ -1087,7 +1087,7 @@ def karto_sim_wall_end_revisits(workdir: Path) -> tuple[None, str]:
 
 
 #: The wall refinement's settings that bring every URG-04LX run of office and corridor-loop under 0.05 m
-#: (docs/methods/karto-measured.md, *URG-04LX: which inputs hold the last centimetres*; chosen on seeds 0-2).
+#: (docs/methods/what-was-tried.md, *karto, which inputs hold the last centimetres*; chosen on seeds 0-2).
 WALL_REFINEMENT_ENDS = {"wall_refinement_carry_damping": "true", "wall_refinement_end_jump": "0.2",
                         "wall_refinement_end_run": "4", "wall_refinement_end_two_pass": "true"}
 
@@ -1096,8 +1096,8 @@ def karto_sim_wall_refinement(workdir: Path, settings: dict[str, str] | None = N
                               label: str = "wall-refinement") -> tuple[None, str]:
     """karto with ``wall_refinement=true`` on the URG-04LX recordings: office 120 s seeds 0-8, corridor-loop 0-5.
 
-    The refinement's settings were chosen on seeds 0-2 of both worlds (docs/methods/karto-measured.md, *URG-04LX: a
-    wall bundle adjustment of the finished run*); office 3-8 and corridor-loop 3-5 are held out. Per run
+    The refinement's settings were chosen on seeds 0-2 of both worlds (docs/methods/what-was-tried.md, *karto,
+    `wall_refinement`*); office 3-8 and corridor-loop 3-5 are held out. Per run
     the cell of `karto-sim-lasers` and the refinement's CPU (both stages when ``settings`` turn on the dense
     one, with its pairs).
     """
@@ -1273,7 +1273,7 @@ CASES: list[Case] = [
     Case("gmapping-sim-lasers", "`gmapping` (defaults) on office 120 s and corridor-loop, seeds 0-2, URG-04LX and "
          "RPLidar A1: ATE, heading, per-frame rotation and map error vs the truth", gmapping_sim_lasers,
          target="office: ATE < 0.10 m, map error < 0.05 m (issue 5)", warmup=False, repeat=1),
-    Case("karto-sim-urg-buffer20", "`karto` with `scan_buffer_size=20` (the best of the sweep in docs/methods/karto-measured.md) "
+    Case("karto-sim-urg-buffer20", "`karto` with `scan_buffer_size=20` (the best of the sweep in docs/methods/what-was-tried.md) "
          "on office 120 s and corridor-loop, URG-04LX, seeds 0-2: ATE, heading, per-frame rotation, map error",
          karto_sim_urg_buffer20, target="ATE < 0.05 m, map error < 0.03 m (in the notes)", warmup=False, repeat=1),
     Case("gmapping-sim-urg-short-range", "`gmapping` with the docs' short-range set and `match_range=4.0` on office "

@@ -9,11 +9,14 @@ parameter tables cannot drift from what the program does:
   of ``slam2d calibrate laser --help``);
 * ``params:module:Class`` — the parameter table of a parameter dataclass (``params:module:Class:settings``:
   names as settings, ``name``, not flags);
-* ``method:NAME`` — a registered method's parameter table (the advanced parameters folded, by group) and the
-  values it logs;
+* ``method:NAME`` — a registered method's parameter table (the parameters most runs set; the advanced ones
+  by group on its reference page, linked) and the values it logs;
 * ``ros-params:ORIGIN:METHOD`` — how a slam_toolbox or slam_gmapping YAML is read for METHOD;
 * ``example:NAME`` — the output of an example command on a shared dataset
   (left as it is when ``../shared/datasets`` is absent).
+
+Whole pages: ``methods/parameters/NAME.md``, a method's advanced parameters (a table per group),
+for every registered method that has any; the folder holds nothing else.
 
 ``--pictures`` also redraws the pictures in docs/images (needs the datasets).
 
@@ -58,22 +61,60 @@ def _params(spec: str) -> str:
     return markdown_table(getattr(importlib.import_module(module), cls), names=names)
 
 
+PARAMETERS = DOCS / "methods" / "parameters"
+
+
+def _anchor(heading: str) -> str:
+    """The fragment GitHub gives a Markdown heading: lower case, punctuation dropped, spaces as dashes."""
+    return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+
+
 def _method(name: str) -> str:
     from slam2d.methods import get_method
-    from slam2d.params import describe, markdown_table
+    from slam2d.params import advanced_groups, markdown_table
 
     cls = get_method(name)
     role = {"required": "needs odometry.", "optional": "odometry optional (see its parameters).",
             "ignored": "ignores the odometry."}[cls.odometry_role()]
     text = f"`slam2d run {cls.name} DATA --out DIR --set NAME=VALUE`; " + role + (" Stochastic: `--seed` picks the random stream." if cls.stochastic else "") + "\n\n"
-    text += markdown_table(cls.Params, names="settings")
-    if any(p.advanced for p in describe(cls.Params)):
-        text += "\n`run.json` records an advanced parameter only where it differs from its default.\n"
+    text += markdown_table(cls.Params, names="settings", advanced="omit")
+    groups = advanced_groups(cls.Params)
+    if groups:
+        page = f"parameters/{cls.name}.md"
+        count = sum(map(len, groups.values()))
+        text += (f"\n**Advanced**: {count} more parameters, most runs leave them at their defaults; their tables are on "
+                 f"[{page}]({page}), by the feature they belong to: "
+                 + ", ".join(f"[{g}]({page}#{_anchor(g)}) ({len(m)})" for g, m in groups.items())
+                 + ". `run.json` records an advanced parameter only where it differs from its default.\n")
     if cls.DIAGNOSTICS:
         text += "\nLogged per update in `diagnostics.json` (besides `timestamp`, `wall_s`, `cpu_s`):\n\n"
         text += "| name | meaning |\n|---|---|\n"
         text += "".join(f"| `{k}` | {v} |\n" for k, v in cls.DIAGNOSTICS.items())
     return text
+
+
+def parameter_pages() -> dict[Path, str]:
+    """methods/parameters/NAME.md for every registered method with advanced parameters: a table per group."""
+    from slam2d.methods import available
+    from slam2d.params import advanced_groups, markdown_table
+
+    pages = {}
+    for name, cls in available().items():
+        groups = advanced_groups(cls.Params)
+        if not groups:
+            continue
+        count = sum(map(len, groups.values()))
+        pages[PARAMETERS / f"{name}.md"] = (
+            f"# `{name}`: advanced parameters\n\n"
+            f"<!-- Written by docs/generate.py (`make docs`) from the method's parameter dataclass; do not edit. -->\n\n"
+            f"The {count} parameters of [`{name}`](../{name}.md) that most runs leave at their defaults, by the feature "
+            f"they belong to; the ones most runs set are on the method page. Set any with `--set NAME=VALUE` or a "
+            f"`--params` file; `slam2d methods {name} --all` lists them in the terminal. `run.json` records one only "
+            f"where it differs from its default.\n\n"
+            + "".join(f"- [{g}](#{_anchor(g)}) ({len(m)})\n" for g, m in groups.items()) + "\n"
+            + markdown_table(cls.Params, names="settings", advanced="sections")
+        )
+    return pages
 
 
 DATASETS = DOCS.parent.parent / "shared" / "datasets"
@@ -175,7 +216,21 @@ def main() -> int:
     if args.pictures:
         pictures()
     stale = []
+    pages = parameter_pages()
+    for page in sorted(set(pages) | set(PARAMETERS.glob("*.md"))):
+        new = pages.get(page)
+        old = page.read_text() if page.is_file() else None
+        if new != old:
+            stale.append(page)
+            if not args.check:
+                if new is None:
+                    page.unlink()
+                else:
+                    page.parent.mkdir(exist_ok=True)
+                    page.write_text(new)
     for page in sorted(DOCS.rglob("*.md")):
+        if page in pages:
+            continue
         old = page.read_text()
         new = regenerate(old)
         if new != old:

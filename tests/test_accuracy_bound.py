@@ -252,8 +252,8 @@ def test_the_oracle_smoother_reaches_the_bound_on_real_readings(world):
 
 
 def test_the_oracle_smoothers_masks_leave_out_exactly_the_readings_they_mark():
-    # beam_mask / edge_mask restrict the oracle to a method's inputs (docs/methods/karto-measured.md, URG-04LX:
-    # which inputs hold the last centimetres): all True is the unmasked solve, no wall end at all is edges=False,
+    # beam_mask / edge_mask restrict the oracle to a method's inputs (docs/methods/what-was-tried.md, karto: which
+    # inputs hold the last centimetres): all True is the unmasked solve, no wall end at all is edges=False,
     # and a masked beam's reading is gone from the count and from the solve.
     from slam2d.eval.accuracy_bound import oracle_smoother
     from slam2d.sim.simulate import SimulationParams, simulate

@@ -99,3 +99,48 @@ def test_the_readme_usage_lines_run_as_written(tmp_path):
         took.append((round(time.perf_counter() - t0, 1), line))
         assert proc.returncode == 0, f"{line}\n{proc.stderr[-2000:]}"
     print("\n".join(f"{t:7.1f} s  {line}" for t, line in took))  # (pytest -s): which lines cost the time
+
+
+def test_every_method_page_is_under_25_kb():
+    """A method page is what a user needs (issue 35); the advanced parameters' tables are on a generated page of
+    their own (docs/methods/parameters/NAME.md), the history of experiments in docs/methods/what-was-tried.md."""
+    from slam2d.methods import available
+
+    for name in available():
+        page = ROOT / "docs" / "methods" / f"{name}.md"
+        assert page.stat().st_size < 25_000, f"docs/methods/{name}.md is {page.stat().st_size} bytes"
+        if (ROOT / "docs" / "methods" / "parameters" / f"{name}.md").is_file():
+            assert f"(parameters/{name}.md)" in page.read_text(), f"docs/methods/{name}.md does not link its parameters"
+
+
+def _anchor(heading: str) -> str:
+    import re
+
+    return re.sub(r"[^\w\- ]", "", heading.replace("`", "").strip().lower()).replace(" ", "-")
+
+
+def test_relative_links_in_the_docs_lead_somewhere():
+    """Every relative link of README.md and docs/ names a file that exists, and a #fragment into a Markdown page
+    names one of its headings."""
+    import re
+
+    link = re.compile(r"\[(?:[^\]\[]|\[[^\]]*\])*\]\(([^)\s]+)\)")
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    anchors: dict[Path, set[str]] = {}
+    dead = []
+    for page in pages:
+        text = re.sub(r"`[^`\n]*`", "", re.sub(r"```.*?```", "", page.read_text(), flags=re.S))
+        for url in link.findall(text):
+            if re.match(r"^[a-z][a-z0-9+.-]*:", url):
+                continue
+            path, _, fragment = url.partition("#")
+            target = (page.parent / path).resolve() if path else page
+            if not target.exists():
+                dead.append(f"{page.relative_to(ROOT)}: {url}")
+            elif fragment and target.suffix == ".md":
+                if target not in anchors:
+                    body = re.sub(r"```.*?```", "", target.read_text(), flags=re.S)
+                    anchors[target] = {_anchor(h) for h in re.findall(r"^#{1,6}\s+(.*)$", body, re.M)}
+                if fragment not in anchors[target]:
+                    dead.append(f"{page.relative_to(ROOT)}: {url}")
+    assert not dead, "dead links:\n" + "\n".join(dead)

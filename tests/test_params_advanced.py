@@ -125,3 +125,16 @@ def test_run_json_records_advanced_parameters_only_where_changed(tmp_path):
     assert main(["run", "karto", data, "--out", str(rerun), "--params", str(out / "run.json")]) == 0
     assert (rerun / "trajectory.tum").read_bytes() == (out / "trajectory.tum").read_bytes()
     assert json.loads((rerun / "run.json").read_text())["params"] == params
+
+
+def test_markdown_table_can_leave_the_advanced_ones_out_or_give_them_alone():
+    """The method pages show the parameters most runs set; their advanced ones go on a reference page of their own,
+    a heading and a table per group (docs/generate.py)."""
+    main_only = markdown_table(Example, names="settings", advanced="omit")
+    assert "`resolution`" in main_only and "`feature`" not in main_only and "Advanced" not in main_only
+    sections = markdown_table(Example, names="settings", advanced="sections")
+    assert "`resolution`" not in sections and "`smoothing`" in sections and "<details>" not in sections
+    assert sections.index("## smoothing") < sections.index("`smoothing`") < sections.index("## the feature")
+    assert "| `feature_gain` | `2.0` | m |" in sections.split("## the feature")[1]
+    with pytest.raises(ValueError, match="advanced"):
+        markdown_table(Example, advanced="hidden")

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""How well gmapping's score places a scan along the robot's heading on a perfect map (docs/methods/gmapping-measured.md, "office").
+"""How well gmapping's score places a scan along the robot's heading on a perfect map (docs/methods/what-was-tried.md, "gmapping, where the URG's error accrues").
 
     .venv/bin/python benchmarks/studies/measure_gmapping_along_track.py office urg-04lx 0
     .venv/bin/python benchmarks/studies/measure_gmapping_along_track.py office rplidar-a1 0

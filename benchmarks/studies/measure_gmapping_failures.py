@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Where and why gmapping's scan matches fail or slide with a short-range laser (docs/methods/gmapping-measured.md).
+"""Where and why gmapping's scan matches fail or slide with a short-range laser (docs/methods/what-was-tried.md, "gmapping, match failures and the slide").
 
     .venv/bin/python benchmarks/studies/measure_gmapping_failures.py [--laser urg-04lx] [--world office] [--seeds 0] \
         [key=value ...]

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Which of gmapping's final particles is right, and where the right ones were lost (docs/methods/gmapping-measured.md, "aces").
+"""Which of gmapping's final particles is right, and where the right ones were lost (docs/methods/what-was-tried.md, "gmapping, aces on ten seeds").
 
     NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/studies/measure_gmapping_final_choice.py ../shared/datasets/aces/aces.clf.gz \
         --seed 3 --set srt=0.05 --set stt=0.05

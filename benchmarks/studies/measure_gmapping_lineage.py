@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Why a gmapping run keeps or loses the particles that would close a loop (docs/methods/gmapping-measured.md, "aces").
+"""Why a gmapping run keeps or loses the particles that would close a loop (docs/methods/what-was-tried.md, "gmapping, aces seeds 3 and 4").
 
     NUMBA_NUM_THREADS=1 .venv/bin/python benchmarks/studies/measure_gmapping_lineage.py ../shared/datasets/aces/aces.clf.gz \
         --seed 3 --set srt=0.05 --set stt=0.05

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""gmapping's ATE, CPU time and peak memory per seed at a particle count (docs/methods/gmapping-measured.md, "More particles").
+"""gmapping's ATE, CPU time and peak memory per seed at a particle count (docs/methods/what-was-tried.md, "gmapping, 300 and 500 particles").
 
     NUMBA_NUM_THREADS=1 SLAM2D_THREADS=1 .venv/bin/python benchmarks/studies/measure_gmapping_particles.py \
         ../shared/datasets/aces/aces.clf.gz --particles 300 --seeds 10-19 \

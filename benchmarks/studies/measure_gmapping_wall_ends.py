@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/studies/measure_gmapping_wall_ends.py [--world office] [--laser urg-04lx] [--seeds 0,1,2] \
         [--sigma 0.03]
 
-docs/methods/gmapping-measured.md, "Wall ends and `flat_sigma`". Simulates WORLD (120 s; corridor-loop: its own
+docs/methods/what-was-tried.md, "gmapping, the wall ends' information". Simulates WORLD (120 s; corridor-loop: its own
 path) and registers the scans at their *true* poses into one gmapping map (5 cm cells, as the filter's
 updates: one scan per metre or 0.5 rad). At every such update scan, before it is added, along the
 robot's true heading:

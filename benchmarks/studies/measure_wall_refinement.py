@@ -17,8 +17,8 @@ With ``--from-truth`` each setting also runs from the *true* poses of the frames
 and prints that ATE: what the refinement's own optimum is worth with the readings it uses, apart
 from where it starts.
 
-Diagnostics of the association (a setting's ``freeze=A,B,...``, not a parameter; docs/methods/karto-measured.md,
-*URG-04LX: is it the association?*): ``walls`` / ``ends`` make the segment-to-wall / end-to-landmark association
+Diagnostics of the association (a setting's ``freeze=A,B,...``, not a parameter; docs/methods/what-was-tried.md,
+*karto, is it the wall refinement's association?*): ``walls`` / ``ends`` make the segment-to-wall / end-to-landmark association
 once, in the first round (at the start poses), and keep it for every round; ``oracle-walls`` / ``oracle-ends``
 take it from the simulator's truth instead (each segment on the true straight line most of its beams lie on at
 the true poses, each wall-end sighting at the true wall end within 0.1 m of it); ``report`` prints how the
@@ -28,7 +28,7 @@ A setting's ``ends_model=bearing`` (not a parameter) gives every wall-end sighti
 bearing over the beam gap, perpendicular to the ray, instead of the detector's point covariance; ``ends_model=across:S``
 scales the point's across-wall sigma by S.
 
-``--oracle`` (no karto run; docs/methods/karto-measured.md, *URG-04LX: which inputs hold the last centimetres*):
+``--oracle`` (no karto run; docs/methods/what-was-tried.md, *karto, which inputs hold the last centimetres*):
 per seed the oracle smoother (:func:`slam2d.eval.accuracy_bound.oracle_smoother`) on the recording, with all its
 readings and restricted (its ``beam_mask`` / ``edge_mask``) to the beams of the refinement's segments and the wall
 ends its detector finds (karto's parameters and each setting), and why the detector misses the true wall ends it

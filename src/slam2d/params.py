@@ -317,18 +317,27 @@ def from_arguments(cls: type, namespace: argparse.Namespace) -> Any:
     return instance
 
 
-def markdown_table(cls: type, *, names: str = "flags") -> str:
+def markdown_table(cls: type, *, names: str = "flags", advanced: str = "fold") -> str:
     """A Markdown table of the parameters: name, default, unit, meaning.
 
     ``names="flags"`` shows command-line options (``--max-range``);
     ``names="settings"`` shows the names ``--set NAME=VALUE`` takes (``max_range``).
-    The advanced parameters follow the table, a folded table per group.
+    ``advanced="fold"``: the advanced parameters follow the table, a folded table per group;
+    ``"omit"``: the table of the others alone; ``"sections"``: the advanced ones alone, a
+    ``## group`` heading and a table per group (a reference page of their own).
     """
+    if advanced not in ("fold", "omit", "sections"):
+        raise ValueError(f"advanced must be 'fold', 'omit' or 'sections', not {advanced!r}")
     params = describe(cls)
     head = ["| parameter | default | unit | meaning |", "|---|---|---|---|"]
-    rows = head + [_markdown_row(p, names) for p in params if not p.advanced]
     groups = advanced_groups(cls)
-    if groups:
+    if advanced == "sections":
+        rows = []
+        for group, members in groups.items():
+            rows += [f"## {group}", "", *head, *(_markdown_row(p, names) for p in members), ""]
+        return "\n".join(rows)
+    rows = head + [_markdown_row(p, names) for p in params if not p.advanced]
+    if groups and advanced == "fold":
         count = sum(map(len, groups.values()))
         rows += ["", f"**Advanced** ({count} parameters, by the feature they belong to; most runs leave them at "
                  "their defaults):", ""]

@@ -53,8 +53,8 @@ class DenseRefinementParams:
         help="after the wall refinement (wall_refinement), refine the poses again with every return of every scan "
         "against the nearest surface of another frame's scan (point to line), jointly with the same odometry / "
         "graph edges (and walls, dense_refinement_walls): uses the returns the line model drops, round posts and "
-        "short faces; only with wall_refinement (not in Karto; docs/methods/karto-measured.md, URG-04LX: a dense alignment "
-        "after the wall refinement)",
+        "short faces; only with wall_refinement (not in Karto; docs/methods/what-was-tried.md, karto: URG-04LX wall "
+        "ends and the wall refinement)",
         **_ADVANCED,
     )
     dense_refinement_iterations: int = param(

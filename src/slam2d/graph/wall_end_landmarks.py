@@ -2,7 +2,7 @@
 
 Along a corridor longer than the laser's reach the sequential match holds the position along
 it only by its distance penalty towards the odometry, so the along-track error is the
-odometry's random walk (docs/methods/karto-measured.md, *URG-04LX: where the sequential error is*).
+odometry's random walk (docs/methods/what-was-tried.md, *karto, the sequential error per edge*).
 The door jambs and box corners in view pin it (docs/accuracy_bound.md): each kept scan's wall
 ends (:func:`slam2d.matching.wall_ends.detect_wall_ends`) are placed by the scan's matched pose
 and associated with the landmarks seen in the last ``wall_end_track_nodes`` nodes (the nearest
@@ -138,7 +138,7 @@ class WallEndParams:
         help="a landmark sighting's information (the inverse of the end's covariance) is multiplied by this in "
         "the pose graph (wall_end_landmarks): the scan matches' covariances are too wide for their errors "
         "(mean chi-square at the truth 0.19 of 3 in the simulated office), so the landmarks weigh more than "
-        "the matches than they should (0.3, 0.1, 0.03 measured: no gain, docs/methods/karto-measured.md)",
+        "the matches than they should (0.3, 0.1, 0.03 measured: no gain, docs/methods/what-was-tried.md#karto)",
         **_ADVANCED,
     )
     wall_end_revisits: bool = param(

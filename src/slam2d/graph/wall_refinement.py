@@ -1,7 +1,7 @@
 """Wall bundle adjustment: karto's finished trajectory refined against straight walls and wall ends (``wall_refinement``).
 
 Along a corridor longer than the laser's reach the correlative matches are flat along it and
-the odometry decides (docs/methods/karto-measured.md, *Why the simulated worlds stay at 0.1 m*); the
+the odometry decides (docs/methods/what-was-tried.md, *karto, why the simulated worlds stay at 0.1 m*); the
 accuracy bound (docs/accuracy_bound.md) reaches 1-3 cm by solving every range reading against
 the wall it hit and every wall end's bearing, jointly with the walls and the odometry. This is
 that estimator without the truth, run once on the finished run (``GraphSlam.refine_walls``), over
@@ -83,7 +83,8 @@ class WallRefinementParams:
         help="after the run, refine the poses (every placed frame, or the graph's nodes) jointly with straight "
         "walls fitted to their scans and the wall ends they see (every beam on a wall against its line, every "
         "end against its point, and the odometry or the pose graph's edges) by a batch least squares; the "
-        "trajectory and map follow (not in Karto; docs/methods/karto-measured.md, URG-04LX: a wall bundle adjustment)",
+        "trajectory and map follow (not in Karto; docs/methods/what-was-tried.md, karto: URG-04LX wall ends and the "
+        "wall refinement)",
         **_ADVANCED,
     )
     wall_refinement_frames: bool = param(
@@ -187,7 +188,7 @@ class WallRefinementParams:
         "poses with wall_refinement_end_jump and wall_refinement_end_run (wall_refinement_ends): the ends the second "
         "detector adds (a box close in front of a wall, a jamb far ahead after a lost return) are associated at the "
         "first pass's poses, not at the run's, where they can join the wrong landmark "
-        "(docs/methods/karto-measured.md, URG-04LX: which inputs hold the last centimetres)",
+        "(docs/methods/what-was-tried.md, karto: which inputs hold the last centimetres)",
         **_ADVANCED,
     )
     wall_refinement_end_gate: float = param(
@@ -230,7 +231,7 @@ class WallRefinementParams:
         help="keep the Levenberg-Marquardt damping from one association round to the next instead of restarting "
         "each round at 1e-4 (wall_refinement): the along-track modes of a long chain of frames are far weaker than "
         "the diagonal the damping scales, so restarted they barely move in 3 steps a round and the solve stops "
-        "short of its optimum (docs/methods/karto-measured.md, URG-04LX: is it the association?)",
+        "short of its optimum (docs/methods/what-was-tried.md, karto: is it the wall refinement's association?)",
         **_ADVANCED,
     )
 

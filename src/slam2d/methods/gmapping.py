@@ -95,8 +95,8 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
         help="not in GMapping: run this many independent filters of `particles` each (the first with the run's "
         "seed, the others with seeds drawn from it) and report the one whose best particle has the largest "
         "accumulated log-likelihood per update (GMapping's weightSum, its own choice of the best particle); "
-        "1 = GMapping. A filter that lost the right map early scores far lower (docs/methods/gmapping-measured.md, "
-        "Islands); costs islands x the CPU and the memory", advanced=True, group="islands")
+        "1 = GMapping. A filter that lost the right map early scores far lower (docs/methods/what-was-tried.md, "
+        "gmapping, islands); costs islands x the CPU and the memory", advanced=True, group="islands")
     maxUrange: float | None = param(
         None, unit="m", low=0.0, help="usable range: beams are cut here for mapping and ignored beyond it "
         "for matching; unset: maxRange")
