@@ -52,7 +52,7 @@ class NearChainLinking:
             entry = self._seq_cache.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
             # Hot: like a chain that responded well from the last node, its grid already drawn (a first
             # draw costs more than the bound it would spare).
-            warm = entry["grid"] is not None and any(ha < b and a < hb for ha, hb in hot)
+            warm = self._seq_cache.has_grid(entry) and any(ha < b and a < hb for ha, hb in hot)
             if not warm and self._tried_nearby(a, b, pose, p.near_bound_retry_distance, self._near_between):
                 self._count("near_skipped_between_retry")
                 continue

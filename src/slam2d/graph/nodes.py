@@ -50,7 +50,7 @@ class NodeStore:
         if type(m).sigmas_for is CorrelativeMatcher.sigmas_for and sig.dtype == scan.ranges.dtype == np.float64:
             # sigmas_for and the beam-gap share below in one compiled pass (the same arithmetic).
             sigmas = _smear_sigmas(float(m.smear_deviation), sig, use, scan.ranges, float(p.smear_beam_spacing),
-                                   abs(float(scan.angle_increment)), 0.5 * m.resolution, 10.0 * m.resolution)
+                                   abs(float(scan.angle_increment)), *m.sigma_limits)
             if p.point_spacing > 0:
                 points, sigmas = _thin(points, sigmas, p.point_spacing)
             return points, sigmas
@@ -59,7 +59,7 @@ class NodeStore:
             # A reference point stands for the stretch of wall between it and its neighbours'
             # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
             gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
-            sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), 10.0 * self.sequential.resolution)
+            sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), self.sequential.sigma_limits[1])
         if p.point_spacing > 0:
             points, sigmas = _thin(points, sigmas, p.point_spacing)
         return points, sigmas
