@@ -9,7 +9,7 @@ import numpy as np
 from slam2d.backends import PoseGraph
 from slam2d.core import make_scan, se2
 from slam2d.graph.dense_refinement import DenseTerm, scan_normals
-from slam2d.graph.frontend import GraphSlamParams
+from slam2d.graph.params import GraphSlamParams
 from slam2d.graph.wall_refinement import refine_path, refine_walls, scan_segments
 
 # A corridor 2 m wide (walls y = +-1), longer than the laser's reach, with round posts along its walls:

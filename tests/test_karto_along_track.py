@@ -15,7 +15,8 @@ import numpy as np
 
 from slam2d.core import se2
 from slam2d.graph import GraphSlamParams
-from slam2d.graph.frontend import GraphFrontend, _fill_gaps
+from slam2d.graph.frontend import GraphFrontend
+from slam2d.graph.nodes import _fill_gaps
 
 _ANGLES = np.radians(np.arange(-90.0, 90.5, 1.0))
 

@@ -9,7 +9,9 @@ import pytest
 
 from slam2d.core import make_scan, se2
 from slam2d.core.frames import Frame
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams, _Hypothesis
+from slam2d.graph.frontend import GraphFrontend
+from slam2d.graph.loop_closing import _Hypothesis
+from slam2d.graph.params import GraphSlamParams
 
 from tests.conftest import dataset_file
 

@@ -8,7 +8,9 @@ import math
 import numpy as np
 
 from slam2d.core import make_scan, se2
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams, _Hypothesis
+from slam2d.graph.frontend import GraphFrontend
+from slam2d.graph.loop_closing import _Hypothesis
+from slam2d.graph.params import GraphSlamParams
 
 STEP = 0.25  # m between the old pass's nodes
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.graph.frontend import GraphFrontend
+from slam2d.graph.params import GraphSlamParams
 from slam2d.matching.correlative import MatchResult
 from slam2d.matching.grid_cache import GridCache
 from tests.test_matching_bound import _walls

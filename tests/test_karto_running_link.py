@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from slam2d.core import se2
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.graph.frontend import GraphFrontend
+from slam2d.graph.params import GraphSlamParams
 
 
 def _chain(steps, covs, **settings):

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from slam2d.graph.frontend import _runs, _within
+from slam2d.graph.kernels import _runs, _within
 from slam2d.matching.correlative import CorrelativeMatcher
 from slam2d.matching.correlative_search import _COVARIANCE_BAND, _band_on_part_edge
 from slam2d.matching.grid_cache import GridCache
@@ -109,11 +109,11 @@ def test_compiled_box_reductions_equal_the_numpy_ones():
 
 
 def test_compiled_point_transforms_equal_transform_points():
-    """frontend's _transform_xy and _beam_points against se2.transform_points (bit for bit)."""
+    """kernels' _transform_xy and _beam_points against se2.transform_points (bit for bit)."""
     import math
 
     from slam2d.core import se2
-    from slam2d.graph.frontend import _beam_points, _transform_xy
+    from slam2d.graph.kernels import _beam_points, _transform_xy
 
     rng = np.random.default_rng(11)
     for _ in range(200):
@@ -132,8 +132,8 @@ def test_compiled_point_transforms_equal_transform_points():
 
 
 def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
-    """frontend's _smear_sigmas against CorrelativeMatcher.sigmas_for plus _scan_points' numpy gap share."""
-    from slam2d.graph.frontend import _smear_sigmas
+    """kernels' _smear_sigmas against CorrelativeMatcher.sigmas_for plus _scan_points' numpy gap share."""
+    from slam2d.graph.kernels import _smear_sigmas
 
     rng = np.random.default_rng(13)
     for trial in range(200):
@@ -160,7 +160,8 @@ def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
 def test_reference_positions_updated_row_by_row_are_the_whole_transform():
     """The cached reference positions, redone for appended or moved last nodes only, equal the transform of every node."""
     from slam2d.core import se2
-    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+    from slam2d.graph.frontend import GraphFrontend
+    from slam2d.graph.params import GraphSlamParams
 
     rng = np.random.default_rng(11)
     fe = GraphFrontend(GraphSlamParams())
@@ -210,7 +211,7 @@ def test_search_offsets_are_the_arange_product():
 @pytest.mark.parametrize("seed", range(5))
 def test_in_range_beams_are_valid_and_below_the_threshold(seed):
     from slam2d.core.scan import make_scan
-    from slam2d.graph.frontend import _in_range, _valid_within
+    from slam2d.graph.kernels import _in_range, _valid_within
 
     rng = np.random.default_rng(seed)
     r = rng.uniform(0.0, 30.0, 361)
@@ -233,7 +234,7 @@ def test_in_range_beams_are_valid_and_below_the_threshold(seed):
 
 @pytest.mark.parametrize("seed", range(8))
 def test_closest_row_is_numpys_argmin(seed):
-    from slam2d.graph.frontend import _closest_row
+    from slam2d.graph.kernels import _closest_row
 
     rng = np.random.default_rng(seed)
     ref = np.round(rng.uniform(-5.0, 5.0, (400, 2)), 1)  # coarse values: ties happen
@@ -294,7 +295,7 @@ def test_query_box_is_the_array_arithmetic(seed):
 @pytest.mark.parametrize("seed", range(6))
 def test_equal_rows_and_transform_rows_are_numpys(seed):
     from slam2d.core import se2
-    from slam2d.graph.frontend import _equal_rows, _transform_rows
+    from slam2d.graph.kernels import _equal_rows, _transform_rows
 
     rng = np.random.default_rng(seed)
     a = rng.uniform(-5.0, 5.0, (int(rng.integers(1, 40)), 3))
@@ -320,7 +321,7 @@ def test_equal_rows_and_transform_rows_are_numpys(seed):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_runs_counted_are_runs_and_their_flag_counts(seed):
-    from slam2d.graph.frontend import _runs_counted
+    from slam2d.graph.kernels import _runs_counted
 
     rng = np.random.default_rng(seed)
     for n in (0, 1, 5, 300):
@@ -348,7 +349,8 @@ def test_barycentre_store_is_the_stacked_rows():
     """_append_node's growing store of barycentres holds what stacking them row by row gives, also after
     a caller replaced ``_bary_base`` (as tests do)."""
     from slam2d.core.scan import make_scan
-    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+    from slam2d.graph.frontend import GraphFrontend
+    from slam2d.graph.params import GraphSlamParams
 
     rng = np.random.default_rng(2)
     fe = GraphFrontend(GraphSlamParams())
@@ -376,7 +378,7 @@ def test_match_heading_wrap_in_floats_is_numpys():
 
 
 def test_edge_between_is_numpys_any():
-    from slam2d.graph.frontend import _edge_between
+    from slam2d.graph.kernels import _edge_between
 
     rng = np.random.default_rng(4)
     ei = rng.integers(0, 30, 200).astype(np.int64)
@@ -485,7 +487,8 @@ def _chain_covariance_before(seq_steps, i, last, step, step_cov):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_chain_covariance_is_the_composed_one(seed):
-    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+    from slam2d.graph.frontend import GraphFrontend
+    from slam2d.graph.params import GraphSlamParams
 
     rng = np.random.default_rng(seed)
     fe = GraphFrontend(GraphSlamParams())
@@ -524,7 +527,7 @@ def test_reserve_of_a_range_is_reserve_of_its_list():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_column_means_are_numpys_mean(seed):
-    from slam2d.graph.frontend import _column_means
+    from slam2d.graph.kernels import _column_means
 
     rng = np.random.default_rng(seed)
     for n in (1, 2, 7, 8, 9, 100, 361, 1081, 4000):

@@ -21,7 +21,7 @@ from slam2d.backends.landmarks import (
     point_jacobians,
 )
 from slam2d.core import make_scan, se2
-from slam2d.graph.frontend import GraphSlamParams
+from slam2d.graph.params import GraphSlamParams
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks
 from slam2d.matching.wall_ends import detect_wall_ends
 from slam2d.sim.laser import cast_rays

@@ -8,7 +8,7 @@ import numpy as np
 
 from slam2d.backends import PoseGraph
 from slam2d.core import se2
-from slam2d.graph.frontend import GraphSlamParams
+from slam2d.graph.params import GraphSlamParams
 from slam2d.graph.wall_refinement import (EndSightings, associate_ends, associate_segments, extract_segments,
                                           place_points, refine_walls, scan_segments, scan_wall_ends)
 from slam2d.methods import get_method

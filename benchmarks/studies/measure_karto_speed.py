@@ -184,6 +184,11 @@ def _time_kernels(clock=time.perf_counter) -> dict:
     from numba.core.registry import CPUDispatcher
 
     import slam2d.graph.frontend as frontend
+    import slam2d.graph.kernels as kernels
+    import slam2d.graph.loop_closing as loop_closing
+    import slam2d.graph.near_chains as near_chains
+    import slam2d.graph.nodes as nodes
+    import slam2d.graph.sequential as sequential
     import slam2d.matching.correlative as correlative
     import slam2d.matching.correlative_grid as correlative_grid
     import slam2d.matching.correlative_search as correlative_search
@@ -194,7 +199,9 @@ def _time_kernels(clock=time.perf_counter) -> dict:
              "by_name": collections.defaultdict(float), "starts": [],
              "clock": "wall" if clock is time.perf_counter else "thread CPU"}
     current = [0.0]
-    for module in (correlative, correlative_grid, correlative_search, grid_cache, frontend):
+    # Each front-end module holds the names of the kernels it calls (kernels: those its wrappers call).
+    for module in (correlative, correlative_grid, correlative_search, grid_cache, frontend, kernels, nodes,
+                   sequential, near_chains, loop_closing):
         for name, obj in list(vars(module).items()):
             if not isinstance(obj, CPUDispatcher):
                 continue

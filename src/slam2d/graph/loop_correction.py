@@ -101,7 +101,8 @@ def correct_path(scans: list[Any], poses: NDArray[np.float64], odometry: NDArray
     ``loop_correction_range`` and ``loop_correction_closure_scale`` (its ``match_covariance_scale``); without
     an accepted closure the poses come back unchanged.
     """
-    from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+    from slam2d.graph.frontend import GraphFrontend
+    from slam2d.graph.params import GraphSlamParams
 
     cpu = time.process_time()
     poses = np.asarray(poses, dtype=np.float64)

@@ -11,8 +11,9 @@ from numpy.typing import NDArray
 from slam2d.backends import PoseGraph
 from slam2d.core import se2
 from slam2d.core.frames import Frame
-from slam2d.graph.frontend import GraphFrontend, GraphSlamParams
+from slam2d.graph.frontend import GraphFrontend
 from slam2d.graph.loop_correction import spread_node_corrections
+from slam2d.graph.params import GraphSlamParams
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.methods.base import SlamMethod
 from slam2d.params import describe

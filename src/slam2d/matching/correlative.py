@@ -178,7 +178,12 @@ class CorrelativeMatcher:
         if beam_sigma is not None:
             b = np.nan_to_num(np.asarray(beam_sigma, dtype=np.float64), nan=0.0)
             base = np.sqrt(base * base + b * b)
-        return np.clip(base, 0.5 * self.resolution, 10.0 * self.resolution)
+        return np.clip(base, *self.sigma_limits)
+
+    @property
+    def sigma_limits(self) -> tuple[float, float]:
+        """The least and the largest smear sigma (m) :meth:`sigmas_for` gives: Karto's [0.5, 10] cells."""
+        return 0.5 * self.resolution, 10.0 * self.resolution
 
     def query_box(
         self, query_points: NDArray[np.float64], prior: NDArray[np.float64], angle_offset: float

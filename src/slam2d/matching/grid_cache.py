@@ -296,6 +296,11 @@ class GridCache:
         self.derived += 1
         return True
 
+    @staticmethod
+    def has_grid(e: dict) -> bool:
+        """Whether the entry (from :meth:`reserve`) has its grid: :meth:`materialize` drew it once at least."""
+        return e["grid"] is not None
+
     def materialize(self, e: dict, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> tuple[NDArray[np.uint8], float, float]:
         """The entry's grid, drawn where a query inside (lo, hi) can read it.
 
