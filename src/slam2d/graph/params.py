@@ -58,7 +58,7 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         0.0, unit="m", low=0.0,
         help="a scan that adds no node is not matched while the odometry since the last matched scan has moved "
         "less than this and turned less than between_nodes_skip_turn: its pose is that scan's plus the odometry "
-        "since it (not in Karto; a speed setting, 0 = every such scan matched, see docs/methods/karto-measured.md)",
+        "since it (not in Karto; a speed setting, 0 = every such scan matched, see docs/methods/what-was-tried.md#karto-speed)",
         advanced=True, group="between nodes",
     )
     between_nodes_skip_turn: float = param(
@@ -371,14 +371,14 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         0.0, unit="m", low=0.0,
         help="a near chain whose response bound lies between the failure mark and the link threshold (it cannot "
         "link from there) is bounded again only once the robot is this far from where it was bounded or the "
-        "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/karto-measured.md)",
+        "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/what-was-tried.md#karto-speed)",
         advanced=True, group="near chains",
     )
     near_link_skip_distance: float = param(
         0.0, unit="m", low=0.0,
         help="a near chain that linked is not matched again (no link) until the robot is this far from where "
         "it linked or the graph was optimised since (not in Karto, which links it from every node; 0: matched "
-        "at every kept scan; a speed setting, see docs/methods/karto-measured.md)",
+        "at every kept scan; a speed setting, see docs/methods/what-was-tried.md#karto-speed)",
         advanced=True, group="near chains",
     )
     correlation_search_space_dimension: float = param(
