@@ -88,6 +88,8 @@ def main() -> int:
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--logs", default=",".join(LOGS))
     parser.add_argument("--repeat-log", default="intel", help="the log driven 1x, 2x and 4x ('' for none)")
+    parser.add_argument("--times", default="2,4", help="how many times the repeated log is driven, e.g. 8 alone "
+                        "(with --logs none: only those columns)")
     parser.add_argument("--write", type=Path, metavar="BENCHMARKS.md")
     parser.add_argument("--evaluate", action="store_true",
                         help="measure `slam2d evaluate RUN --reference` of each method's run on each SICK log instead")
@@ -106,7 +108,7 @@ def main() -> int:
                 print(f"{m:9s} {log:11s} {rows[m][log] or float('nan'):7.0f} MB", file=sys.stderr, flush=True)
         if args.repeat_log and (SHARED / args.repeat_log / f"{args.repeat_log}.clf.gz").is_file():
             base = SHARED / args.repeat_log / f"{args.repeat_log}.clf.gz"
-            for times in (2, 4):
+            for times in (int(v) for v in args.times.split(",")):
                 data = repeated(base, times, work / f"{args.repeat_log}-x{times}.log.gz")
                 col = f"{args.repeat_log} x{times}"
                 columns.append(col)

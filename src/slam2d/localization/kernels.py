@@ -24,20 +24,27 @@ def particle_log_likelihoods(field, ox, oy, res, max_d, poses, bx, by, inv_two_s
     A beam ending ``d`` metres from the nearest wall scores ``z_hit exp(-d^2 / 2 sigma^2) + z_rand``
     (the cell the endpoint falls in; off the map ``d = max_d``). ``bx, by``: the endpoints in the base frame.
     """
-    rows, cols = field.shape
     m = bx.shape[0]
     for p in range(poses.shape[0]):
-        x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]
-        c, s = math.cos(th), math.sin(th)
-        acc = 0.0
-        for b in range(m):
-            col = int(math.floor((x + c * bx[b] - s * by[b] - ox) / res))
-            row = int(math.floor((y + s * bx[b] + c * by[b] - oy) / res))
-            d = max_d
-            if 0 <= row < rows and 0 <= col < cols:
-                d = field[row, col]
-            acc += math.log(z_hit * math.exp(-d * d * inv_two_sigma2) + z_rand)
+        acc = _summed_log_likelihood(field, ox, oy, res, max_d, poses[p, 0], poses[p, 1], poses[p, 2], bx, by, 0, m,
+                                     inv_two_sigma2, z_hit, z_rand)
         out[p] = acc / max(m, 1)
+
+
+@njit(cache=True)
+def _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit, z_rand):
+    """The summed beam log-likelihood of the endpoints ``bx[lo:hi], by[lo:hi]`` (base frame) at ``(x, y, th)``."""
+    rows, cols = field.shape
+    c, s = math.cos(th), math.sin(th)
+    acc = 0.0
+    for b in range(lo, hi):
+        col = int(math.floor((x + c * bx[b] - s * by[b] - ox) / res))
+        row = int(math.floor((y + s * bx[b] + c * by[b] - oy) / res))
+        d = max_d
+        if 0 <= row < rows and 0 <= col < cols:
+            d = field[row, col]
+        acc += math.log(z_hit * math.exp(-d * d * inv_two_sigma2) + z_rand)
+    return acc
 
 
 @njit(cache=True)
@@ -120,7 +127,6 @@ def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, b
     hypothesis is tracked forwards: odometry alone drifts a tenth of a radian in a second. Scan ``k``'s endpoints
     are ``bx[starts[k]:starts[k + 1]], by[...]`` (base frame).
     """
-    rows, cols = field.shape
     n = starts.shape[0] - 1
     total = 0.0
     prior = np.empty(3)
@@ -132,16 +138,8 @@ def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, b
             prior[0], prior[1], prior[2] = x, y, th
             x, y, th, _ = refine_on_field(field, ox, oy, res, max_d, x, y, th, bx[lo:hi], by[lo:hi], iterations,
                                           huber, prior, prior_xy, prior_th)
-        c, s = math.cos(th), math.sin(th)
-        acc = 0.0
-        for b in range(lo, hi):
-            col = int(math.floor((x + c * bx[b] - s * by[b] - ox) / res))
-            row = int(math.floor((y + s * bx[b] + c * by[b] - oy) / res))
-            d = max_d
-            if 0 <= row < rows and 0 <= col < cols:
-                d = field[row, col]
-            acc += math.log(z_hit * math.exp(-d * d * inv_two_sigma2) + z_rand)
-        total += acc / max(hi - lo, 1)
+        total += _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit,
+                                        z_rand) / max(hi - lo, 1)
     return total
 
 
