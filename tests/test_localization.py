@@ -230,3 +230,45 @@ def test_fr079_second_half_reports_no_far_place_after_leaving_the_first_halfs_ma
     # (the map's own error there, karto's first half against the reference, is 0.04-0.19 m)
     rmse = float(np.sqrt(np.mean(error ** 2)))
     assert error.max() < 1.0 and np.median(error) < 0.15 and rmse < 0.25, (error.max(), np.median(error), rmse)
+
+
+def _search_history(office, n):
+    """A fresh localizer in the office's true map holding the first ``n`` scans' filter updates as a search would,
+    the frames, and the true pose at scan ``n``."""
+    from slam2d.core import se2
+    from slam2d.io import open_recording
+    from slam2d.io.map_server import read_map
+
+    loc = Localizer(read_map(office / "truth-map.yaml").to_grid(), seed=0)
+    frames = list(open_recording(office / "recording.log.gz").frames())
+    last = None
+    for frame in frames[: n + 1]:
+        odom = np.asarray(frame.odometry, dtype=np.float64)
+        d = se2.relative(last, odom) if last is not None else None
+        if d is None or math.hypot(d[0], d[1]) >= loc.p.update_distance or abs(d[2]) >= loc.p.update_angle:
+            loc.search_scans.append((odom, *loc._beams(frame.scan.points_in_base(), loc.p.match_beams)))
+            last = odom
+    tt, tp = read_tum(office / "truth.tum")
+    truth = tp[min(np.searchsorted(tt, frames[n].timestamp), len(tt) - 1)]
+    return loc, frames, truth
+
+
+def test_a_place_found_late_is_scored_on_the_earlier_scans_along_its_traced_path(office):
+    loc, _, truth = _search_history(office, 200)
+    assert len(loc.search_scans) > 50
+    own = loc._path_score(truth)
+    # the true place, traced back through the noisy odometry and matched at each step, fits nearly every scan
+    assert own > -0.05 * len(loc.search_scans)
+    # the same place two metres off, or turned half a turn, does not: the scans before it count against it
+    for offset in ([2.0, 0.0, 0.0], [-2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, math.pi]):
+        assert loc._path_score(truth + np.array(offset)) < own - 3.0
+
+
+def test_the_whole_map_check_finds_the_true_place_the_particles_never_tried(office):
+    loc, frames, truth = _search_history(office, 120)
+    points = frames[120].scan.points_in_base()
+    rivals = loc._unseen_rivals(-math.inf, *loc._beams(points, loc.p.beams), *loc._beams(points, loc.p.match_beams))
+    near = [r for r in rivals if math.hypot(r["pose"][0] - truth[0], r["pose"][1] - truth[1]) < 0.3]
+    assert near and abs(math.remainder(near[0]["pose"][2] - truth[2], math.tau)) < 0.05
+    # ... and scores it best of all the places it found
+    assert max(rivals, key=lambda r: r["score"]) is near[0]
