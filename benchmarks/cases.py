@@ -1050,42 +1050,6 @@ def karto_sim_wall_ends(workdir: Path) -> tuple[None, str]:
     return None, " | ".join(notes)
 
 
-def karto_sim_wall_end_revisits(workdir: Path) -> tuple[None, str]:
-    """karto with ``wall_end_landmarks=true wall_end_revisits=true`` on the URG-04LX `karto-sim-lasers` recordings.
-
-    Landmarks that are one wall end seen again on a later pass merged (docs/methods/what-was-tried.md,
-    *karto, `wall_end_revisits`*); compare with the URG cells of `karto-sim-wall-ends`. Per run
-    also the merges and how many were wrong (the two parts' sightings, at the true poses of their
-    nodes, more than 0.05 m apart), as benchmarks/studies/measure_wall_end_revisits.py counts them.
-    """
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("measure_wall_end_revisits",
-                                                  Path(__file__).resolve().parent / "studies" / "measure_wall_end_revisits.py")
-    measure = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(measure)
-    from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
-    from slam2d.methods.runner import build_method, run_method
-    from slam2d.sim.simulate import SimulationParams, simulate, write_outputs
-
-    cells: dict[str, list[str]] = {}
-    for world, duration in SIM_LASER_WORLDS:
-        for seed in (0, 1, 2):
-            sim_dir = workdir / f"{world}-urg-04lx-{seed}"
-            write_outputs(simulate(world, SimulationParams(duration=duration, seed=seed, laser="urg-04lx")), sim_dir)
-            run_dir = workdir / f"karto-revisits-{world}-{seed}"
-            slam = build_method("karto", settings={"wall_end_landmarks": "true", "wall_end_revisits": "true"})
-            run_method(slam, sim_dir / "recording.log.gz", run_dir)
-            truth = load_truth(sim_dir)
-            e = evaluate_run(load_run(run_dir), truth)
-            fe = slam.frontend
-            merges, wrong, _, _ = measure.merge_truth(fe.wall_ends, fe.node_times(), truth,
-                                                      fe.params.wall_end_minimum_sightings)
-            cells.setdefault(world, []).append(_sim_laser_cell(e) + f" ({merges} merges, {wrong} wrong)")
-    return None, " | ".join(f"{world} urg-04lx (ATE / rot / RPE rot per frame / map error, seeds 0-2): "
-                            + "; ".join(row) for world, row in cells.items())
-
-
 #: The wall refinement's settings that bring every URG-04LX run of office and corridor-loop under 0.05 m
 #: (docs/methods/what-was-tried.md, *karto, which inputs hold the last centimetres*; chosen on seeds 0-2).
 WALL_REFINEMENT_ENDS = {"wall_refinement_carry_damping": "true", "wall_refinement_end_jump": "0.2",
@@ -1307,10 +1271,6 @@ CASES: list[Case] = [
          "in the pose graph) on office 120 s and corridor-loop, seeds 0-2, URG-04LX and RPLidar A1: ATE, heading, "
          "per-frame rotation, map error vs the truth; loop closures within 0.2 m and 1 deg",
          karto_sim_wall_ends, target="ATE < 0.05 m, map error < 0.03 m (issue 7)", warmup=False, repeat=1),
-    Case("karto-sim-wall-end-revisits", "`karto` with `wall_end_landmarks=true wall_end_revisits=true` (a wall end "
-         "seen again on a later pass merged into its old landmark) on office 120 s and corridor-loop, seeds 0-2, "
-         "URG-04LX: ATE, heading, per-frame rotation, map error vs the truth; merges and wrong merges",
-         karto_sim_wall_end_revisits, target="ATE < 0.05 m, map error < 0.03 m (issue 7)", warmup=False, repeat=1),
     Case("karto-sim-wall-refinement", "`karto` with `wall_refinement=true` (the finished run refined against "
          "straight walls and wall ends over every frame) on office 120 s seeds 0-8 and corridor-loop seeds 0-5 "
          "(3 and up held out), URG-04LX: ATE, heading, per-frame rotation, map error vs the truth",

@@ -82,7 +82,7 @@ def test_match_one_climbs_as_match_particles_does():
     out, score, like, ok = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3, bool)
     args = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
     match_particles(*args, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
-                    beams.div_like, 0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((3, 3)), 0.0, out, score, like, ok)
+                    beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((3, 3)), 0.0, out, score, like, ok)
     assert ok.all() and np.all(np.hypot(out[:, 0], out[:, 1]) < 0.3)
     for p in range(3):
         x, y, th, sc, good = match_one(maps.pool, maps.occ, maps.table, p, *args[3:], start[p], np.zeros(3), beams.ex,

@@ -49,7 +49,7 @@ def _climb_and_hold(maps, beams, start, ratio):
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
     match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
-                    beams.div_like, 0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
+                    beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     climbed = out.copy()
     flat = np.zeros(n, dtype=np.int64)
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
@@ -172,7 +172,7 @@ def test_flat_sigma_moves_a_held_pose_to_the_end_walls_position():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
     match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
-                    beams.div_like, 0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
+                    beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     flat = np.zeros(n, dtype=np.int64)
     w = np.full(beams.ex.size, 0.5 / 0.03**2)
     prior = np.tile([100.0, 100.0, 100.0], (n, 1))  # a 0.1 m odometry prior: far weaker than the end wall

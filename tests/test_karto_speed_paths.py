@@ -363,7 +363,7 @@ def test_barycentre_store_is_the_stacked_rows():
         use = scan.valid
         sig = np.full(181, 0.01)
         points, sigmas = fe._scan_points(scan, sig, use)
-        fe._append_node(scan, sig, points, sigmas, rng.uniform(-1.0, 1.0, 3), np.zeros(3), float(k))
+        fe._append_node(scan, points, sigmas, rng.uniform(-1.0, 1.0, 3), np.zeros(3), float(k))
         stacked = np.vstack([stacked, points.mean(axis=0)[None, :]])
         assert np.array_equal(fe._bary_base, stacked)
 

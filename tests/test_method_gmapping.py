@@ -234,27 +234,6 @@ def _room(angles):
     return box_ranges(angles, (-2.8, -1.9, 3.2, 2.1))
 
 
-def test_angular_search_recovers_a_heading_error_the_plain_climb_does_not():
-    """Started 0.9 rad off in a room, GMapping's climb stops in a local optimum; angular_search finds the origin."""
-    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    ranges = _room(angles)
-    maps = TiledMaps(1, 0.05, (-5, -5, 5, 5))
-    for _ in range(3):
-        maps.register(np.arange(1), np.zeros((1, 3)), ranges[None, :], angles, max_range=20.0, usable_range=20.0,
-                      generate_map=False)
-    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
-    start = np.array([[0.0, 0.0, 0.9]])
-    found = {}
-    for search in (0.0, 1.0):
-        out, score, like, ok = np.empty((1, 3)), np.empty(1), np.empty(1), np.empty(1, bool)
-        match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
-                        np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                        0.05, 0.05, 5, search, 1, 0.0, 0.0, np.zeros((1, 3)), 0.0, out, score, like, ok)
-        found[search] = out[0].copy()
-    assert abs(found[1.0][2]) < 0.01 and np.hypot(found[1.0][0], found[1.0][1]) < 0.02
-    assert abs(found[0.0][2]) > 0.1  # the greedy climb alone does not get there
-
-
 def test_hill_climb_recovers_a_displaced_pose():
     """A room mapped from the origin; the matcher started 8 cm / 0.04 rad off finds the origin again."""
     angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
@@ -269,7 +248,7 @@ def test_hill_climb_recovers_a_displaced_pose():
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
     match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, True, start, np.zeros(3),
                     beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
+                    0.05, 0.05, 5, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     assert ok.all()
     assert np.all(np.hypot(out[:, 0], out[:, 1]) < 0.02) and np.all(np.abs(out[:, 2]) < 0.01)
     assert np.all(score > 600)  # most of the 720 beams match
@@ -306,7 +285,7 @@ def test_odometry_prior_holds_the_climb_where_the_scan_does_not_constrain_it():
         out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
                         np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                        0.05, 0.05, 5, 0.0, 1, 0.0, 0.0, info, 0.0, out, score, like, ok)
+                        0.05, 0.05, 5, 0.0, 0.0, info, 0.0, out, score, like, ok)
         assert ok.all()
         assert np.all(np.abs(out[:, 1]) < 0.01) and np.all(np.abs(out[:, 2]) < 0.005)  # across and heading
         assert np.all(score > 0.8 * use.sum())  # the plain score is returned, not score - prior
@@ -437,25 +416,6 @@ def test_matched_poses_between_updates_leave_the_filter_alone_and_beat_odometry(
     assert not np.allclose(po[~updated], pm[~updated])
     assert runs["matched"][1] < 0.8 * runs["odometry"][1], (runs["matched"][1], runs["odometry"][1])
     assert np.array_equal(matched.current_pose(), pm[-1])
-
-
-def test_angular_search_every_splits_the_particles():
-    """With angular_search_every=2 the even particles search the headings, the odd ones climb as GMapping."""
-    angles = np.linspace(-np.pi, np.pi, 720, endpoint=False)
-    ranges = _room(angles)
-    n = 4
-    maps = TiledMaps(n, 0.05, (-5, -5, 5, 5))
-    for _ in range(3):
-        maps.register(np.arange(n), np.zeros((n, 3)), np.broadcast_to(ranges, (n, 720)), angles, max_range=20.0,
-                      usable_range=20.0, generate_map=False)
-    beams = BeamSet(ranges, angles, np.ones(720, bool), np.full(720, 0.05), np.full(720, 0.075))
-    start = np.tile([0.0, 0.0, 0.9], (n, 1))
-    out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
-    match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False, start,
-                    np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like,
-                    0.05, 0.05, 5, 1.0, 2, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
-    assert np.all(np.abs(out[0::2, 2]) < 0.01)
-    assert np.all(np.abs(out[1::2, 2]) > 0.1)
 
 
 def test_guided_follows_a_turn_the_odometry_does_not_report():
@@ -671,7 +631,6 @@ def test_defaults_meet_the_arena_target(paper_arena, tmp_path):
     assert ate < 0.03, ate
     plain = run_ate("gmapping", paper_arena, tmp_path / "plain", "--set", "between_updates=odometry")
     assert plain > ate
-
 
 
 def test_coarse_kernel_pulls_in_a_particle_beyond_the_climbs_reach():

@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from slam2d.backends import PoseGraph, get_backend
 from slam2d.backends.graph import edge_jacobians
 from slam2d.backends.landmarks import (
     PointObservations,
     augmented_graph,
-    landmark_covariance,
     landmark_positions,
     optimize_with_landmarks,
     point_errors,
@@ -316,123 +313,6 @@ def test_mixed_return_at_the_edge_and_beam_width():
     assert np.all(along_wide > along + (1.0 * math.radians(0.5)) ** 2)
     np.testing.assert_allclose(np.einsum("ki,kij,kj->k", n, wide.covariances, n),
                                np.einsum("ki,kij,kj->k", n, ends.covariances, n))
-
-
-# ---------------------------------------------------------------- revisits (wall_end_revisits)
-
-
-def test_landmark_covariance_is_the_inverse_information():
-    rng = np.random.default_rng(4)
-    truth, g = _corridor_graph(8, rng)
-    marks = np.array([[0.5, 1.0], [1.2, -1.0]])
-    pose_idx = np.array([0, 1, 2, 3, 4, 5, 6, 7])
-    lm_idx = np.array([0, 0, 0, 1, 1, 1, 1, 0])
-    info = np.array([np.diag([1e4, 4e4]), np.diag([2e4, 1e4])])[lm_idx]
-    obs = PointObservations(pose_idx, lm_idx, np.zeros((8, 2)), np.zeros((8, 2, 2)))
-    obs = PointObservations(pose_idx, lm_idx, point_errors(g.poses, marks, obs), info)
-    cov = landmark_covariance(g, g.poses, marks, obs, np.array([1, 0]))
-    # Dense: J^T Omega J over all nodes, gauge node 0 removed, unit diagonal on the landmark headings.
-    ag = augmented_graph(g, marks, obs)
-    _, A, B = edge_jacobians(ag.poses, ag.edge_i, ag.edge_j, ag.measurements)
-    n = ag.num_nodes
-    H = np.zeros((3 * n, 3 * n))
-    for k in range(ag.num_edges):
-        i, j, om = ag.edge_i[k], ag.edge_j[k], ag.information[k]
-        J = np.zeros((3, 3 * n))
-        J[:, 3 * i:3 * i + 3] = A[k]
-        J[:, 3 * j:3 * j + 3] = B[k]
-        H += J.T @ om @ J
-    H[3 * 8 + 2, 3 * 8 + 2] += 1.0
-    H[3 * 9 + 2, 3 * 9 + 2] += 1.0
-    C = np.linalg.inv(H[3:, 3:])
-    rows = np.array([3 * 9, 3 * 9 + 1, 3 * 8, 3 * 8 + 1]) - 3
-    np.testing.assert_allclose(cov, C[np.ix_(rows, rows)], rtol=1e-6, atol=1e-12)
-    assert np.all(np.linalg.eigvalsh(cov) > 0)
-
-
-def _ends(points, direction=(1.0, 0.0)):
-    pts = np.asarray(points, dtype=float).reshape(-1, 2)
-    return SimpleNamespace(points=pts, covariances=np.broadcast_to(np.diag([4e-4, 1e-4]), (len(pts), 2, 2)).copy(),
-                           direction=np.tile(direction, (len(pts), 1)), __len__=lambda: len(pts))
-
-
-def _out_and_back(n=24, turn_error=0.0):
-    """East along y = 0 for n/2 nodes, then back west along y = 0.1 over the same ground; well-known steps,
-    the turn's position poorly known and measured ``turn_error`` m too long in x (only landmarks can tell)."""
-    half = n // 2
-    x = 0.25 * np.arange(half)
-    truth = np.vstack([np.column_stack([x, np.zeros(half), np.zeros(half)]),
-                       np.column_stack([x[::-1], np.full(half, 0.1), np.full(half, math.pi)])])
-    g = PoseGraph()
-    g.add_nodes(truth)
-    for i in range(1, n):
-        loose = i == half
-        z = se2.relative(truth[i - 1], truth[i]) + (np.array([turn_error, 0.0, 0.0]) if loose else 0.0)
-        g.add_edge(i - 1, i, z, np.diag([1.0, 1.0, 1e5]) if loose else np.diag([1e4, 1e4, 1e5]))
-    return truth, g
-
-
-def _rot(theta, v):
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
-
-
-def _see(lm, truth, nodes, mark, direction):
-    """Node i sees the end at world ``mark`` (wall direction ``direction`` in the world)."""
-    for i in nodes:
-        local = se2.relative(truth[i], np.array([mark[0], mark[1], 0.0]))[:2]
-        lm._associate(truth, i, _ends([local], _rot(-truth[i, 2], direction)))
-
-
-@pytest.mark.parametrize("revisits", [False, True])
-def test_revisit_merges_one_end_seen_on_two_passes(revisits):
-    truth, g = _out_and_back(turn_error=0.08)
-    p = GraphSlamParams(wall_end_landmarks=True, wall_end_revisits=revisits, wall_end_track_nodes=5)
-    lm = WallEndLandmarks(p)
-    _see(lm, truth, [2, 3, 4], (0.75, 1.0), (1.0, 0.0))  # a jamb, the wall running east from it
-    _see(lm, truth, [19, 20, 21], (0.75, 1.0), (0.0, 1.0))  # the same corner, its other face
-    _see(lm, truth, [7, 8, 9], (2.0, 1.0), (1.0, 0.0))  # another jamb, seen on the way out only
-    assert lm.num_landmarks == 3
-    res = lm.optimize(get_backend("spa"), g)
-    obs = lm.observations()
-    err = np.hypot(*(res.poses[12:, :2] - truth[12:, :2]).T).max()
-    if not revisits:
-        # The way back keeps the turn's 8 cm: its landmark is its own.
-        assert lm.merged == 0 and np.unique(obs.landmark).size == 3
-        assert err > 0.07
-        return
-    # The two passes' landmarks at (0.75, 1) are one now (the oldest id), the other jamb alone, and the
-    # way back is pulled onto the way out.
-    assert lm.merged == 1 and np.unique(obs.landmark).tolist() == [0, 2]
-    assert np.sum(obs.landmark == 0) == 6
-    assert err < 0.005
-
-
-def test_revisit_refuses_opposite_walls_far_ends_and_groups_with_two_ends_of_one_scan():
-    truth, g = _out_and_back()
-    p = GraphSlamParams(wall_end_landmarks=True, wall_end_revisits=True, wall_end_track_nodes=5)
-    # The two jambs of one door point opposite ways: never merged, however near.
-    lm = WallEndLandmarks(p)
-    _see(lm, truth, [2, 3, 4], (0.75, 1.0), (1.0, 0.0))
-    _see(lm, truth, [19, 20, 21], (0.78, 1.0), (-1.0, 0.0))
-    lm.optimize(get_backend("spa"), g)
-    assert lm.merged == 0
-    # Farther apart than wall_end_revisit_radius (0.15 m): not merged.
-    lm = WallEndLandmarks(p)
-    _see(lm, truth, [2, 3, 4], (0.75, 1.0), (1.0, 0.0))
-    _see(lm, truth, [19, 20, 21], (0.95, 1.0), (1.0, 0.0))
-    lm.optimize(get_backend("spa"), g)
-    assert lm.merged == 0
-    # Two ends 12 cm apart seen from one node, and a third between them on the way back: a group that is
-    # not one end; nothing merged.
-    lm = WallEndLandmarks(dataclasses.replace(p, wall_end_pose_sigma=0.005))
-    for i in (2, 3, 4):
-        marks = np.array([[0.75, 1.0, 0.0], [0.87, 1.0, 0.0]])
-        lm._associate(truth, i, _ends(se2.relative(truth[i], marks)[:, :2]))
-    assert lm.num_landmarks == 2
-    _see(lm, truth, [19, 20, 21], (0.81, 1.0), (1.0, 0.0))
-    lm.optimize(get_backend("spa"), g)
-    assert lm.merged == 0 and np.unique(lm.observations().landmark).size == 3
 
 
 def test_wall_end_auto_range_turns_them_on_for_short_range_lasers_only():

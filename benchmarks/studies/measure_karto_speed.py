@@ -104,8 +104,7 @@ def main() -> None:
         digest = hashlib.sha1(np.ascontiguousarray(t).tobytes() + np.ascontiguousarray(p).tobytes()).hexdigest()[:16]
         closures = len(slam.diagnostics.summary["loop_closures"])
         counters = slam.diagnostics.counters
-        between = (f", between nodes {counters.get('frames_matched_between_nodes', 0)} matched"
-                   f" {counters.get('frames_chained_between_nodes', 0)} chained")
+        between = f", between nodes {counters.get('frames_matched_between_nodes', 0)} matched"
         print(f"{log}: cpu {cpu:.2f} s, wall {wall:.2f} s, ATE {ate:.4f} m, {closures} closures{between}, "
               f"hash {digest}", flush=True)
         for kind, (n, lookups, seconds) in sorted(kinds.items(), key=lambda kv: -kv[1][1]):

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""karto with wall-end landmarks on the simulated URG-04LX recordings: ATE, map error and the merges' truth.
+"""karto with wall-end landmarks on the simulated URG-04LX recordings: ATE and map error.
 
     .venv/bin/python benchmarks/studies/measure_wall_end_revisits.py [--world office] [--laser urg-04lx] \
         [--seeds 0,1,2,3,4,5] [key=value ...]
@@ -7,16 +7,13 @@
 The recordings of `karto-sim-lasers` (office 120 s, corridor-loop one pass; written once under
 --cache, as benchmarks/studies/measure_gmapping_proposal.py writes them), run in-process with the settings
 given and judged as `slam2d evaluate --truth`. Per seed: ATE (m), map error (mean truth-to-map,
-m), landmarks, loop closures (and how many within 0.2 m and 1 deg of the truth), merges of a
-tracked landmark into an older one (`wall_end_revisits`) and how many of those were wrong: the
-sightings of the two merged parts, placed at the *true* poses of their nodes, more than 0.05 m
-apart (their means; the largest such gap is printed too); missed: pairs of landmarks left in the
-graph whose true means are within 0.1 m and never seen from one node.
+m), landmarks, loop closures (and how many within 0.2 m and 1 deg of the truth). (Named for the
+landmark merges it also judged, `wall_end_revisits`, removed since: see
+docs/methods/what-was-tried.md.)
 With ``--diagnose``, also: the mean chi-square at the *true* node poses of the landmark sightings
 (2 expected for a right covariance) and of the pose-graph edges (3 expected; also per kind:
 sequential, link = running-scan and near-chain links, loop; edge counts in brackets), and the mean
-position error (after the evaluation's alignment) in each twelfth of the trajectory, and per merged
-pair its estimated distance, Mahalanobis distance and the largest sigma of the difference. Also the CPU seconds of the run,
+position error (after the evaluation's alignment) in each twelfth of the trajectory. Also the CPU seconds of the run,
 and with ``wall_refinement=true`` the refinement's walls, wall-end landmarks, poses and CPU seconds.
 """
 
@@ -30,43 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from slam2d.core import se2
 from slam2d.eval.evaluate import evaluate_run, load_run, load_truth
 from slam2d.graph.evaluation import loop_closure_precision
 from slam2d.methods.runner import build_method, run_method
 
 sys.path.insert(0, str(Path(__file__).parent))
 from measure_gmapping_proposal import cached_recording  # noqa: E402
-
-
-def merge_truth(wall_ends, node_times, truth, minimum_sightings: int = 3) -> tuple[int, int, int, float]:
-    """(merges, wrong merges, missed, largest gap in m) of the tracker, judged at the true poses of the nodes.
-
-    Missed: pairs of landmarks in the graph at the end (seen from ``minimum_sightings`` nodes),
-    never seen from one node, whose sightings' true means are within 0.1 m: one wall end twice.
-    """
-    node, lm, origin, z, _ = wall_ends.sightings()
-    idx = np.searchsorted(truth.times, np.asarray(node_times)[node])
-    idx = np.clip(idx, 0, len(truth.times) - 1)
-    world = se2.transform_points(truth.poses[idx], z[:, None, :])[:, 0, :]
-    merges = wrong = 0
-    worst = 0.0
-    for target in np.unique(lm[origin != lm]):  # landmarks that absorbed others (a few per run)
-        sel = lm == target
-        parts = np.unique(origin[sel])
-        means = np.array([world[sel & (origin == o)].mean(axis=0) for o in parts])
-        merges += parts.size - 1
-        gaps = np.hypot(*(means[1:] - means[0]).T)
-        wrong += int((gaps > 0.05).sum())
-        worst = max(worst, float(gaps.max()))
-    alive_lm, first = np.unique(lm, return_index=True)
-    mean = np.array([world[lm == t].mean(axis=0) for t in alive_lm])
-    nodes = [set(node[lm == t].tolist()) for t in alive_lm]
-    big = np.array([len(s) >= minimum_sightings for s in nodes])
-    d = np.hypot(*(mean[:, None, :] - mean[None, :, :]).transpose(2, 0, 1))
-    ia, ib = np.nonzero(np.triu(d < 0.1, 1) & big[:, None] & big[None, :])
-    missed = sum(1 for x, y in zip(ia, ib) if not (nodes[x] & nodes[y]))
-    return merges, wrong, missed, worst
 
 
 def diagnose(fe, truth, run_dir: Path) -> str:
@@ -131,23 +97,17 @@ def main() -> None:
         diag = json.loads((run_dir / "diagnostics.json").read_text())
         counts = diag["counters"]
         prec = loop_closure_precision(diag["summary"]["loop_closures"], truth.times, truth.poses)
-        merges, wrong, missed, worst = (merge_truth(fe.wall_ends, fe.node_times(), truth, fe.params.wall_end_minimum_sightings)
-                                 if fe.wall_ends is not None else (0, 0, 0, 0.0))
         ates.append(ate)
         maps.append(err)
         refine = diag["summary"].get("wall_refinement")
         refined = (f", wall_refinement {refine['walls']:.0f} walls, {refine['points']:.0f} wall ends over "
                    f"{refine['poses']:.0f} poses, cpu {refine['cpu_s']:.1f} s" if refine else "")
         print(f"{a.world} {a.laser} seed {seed}: ATE {ate:.3f} m, map {err:.3f} m, "
-              f"{counts.get('wall_end_landmarks', 0)} landmarks, {merges} merges ({wrong} wrong, {missed} missed, "
-              f"largest true gap {worst:.3f} m), "
+              f"{counts.get('wall_end_landmarks', 0)} landmarks, "
               f"{counts.get('loop_closures', 0)} loop closures ({prec['correct']} within 0.2 m and 1 deg of the truth), "
               f"cpu {cpu:.0f} s{refined}", flush=True)
         if a.diagnose:
             print("  " + diagnose(fe, truth, run_dir), flush=True)
-            for node, x, y, dist, maha, sigma in (fe.wall_ends.merge_log if fe.wall_ends is not None else []):
-                print(f"  merge at node {node}: landmarks {x} and {y} {dist:.3f} m apart, {maha:.2f} sigma, "
-                      f"largest sigma {sigma:.3f} m", flush=True)
     print(f"mean ATE {sum(ates) / len(ates):.3f} m, max {max(ates):.3f}; mean map {sum(maps) / len(maps):.3f} m; "
           f"settings {' '.join(a.settings) or '(wall_end_landmarks=true)'}")
 

@@ -74,7 +74,7 @@ from slam2d.graph.wall_refinement import refine_path
 from slam2d.graph.kernels import _column_means, _in_range
 from slam2d.graph.loop_closing import LoopClosing, LoopClosure, _Hypothesis
 from slam2d.graph.near_chains import NearChainLinking
-from slam2d.graph.nodes import NodeStore, _fill_gaps
+from slam2d.graph.nodes import NodeStore
 from slam2d.graph.params import GraphSlamParams
 from slam2d.graph.sequential import SequentialMatching, _weighted_mean
 
@@ -148,13 +148,11 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self.optimizations: list[dict[str, float]] = []
         # Loop attempts since the last optimisation: (chain start, chain end, robot x, y).
         self._tried: list[tuple[int, int, float, float]] = []
-        self._self_response: dict[int, float] = {}
         # Weak loop matches waiting for a consistent partner: see _confirm_hypothesis.
         self._hypotheses: list[_Hypothesis] = []
         # Near chains that failed to link since the last optimisation, the same way.
         self._near_failed: list[tuple[int, int, float, float]] = []
         self._near_between: list[tuple[int, int, float, float]] = []
-        self._near_linked_at: list[tuple[int, int, float, float]] = []  # near chains linked (near_link_skip_distance)
         # Near chains (start, end) that responded at least _NEAR_HOT of the link threshold from the last node.
         self._near_hot: list[tuple[int, int]] = []
         self._last_odom: NDArray[np.float64] | None = None
@@ -163,7 +161,6 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self._after_between = False  # whether the last frame was matched between nodes
         self._frame_degenerate = False  # whether its match was flat along a corridor
         self._frame_response = math.nan  # the last matched scan's unpenalised response
-        self._matched_odom: NDArray[np.float64] | None = None  # odometry at the last matched scan
         self._steps: list[NDArray[np.float64]] = []  # per node after the first: see between_node_steps
         # Per node after the first: its sequential edge's measurement and covariance (previous node's frame).
         self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
@@ -205,18 +202,12 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         """Node i's matched scan points (base frame, (N, 2)) and their smear sigmas (m)."""
         return self._points[i], self._sigmas[i]
 
-    def _append_node(self, scan, sig, points, sigmas, pose, odom, timestamp: float) -> int:
+    def _append_node(self, scan, points, sigmas, pose, odom, timestamp: float) -> int:
         """Add a node at ``pose`` with the scan's points, reference, odometry and time; returns its index."""
-        p = self.params
         node = self.graph.add_node(pose)
         self._points.append(points)
         self._sigmas.append(sigmas)
-        if p.reference_range_margin > 0:
-            wide, _ = _in_range(scan, p.range_threshold + p.reference_range_margin)
-            ref = self._scan_points(scan, sig, wide)
-        else:
-            ref = (points, sigmas)
-        self._ref.append(_fill_gaps(*ref, p.reference_gap_fill, 2.0 * self.sequential.resolution))
+        self._ref.append((points, sigmas))
         self._world.append(None)
         self._odom.append(odom)
         self._times.append(timestamp)
@@ -260,7 +251,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         else:
             step = np.asarray(step, dtype=np.float64)
             pose = se2.compose(self.graph.poses[last], step)
-        node = self._append_node(scan, sig, points, sigmas, pose, odom, timestamp)
+        node = self._append_node(scan, points, sigmas, pose, odom, timestamp)
         if last >= 0:
             self.graph.add_edge(last, node, step, information)
             self._seq_steps.append((step.copy(), np.linalg.inv(information)))
@@ -324,14 +315,14 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
                 self._frame_pose = chained
             return None
         if not moved:
-            self._place_between_nodes(scan, use, odom, last, predicted, chained, seed, last_response)
+            self._place_between_nodes(scan, use, last, predicted, seed, last_response)
             return None
         sig = beam_sigmas(scan, self.sensor_model, 0.0)
         points, sigmas = self._scan_points(scan, sig, use)
         values: dict[str, float] = {}
         pose, cov = self._node_estimate(points, predicted, last, relocating, values, last_response,
                                         seed if after_between else None)
-        node = self._append_node(scan, sig, points, sigmas, pose, odom, frame.timestamp)
+        node = self._append_node(scan, points, sigmas, pose, odom, frame.timestamp)
         if last >= 0:
             means = [pose]
             covs = [cov]
@@ -366,7 +357,6 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self.anchor, self.offset = node, np.zeros(3)
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
-        self._matched_odom = odom
         return values
 
     def _moved_nodes(self, before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.bool_] | None:
@@ -402,7 +392,6 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self._tried.clear()
         self._near_failed.clear()
         self._near_between.clear()
-        self._near_linked_at.clear()
         self.optimizations.append(
             {"nodes": self.graph.num_nodes, "edges": self.graph.num_edges, "cost_before": res.cost_before,
              "cost_after": res.cost_after, "iterations": res.iterations, "cpu_s": res.cpu_s}

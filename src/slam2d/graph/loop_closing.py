@@ -94,8 +94,6 @@ class LoopClosing:
             # Poses that cannot reach the acceptance threshold are not searched (exact for every
             # accepted closure; a rejected one may report a lower response than the best).
             coarse_threshold = p.loop_match_minimum_response_coarse
-            if p.loop_coarse_relative:
-                coarse_threshold *= self._coarse_self_response(node, points)
             # The drift gate bounds the correction a closure may make, so the window need not
             # reach farther (a look-alike beyond it would be rejected anyway).
             path = self._path_length(b - 1, node)
@@ -299,26 +297,6 @@ class LoopClosing:
                     best, best_err = h, score
         self._hypotheses = keep
         return best
-
-    def _coarse_self_response(self, node: int, points: NDArray[np.float64]) -> float:
-        """Coarse loop response of the scan against itself, the truth half a coarse step off every sample.
-
-        This is what a perfect loop match is sure to reach on the loop grid: points
-        far from the robot leave their cell when the angle is off by a degree, so a
-        long-range scan scores well below 1 even at the right place.
-        """
-        got = self._self_response.get(node)
-        if got is None:
-            m = self.loop
-            sig = self._sigmas[node]
-            lo, hi = points.min(axis=0) - 1.0, points.max(axis=0) + 1.0
-            grid = m.correlation_grid(points, sig, lo, hi)
-            off = np.array([0.5 * m.resolution, 0.5 * m.resolution, 0.25 * m.coarse_angle_resolution])
-            small = m.with_window(8.0 * m.resolution)
-            r = small.match(None, None, points, off, penalize=False, refine=False, grid=grid)
-            got = float(min(max(r.response, 0.5), 1.0))
-            self._self_response[node] = got
-        return got
 
     def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float, tried=None) -> bool:
         """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""

@@ -11,8 +11,6 @@ holds the state it reads and writes.
 
 from __future__ import annotations
 
-import numpy as np
-
 from slam2d.graph.kernels import _runs_counted
 
 __all__ = ["NearChainLinking"]
@@ -43,9 +41,6 @@ class NearChainLinking:
             if self._tried_nearby(a, b, pose, p.loop_retry_distance, self._near_failed):
                 self._count("near_skipped_retry")
                 continue
-            if self._tried_nearby(a, b, pose, p.near_link_skip_distance, self._near_linked_at):
-                self._count("near_skipped_linked")
-                continue
             chain = range(a, b)  # a list only where it links (reserve reads a range's ends directly)
             # The cache's book-keeping is done whatever happens, so later matches read the grids
             # they would have (see GridCache.reserve).
@@ -73,18 +68,10 @@ class NearChainLinking:
                 self._near_hot.append((a, b))
             if result.response > link:
                 cov = result.covariance
-                if p.link_flat_variance > 0 and self._degenerate(cov):
-                    w, v = np.linalg.eigh(cov[:2, :2])
-                    cov = cov.copy()
-                    cov[:2, :2] += max(p.link_flat_variance - w[-1], 0.0) * np.outer(v[:, -1], v[:, -1])
-                    self._count("near_links_flat")
                 means.append(result.pose)
                 covs.append(cov)
                 self._link_chain_to_scan(list(chain), node, result.pose, cov)
                 count += 1
-                if p.near_link_skip_distance > 0:
-                    self._near_linked_at.append((a, b, float(pose[0]), float(pose[1])))
-                    del self._near_linked_at[:-100]
         return count
 
     def _near_outcome(self, entry: dict, points, pose, lo, hi, hot: bool):

@@ -45,14 +45,12 @@ class NodeStore:
             r = scan.ranges[use]
             points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
-            return (points[_thin_keep(points, p.point_spacing)] if p.point_spacing > 0 else points), None
+            return points, None
         m = self.sequential
         if type(m).sigmas_for is CorrelativeMatcher.sigmas_for and sig.dtype == scan.ranges.dtype == np.float64:
             # sigmas_for and the beam-gap share below in one compiled pass (the same arithmetic).
             sigmas = _smear_sigmas(float(m.smear_deviation), sig, use, scan.ranges, float(p.smear_beam_spacing),
                                    abs(float(scan.angle_increment)), *m.sigma_limits)
-            if p.point_spacing > 0:
-                points, sigmas = _thin(points, sigmas, p.point_spacing)
             return points, sigmas
         sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
         if p.smear_beam_spacing > 0:
@@ -60,8 +58,6 @@ class NodeStore:
             # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
             gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
             sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), self.sequential.sigma_limits[1])
-        if p.point_spacing > 0:
-            points, sigmas = _thin(points, sigmas, p.point_spacing)
         return points, sigmas
 
     def _beam_directions(self, scan) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -189,38 +185,3 @@ class NodeStore:
         if not self._has_edge(closest, node):
             self._add_edge(closest, node, pose, cov)
         return closest
-
-
-def _fill_gaps(points: NDArray[np.float64], sigmas: NDArray[np.float64], max_gap: float, step: float):
-    """The points plus, between neighbours less than ``max_gap`` apart, points every ``step`` (and their sigmas).
-
-    Each added point takes the smaller sigma of its pair. Neighbours are taken in scan order.
-    """
-    if max_gap <= 0 or points.shape[0] < 2:
-        return points, sigmas
-    d = np.diff(points, axis=0)
-    gap = np.hypot(d[:, 0], d[:, 1])
-    pair = np.flatnonzero((gap < max_gap) & (gap > step))
-    if pair.size == 0:
-        return points, sigmas
-    n = np.floor(gap[pair] / step).astype(np.int64)  # segments; n - 1 inner points
-    k = np.repeat(pair, n - 1)
-    inner = np.arange(k.size) - np.repeat(np.cumsum(n - 1) - (n - 1), n - 1) + 1
-    f = (inner / np.repeat(n, n - 1))[:, None]
-    added = points[k] + f * d[k]
-    sig = np.minimum(sigmas[k], sigmas[k + 1])
-    return np.concatenate([points, added]), np.concatenate([sigmas, sig])
-
-
-def _thin_keep(points: NDArray[np.float64], spacing: float) -> NDArray[np.int64]:
-    """Indices of the first point (in scan order) of every ``spacing``-sided square."""
-    cells = np.floor(points / spacing).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    return np.sort(first)
-
-
-def _thin(points: NDArray[np.float64], sigmas: NDArray[np.float64], spacing: float):
-    """The first point (in scan order) of every ``spacing``-sided square, and its sigma."""
-    keep = _thin_keep(points, spacing)
-    return points[keep], sigmas[keep]
-

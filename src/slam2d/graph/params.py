@@ -29,12 +29,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
 
     backend: str = param("spa", choices=("spa", "lago", "gtsam"), help="pose-graph optimiser run after each loop closure")
     use_scan_matching: bool = param(True, help="match scans (off: nodes at the odometry pose) [UseScanMatching]")
-    minimum_match_response: float = param(
-        0.0, low=0.0, high=1.0,
-        help="a sequential match responding below this is not used: the odometry step is kept instead "
-        "(not in Karto, which uses any match; 0 = off, since on intel's poor odometry any threshold hurts)",
-        advanced=True, group="sequential matching",
-    )
     match_between_nodes: bool = param(
         True,
         help="match every scan that adds no node against the running scans too, for its pose in the "
@@ -52,19 +46,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         20.0 * _DEG, unit="rad", low=0.0,
         help="half-width of the coarse angle window of the matches of scans that add no node (not in Karto; "
         "see between_nodes_search_dimension)",
-        advanced=True, group="between nodes",
-    )
-    between_nodes_skip_travel: float = param(
-        0.0, unit="m", low=0.0,
-        help="a scan that adds no node is not matched while the odometry since the last matched scan has moved "
-        "less than this and turned less than between_nodes_skip_turn: its pose is that scan's plus the odometry "
-        "since it (not in Karto; a speed setting, 0 = every such scan matched, see docs/methods/what-was-tried.md#karto-speed)",
-        advanced=True, group="between nodes",
-    )
-    between_nodes_skip_turn: float = param(
-        2.0 * _DEG, unit="rad", low=0.0,
-        help="with between_nodes_skip_travel, a scan that adds no node is matched anyway once the odometry "
-        "since the last matched scan has turned this far (not in Karto)",
         advanced=True, group="between nodes",
     )
     seeded_search_window: float = param(
@@ -113,29 +94,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         "1.3 deg off, the odometry 7.9 deg off and 0.15 below, fused 3.8 deg off; 1 fuses whenever the spread "
         "is wide, as before",
         advanced=True, group="odometry fusion",
-    )
-    reference_range_margin: float = param(
-        0.0, unit="m", low=0.0,
-        help="a scan used as a matching reference keeps returns up to range_threshold plus this (not in Karto): "
-        "the query's far points then land inside the reference's reach, instead of past its edge where they "
-        "score nothing unless the match steps back (which shortens steps along corridors); 0 = off (Karto), as "
-        "8 m helped aces and intel but not fr101 (docs)",
-        advanced=True, group="sequential matching",
-    )
-    reference_gap_fill: float = param(
-        0.0, unit="m", low=0.0,
-        help="in a scan used as a matching reference, neighbouring points (in beam order) closer than this are "
-        "joined by points every two correlation cells (not in Karto): a wall seen at a glancing angle is then a "
-        "line, not dots ever further apart, whose density pulls a match toward where the reference is dense "
-        "(steps along a corridor came out 1-2 cm short in simulation); 0 = off (Karto): in the whole front end "
-        "it lengthened the steps past the truth (docs)",
-        advanced=True, group="sequential matching",
-    )
-    point_spacing: float = param(
-        0.0, unit="m", low=0.0,
-        help="keep one scan point per square of this side before matching (not in Karto): near clutter "
-        "hit by dozens of beams weighs less and matching is cheaper; 0 keeps every point, as Karto does",
-        advanced=True, group="sequential matching",
     )
     near_chain_angle_offset: float = param(
         6.0 * _DEG, unit="rad", low=0.0,
@@ -218,15 +176,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
     link_match_minimum_response_fine: float = param(
         0.8, low=0.0, high=1.0, help="least response that links a near chain [LinkMatchMinimumResponseFine]"
     )
-    link_flat_variance: float = param(
-        0.0, unit="m^2", low=0.0,
-        help="a near-chain link whose match is flat along a corridor (its x, y spread fills the window) gets "
-        "this variance along the corridor (not in Karto): unpenalised, such a match only repeats where the "
-        "graph already puts the scan, and dozens of them along one corridor hold the graph there against a "
-        "loop closure; 0 (default) keeps the window's variance, since 1-100 helped the simulated worlds but "
-        "not intel, aces or fr101",
-        advanced=True, group="near chains",
-    )
     match_covariance_scale: float = param(
         1.0, unit="factor", low=1e-6,
         help="factor on the covariance of every scan-match edge the graph gets (sequential, running and "
@@ -286,13 +235,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
     )
     loop_match_minimum_response_coarse: float = param(
         0.8, low=0.0, high=1.0, help="least response of the coarse loop match [LoopMatchMinimumResponseCoarse]"
-    )
-    loop_coarse_relative: bool = param(
-        False,
-        help="the coarse loop threshold is relative to the best coarse response the new scan can reach against "
-        "itself when the truth lies half a coarse step (cell and angle) from every sampled pose (not in Karto): "
-        "the coarse grid's sampling alone costs long-range scans a tenth to a third of their response",
-        advanced=True, group="loop closure",
     )
     loop_coarse_refine: bool = param(
         True,
@@ -372,13 +314,6 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         help="a near chain whose response bound lies between the failure mark and the link threshold (it cannot "
         "link from there) is bounded again only once the robot is this far from where it was bounded or the "
         "graph was optimised since (0: bounded at every kept scan; a speed setting, see docs/methods/what-was-tried.md#karto-speed)",
-        advanced=True, group="near chains",
-    )
-    near_link_skip_distance: float = param(
-        0.0, unit="m", low=0.0,
-        help="a near chain that linked is not matched again (no link) until the robot is this far from where "
-        "it linked or the graph was optimised since (not in Karto, which links it from every node; 0: matched "
-        "at every kept scan; a speed setting, see docs/methods/what-was-tried.md#karto-speed)",
         advanced=True, group="near chains",
     )
     correlation_search_space_dimension: float = param(

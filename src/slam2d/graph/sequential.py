@@ -86,21 +86,8 @@ class SequentialMatching:
         p = self.params
         return last >= 0 and p.use_scan_matching and p.match_between_nodes
 
-    def _place_between_nodes(self, scan, use, odom, last: int, predicted, chained, seed, last_response: float) -> None:
+    def _place_between_nodes(self, scan, use, last: int, predicted, seed, last_response: float) -> None:
         """Place a frame that adds no node: its pose hangs from node ``last`` (:attr:`anchor`, :attr:`offset`)."""
-        p = self.params
-        if p.between_nodes_skip_travel > 0 and chained is not None and self._matched_odom is not None:
-            # Between nodes the odometry over a few cm is good to well under the matcher's cell:
-            # chain the last scan's pose instead of matching, until it has moved or turned enough.
-            since = se2.relative(self._matched_odom, odom)
-            if (math.hypot(since[0], since[1]) < p.between_nodes_skip_travel
-                    and abs(float(since[2])) < p.between_nodes_skip_turn):
-                self._count("frames_chained_between_nodes")
-                self.anchor, self.offset = last, se2.relative(self.graph.poses[last], chained)
-                self._frame_pose = chained
-                self._frame_response = last_response
-                self._after_between = True
-                return
         # A scan that adds no node is still matched against the running scans, for its own
         # pose in the trajectory: between nodes the odometry alone can be degrees off. It is
         # never drawn as a reference, so it needs no sigmas.
@@ -111,7 +98,6 @@ class SequentialMatching:
         self._count("frames_matched_between_nodes")
         self.anchor, self.offset = last, se2.relative(self.graph.poses[last], pose)
         self._frame_pose = pose
-        self._matched_odom = odom
         self._after_between = True
 
     # ----------------------------------------------------------------- the sequential match
@@ -154,7 +140,7 @@ class SequentialMatching:
         With ``values`` (a new node's log) a stuck or weak match is searched again over the
         recovery window first. With ``odometry_fusion`` a match whose coarse heading is
         ambiguous is fused with the prediction, unless it is a recovery (which has just shown
-        the odometry wrong); a match below ``minimum_match_response`` is replaced by the prediction.
+        the odometry wrong).
         With ``seed`` the match searches near it first (:meth:`_seeded_match`).
         """
         p = self.params
@@ -179,12 +165,6 @@ class SequentialMatching:
             c[2, 2] = max(c[2, 2], result.heading_variance_coarse)
             pose, cov = _fuse(pose, c, predicted, _odometry_covariance())
         self._frame_response = result.raw_response
-        if result.response < p.minimum_match_response:
-            # The scan does not fit the running scans (clutter, people, a new room seen from
-            # its door): trust the odometry for this step, with an odometry-like uncertainty.
-            self._count("match_failures")
-            pose = predicted
-            cov = _odometry_covariance()
         return pose, cov, result
 
     def _seeded_match(self, matcher: CorrelativeMatcher, points, predicted, seed, last_response: float):

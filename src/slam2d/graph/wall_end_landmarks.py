@@ -12,9 +12,7 @@ nodes enters the optimisation as a 2-DOF node with one point edge per sighting
 (:mod:`slam2d.backends.landmarks`); every ``wall_end_optimize_interval`` nodes with new such
 edges the graph is optimised, so the correction reaches the next predictions. Association is
 tracking, not place recognition: a landmark not seen for a while is not looked for again (a
-return is the loop closer's job), which keeps a wrong association from tying two passes. With
-``wall_end_revisits`` (off) landmarks in the graph that are one end seen again are merged after
-each optimisation, under a stricter test (:meth:`WallEndLandmarks._merge_revisits`).
+return is the loop closer's job), which keeps a wrong association from tying two passes.
 After each optimisation a sighting whose error exceeds ``wall_end_reject_chi2`` is dropped
 (clutter, a person, a wrong association) and the graph optimised again without it.
 """
@@ -28,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.backends.landmarks import (PointObservations, landmark_covariance, landmark_positions,
+from slam2d.backends.landmarks import (PointObservations, landmark_positions,
                                       optimize_with_landmarks, point_errors)
 from slam2d.core import se2
 from slam2d.core.arrays import grown
@@ -141,41 +139,6 @@ class WallEndParams:
         "the matches than they should (0.3, 0.1, 0.03 measured: no gain, docs/methods/what-was-tried.md#karto)",
         **_ADVANCED,
     )
-    wall_end_revisits: bool = param(
-        False,
-        help="after each optimisation, merge landmarks that are one wall end seen again (a return to a place, "
-        "or a track lost for a while) (wall_end_landmarks): within wall_end_gate sigmas of their difference's "
-        "marginal covariance in the pose graph, never seen from one node, walls within "
-        "wall_end_revisit_direction and wall_end_revisit_radius, and so every pair of its group (those within "
-        "wall_end_revisit_rival sigmas)",
-        **_ADVANCED,
-    )
-    wall_end_revisit_radius: float = param(
-        0.15, unit="m", low=0.0,
-        help="landmarks farther apart than this are not merged (wall_end_revisits): along a corridor the "
-        "marginal covariance is wide (its largest sigma 0.4-0.7 m in the simulated corridor loop) and the "
-        "gate alone let two box corners 0.1 m apart merge from 0.34 m",
-        **_ADVANCED,
-    )
-    wall_end_revisit_maximum_sigma: float = param(
-        math.inf, unit="m", low=0.0,
-        help="merge only where the largest sigma of the two landmarks' difference (marginal covariance) is "
-        "under this (wall_end_revisits): once the passes are tied by the loop closer; inf = any",
-        **_ADVANCED,
-    )
-    wall_end_revisit_rival: float = param(
-        6.0, unit="sigma", low=0.0,
-        help="landmarks this close (Mahalanobis distance of their difference) form a group, merged only when "
-        "every pair in it passes the merge tests (wall_end_revisits)",
-        **_ADVANCED,
-    )
-    wall_end_revisit_direction: float = param(
-        120.0 * math.pi / 180.0, unit="rad", low=0.0, high=math.pi,
-        help="largest angle between the two landmarks' wall directions (from the end into the wall) "
-        "(wall_end_revisits): a box corner is the end of either face (90 deg), the two jambs of a door "
-        "point opposite ways (180 deg)",
-        **_ADVANCED,
-    )
 
 
 class WallEndLandmarks:
@@ -186,7 +149,6 @@ class WallEndLandmarks:
         self.diagnostics = diagnostics
         self._node = np.zeros(0, np.int64)  # per sighting
         self._lm = np.zeros(0, np.int64)
-        self._origin = np.zeros(0, np.int64)  # the landmark a sighting was first given (merges keep it)
         self._z = np.zeros((0, 2))
         self._info = np.zeros((0, 2, 2))
         self._alive = np.zeros(0, bool)  # False once rejected
@@ -195,14 +157,10 @@ class WallEndLandmarks:
         self._cov = np.zeros((0, 2, 2))
         self._last = np.zeros(0, np.int64)  # node that saw it last
         self._seen = np.zeros(0, np.int64)  # nodes that saw it
-        self._dir = np.zeros((0, 2))  # wall direction (world, from the end into the wall) at its first sighting
         self._nl = 0
         self._pending = 0  # observations in the graph not optimised yet
         self._last_optimized_node = 0
         self.rejected = 0
-        self.merged = 0
-        # per merged pair: (node, landmark, landmark, distance m, Mahalanobis distance, largest sigma m)
-        self.merge_log: list[tuple[int, int, int, float, float, float]] = []
 
     def _count(self, name: str, n: int = 1) -> None:
         if self.diagnostics is not None and n:
@@ -217,11 +175,6 @@ class WallEndLandmarks:
         k = self._k
         ok = self._alive[:k] & (self._seen[self._lm[:k]] >= self.params.wall_end_minimum_sightings)
         return PointObservations(self._node[:k][ok], self._lm[:k][ok], self._z[:k][ok], self._info[:k][ok])
-
-    def sightings(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
-        """Every sighting: (node, landmark, landmark first given, point in the robot frame, alive); for checks."""
-        k = self._k
-        return self._node[:k].copy(), self._lm[:k].copy(), self._origin[:k].copy(), self._z[:k].copy(), self._alive[:k].copy()
 
     def positions(self) -> NDArray[np.float64]:
         return self._pos[: self._nl].copy()
@@ -294,7 +247,6 @@ class WallEndLandmarks:
             self._pos[ids] = world[new]
             self._cov[ids] = wcov[new] - (p.wall_end_pose_sigma**2) * np.eye(2)
             self._seen[ids] = 0
-            self._dir[ids] = ends.direction[new] @ rot.T
             self._nl += k_new
             best[new] = ids
             self._count("wall_end_landmarks", k_new)
@@ -304,13 +256,11 @@ class WallEndLandmarks:
         k0, k = self._k, int(use.sum())
         self._node = grown(self._node, k0 + k, minimum=64)
         self._lm = grown(self._lm, k0 + k, minimum=64)
-        self._origin = grown(self._origin, k0 + k, minimum=64)
         self._z = grown(self._z, k0 + k, minimum=64)
         self._info = grown(self._info, k0 + k, minimum=64)
         self._alive = grown(self._alive, k0 + k, minimum=64)
         self._node[k0 : k0 + k] = node
         self._lm[k0 : k0 + k] = lm
-        self._origin[k0 : k0 + k] = lm
         self._z[k0 : k0 + k] = ends.points[use]
         self._info[k0 : k0 + k] = info
         self._alive[k0 : k0 + k] = True
@@ -331,7 +281,6 @@ class WallEndLandmarks:
         self._cov = grown(self._cov, needed, minimum=64)
         self._last = grown(self._last, needed, minimum=64)
         self._seen = grown(self._seen, needed, minimum=64)
-        self._dir = grown(self._dir, needed, minimum=64)
 
     def _refresh(self, lm: NDArray[np.int64], poses: NDArray[np.float64]) -> None:
         """Place landmarks ``lm`` from their alive sightings at ``poses``."""
@@ -347,13 +296,7 @@ class WallEndLandmarks:
 
     def optimize(self, backend: Any, graph: Any):
         """The front end's optimisation with the landmark edges; returns the back end's result (pose nodes)."""
-        res, pos = self._solve(backend, graph)
-        if (self.params.wall_end_revisits and "landmarks" in res.extra
-                and self._merge_revisits(graph, res.poses, pos)):
-            # The merged sightings tie two passes: solve again with them.
-            res2, _ = self._solve(backend, graph)
-            res2.cost_before = res.cost_before
-            res = res2
+        res, _ = self._solve(backend, graph)
         self._pending = 0
         self._last_optimized_node = graph.num_nodes - 1
         all_lm = np.arange(self._nl)
@@ -383,97 +326,3 @@ class WallEndLandmarks:
                 res2.cost_before = res.cost_before
                 res = res2
         return res, pos
-
-    def _merge_revisits(self, graph: Any, poses: NDArray[np.float64], pos: NDArray[np.float64]) -> int:
-        """Merge the landmarks in the graph that are one wall end seen on different passes; returns the merges.
-
-        A landmark that tracking lost (a return to a place on a later pass, or an end missed for
-        longer than ``wall_end_track_nodes``) starts a new one when seen again; tying the two is
-        place recognition, so it is held to more than the tracking gate. Pairs are linked when
-        their difference is within ``wall_end_revisit_rival`` sigmas of its marginal covariance in
-        the optimised graph (wide until the loop closer has tied the passes); each group so linked
-        is merged into its oldest landmark only when *every* pair in it is never seen from one node
-        (two ends in one scan are two ends), within ``wall_end_gate`` sigmas and
-        ``wall_end_revisit_radius``, and its walls within ``wall_end_revisit_direction`` (a box
-        corner is the end of either face, at 90 deg; the two jambs of a door point opposite ways).
-        """
-        from scipy.sparse import coo_matrix, csr_matrix
-        from scipy.sparse.csgraph import connected_components
-
-        p = self.params
-        nl, k = self._nl, self._k
-        obs = self.observations()
-        if len(obs) == 0 or nl < 2:
-            return 0
-        inside = np.zeros(nl, bool)
-        inside[obs.landmark] = True
-        inside &= np.isfinite(pos[:nl, 0])
-        ids = np.flatnonzero(inside)
-        # Pairs (a > b) within twice the radius: candidates and rivals.
-        d = pos[ids][:, None, :] - pos[ids][None, :, :]
-        ia, ib = np.nonzero(np.tril(np.hypot(d[..., 0], d[..., 1]) < 2.0 * p.wall_end_revisit_radius, -1))
-        if ia.size == 0:
-            return 0
-        a, b = ids[ia], ids[ib]
-        lm_all, node_all = self._lm[:k], self._node[:k]
-        # Seen from one node: the product of the two landmarks' rows of the landmark x node incidence.
-        seen_by = csr_matrix((np.ones(k), (lm_all, node_all)), shape=(nl, int(node_all.max()) + 1))
-        disjoint = np.asarray(seen_by[a].multiply(seen_by[b]).sum(axis=1)).ravel() == 0
-        a, b = a[disjoint], b[disjoint]
-        # Only groups (by distance) holding a pair that could merge need the covariance (the solve is
-        # the cost: on intel hundreds of landmarks): no pair links two such groups, so the result is
-        # the same.
-        dd = pos[a] - pos[b]
-        could = ((np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
-                 & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
-        if not could.any():
-            return 0
-        _, group = connected_components(coo_matrix((np.ones(a.size), (a, b)), shape=(nl, nl)), directed=False)
-        keep = np.isin(group[a], group[a[could]])
-        a, b = a[keep], b[keep]
-        which = np.unique(np.concatenate([a, b]))
-        cov = landmark_covariance(graph, poses, pos[:nl], obs, which)
-        ja, jb = np.searchsorted(which, a), np.searchsorted(which, b)
-        blk = cov.reshape(which.size, 2, which.size, 2).transpose(0, 2, 1, 3)
-        S = blk[ja, ja] + blk[jb, jb] - blk[ja, jb] - blk[jb, ja]
-        dd = pos[a] - pos[b]
-        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            m2 = (S[:, 1, 1] * dd[:, 0] ** 2 - 2 * S[:, 0, 1] * dd[:, 0] * dd[:, 1] + S[:, 0, 0] * dd[:, 1] ** 2) / det
-        m2 = np.where(det > 0, m2, np.inf)
-        linked = m2 < p.wall_end_revisit_rival**2
-        # Largest eigenvalue of each 2x2 S.
-        half_tr = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
-        big = half_tr + np.sqrt(np.maximum(half_tr**2 - det, 0.0))
-        ok = ((m2 < p.wall_end_gate**2) & (big < p.wall_end_revisit_maximum_sigma**2) & (np.hypot(dd[:, 0], dd[:, 1]) < p.wall_end_revisit_radius)
-              & ((self._dir[a] * self._dir[b]).sum(axis=1) >= math.cos(p.wall_end_revisit_direction)))
-        self._count("wall_end_revisit_candidates", int(ok.sum()))
-        if not linked.any():
-            return 0
-        adj = coo_matrix((np.ones(int(linked.sum())), (ja[linked], jb[linked])), shape=(which.size, which.size))
-        ncomp, comp = connected_components(adj, directed=False)
-        size = np.bincount(comp, minlength=ncomp)
-        # A group merges only when all its pairs are good ones (a clique of ok pairs).
-        good_pairs = np.bincount(comp[ja[ok & linked]], minlength=ncomp)
-        mergeable = (size >= 2) & (good_pairs == size * (size - 1) // 2)
-        merged = 0
-        targets = []
-        for c in np.flatnonzero(mergeable):  # a few groups per optimisation
-            members = which[comp == c]
-            keep_id = int(members.min())
-            inside_group = np.flatnonzero(np.isin(a, members) & np.isin(b, members))
-            self.merge_log.extend((graph.num_nodes - 1, int(a[q]), int(b[q]), float(np.hypot(*dd[q])),
-                                   float(np.sqrt(m2[q])), float(np.sqrt(big[q]))) for q in inside_group)
-            for drop in members[members != keep_id]:
-                self._lm[:k][lm_all == drop] = keep_id
-                self._seen[keep_id] += self._seen[drop]
-                self._seen[drop] = 0
-                self._last[keep_id] = max(self._last[keep_id], self._last[drop])
-                self._last[drop] = -(1 << 40)  # never tracked again
-                merged += 1
-            targets.append(keep_id)
-        if merged:
-            self.merged += merged
-            self._count("wall_end_landmarks_merged", merged)
-            self._refresh(np.asarray(targets, np.int64), poses)
-        return merged

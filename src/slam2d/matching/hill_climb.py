@@ -330,13 +330,8 @@ def _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount
 
 @njit(cache=True)
 def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
-           lstep, astep, iterations, angular_search, lin_rel, ang_rel, prior_info):
+           lstep, astep, iterations, lin_rel, ang_rel, prior_info):
     """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``.
-
-    With ``angular_search`` > 0 the climb starts from the best of the headings
-    ``th + k astep`` within +-angular_search (not in GMapping): a greedy climb
-    does not cross the local optima that a heading error of several ``astep``
-    puts between it and the right pose.
 
     ``lin_rel`` (1/m^2) and ``ang_rel`` (1/rad^2) are GMapping's odometry
     reliabilities (``m_linearOdometryReliability``, ``m_angularOdometryReliability``,
@@ -374,22 +369,6 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
     seen_score[0] = current
     n_seen = 1
     raw = current
-    steps = int(angular_search / astep)
-    th0 = th
-    for k in range(-steps, steps + 1):
-        if k == 0:
-            continue
-        sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th0 + k * astep, mount, ex, ey, ux,
-                    uy, div_s, div_l, key, count, pts)
-        if use_prior:
-            dth = (k * astep + math.pi) % (2.0 * math.pi) - math.pi
-            sc_obj = sc - 0.5 * prior_info[2] * dth * dth
-        else:
-            sc_obj = sc
-        if sc_obj > current:
-            current = sc_obj
-            raw = sc
-            th = th0 + k * astep
     best_score = -1.0
     cand_raw = raw
     ldelta, adelta = lstep, astep
@@ -452,23 +431,18 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
 
 @njit(cache=True, parallel=True)
 def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
-                    lstep, astep, iterations, angular_search, search_every, lin_rel, ang_rel, prior_info, minimum_score,
+                    lstep, astep, iterations, lin_rel, ang_rel, prior_info, minimum_score,
                     out_poses, out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
 
     A particle whose best score is not above ``minimum_score`` keeps its pose
-    (``out_ok`` False: the match failed, odometry is used). ``angular_search``:
-    see :func:`_climb` (0: GMapping's climb); only particles whose index is a
-    multiple of ``search_every`` search, the others climb as GMapping does (a
-    mixture proposal: a wrong wide-search heading does not take every particle
-    with it, the weights of the following scans choose). ``out_like`` is the
+    (``out_ok`` False: the match failed, odometry is used). ``out_like`` is the
     log-likelihood at the pose kept. ``prior_info``: see :func:`_climb`, one
     row per particle (``(N, 3)``; zeros: GMapping's climb).
     """
     for p in prange(poses.shape[0]):
-        wide = angular_search if p % search_every == 0 else 0.0
         x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
-                              div_s, div_l, lstep, astep, iterations, wide, lin_rel, ang_rel, prior_info[p])
+                              div_s, div_l, lstep, astep, iterations, lin_rel, ang_rel, prior_info[p])
         ok = sc > minimum_score
         if not ok:
             x, y, th = poses[p, 0], poses[p, 1], poses[p, 2]
@@ -488,7 +462,7 @@ def match_one(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount,
     ``ok`` False (score not above ``minimum_score``): the pose returned is ``pose``.
     """
     x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy,
-                          div_s, div_l, lstep, astep, iterations, 0.0, lin_rel, ang_rel, prior_info)
+                          div_s, div_l, lstep, astep, iterations, lin_rel, ang_rel, prior_info)
     if not sc > minimum_score:
         return pose[0], pose[1], pose[2], sc, False
     return x, y, (th + math.pi) % (2.0 * math.pi) - math.pi, sc, True

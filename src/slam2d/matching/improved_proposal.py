@@ -28,10 +28,10 @@ with ``L(o) = exp(c - o.H.o / 2)``, ``c`` the log-likelihood at the optimum:
     log eta = c - d.(H - H Sigma H).d / 2 - log det(A) / 2 + log det(P^-1) / 2
 
 (less a constant the same for every particle). Unlike sampling ``tau`` on a
-grid as wide as the odometry (``proposal=gaussian`` with ``proposal_range``),
-the likelihood is only evaluated within a cell of the optimum, where beams
-ending at the edge of the mapped area do not gain map points by moving the
-pose back into it.
+grid as wide as the odometry (``proposal=gaussian`` with the former
+``proposal_range``), the likelihood is only evaluated within a cell of the
+optimum, where beams ending at the edge of the mapped area do not gain map
+points by moving the pose back into it.
 """
 
 from __future__ import annotations

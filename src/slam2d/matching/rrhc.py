@@ -163,12 +163,10 @@ def _setup(origin_x, origin_y, resolution, qx, qy, x, y, kmax):
 
 
 @njit(cache=True)
-def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, disparity, max_iter, state,
-                refine_rounds=0):
+def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, disparity, max_iter, state):
     """Search offsets from pose ``(x, y, theta)`` (m, rad) for the rays' endpoints ``(qx, qy)`` (robot frame, m).
 
-    ``refine_rounds`` > 0 ends the search with :func:`_refine` (not in the original).
-    Returns ``(dx cells, dy cells, dtheta steps, fitness, evaluations, restarts, improvements, refine steps)``.
+    Returns ``(dx cells, dy cells, dtheta steps, fitness, evaluations, restarts, improvements)``.
     """
     n = qx.shape[0]
     kmax = 4 * disparity + 2 * disparity  # restarts reach 2d steps; climbs wander a few d further
@@ -227,12 +225,7 @@ def rrhc_search(values, origin_x, origin_y, resolution, qx, qy, x, y, theta, dis
         if counter > max_iter:
             break
         counter += 1
-    steps = 0
-    if refine_rounds > 0:
-        bdx, bdy, bk, best, steps, n_eval = _refine(values, rows_k, cols_k, ready, kmax, bx, by, theta, qxc, qyc,
-                                                   tmp_r, tmp_c, bdx, bdy, bk, best, refine_rounds)
-        evaluations += n_eval
-    return bdx, bdy, bk, best / norm, evaluations, restarts, improvements, steps
+    return bdx, bdy, bk, best / norm, evaluations, restarts, improvements
 
 
 @njit(cache=True)

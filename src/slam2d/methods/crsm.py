@@ -109,12 +109,6 @@ class CrsmParams:
         help="shorter readings are error codes, not returns (the URG-04LX reports errors as 0-20 mm); "
         "the scan's own range_min applies too",
     )
-    refine_rounds: int = param(
-        0, low=0, high=1000,
-        help="rounds of a final deterministic climb over the 26 neighbours (1 cell, 1/180 rad) after the "
-        "random search; 0 = the original (headings stay on the restart lattice)",
-        advanced=True, group="refinement",
-    )
     dense_refine_rounds: int = param(
         10, low=0, high=1000,
         help="rounds of a final neighbour climb (1 cell, 1/180 rad) scored with every beam with a return, not only "
@@ -190,8 +184,7 @@ class Crsm(SlamMethod):
         "iterations": "candidate transformations scored [-]",
         "restarts": "random restarts of the climb [-]",
         "improvements": "candidates that improved the best [-]",
-        "refine_steps": "rounds of the final neighbour climbs (refine_rounds, dense_refine_rounds) that moved "
-                        "the pose [-]",
+        "refine_steps": "rounds of the final neighbour climb (dense_refine_rounds) that moved the pose [-]",
         "rays": "critical rays picked [-]",
         "rays_on_unknown": "critical rays left out because they land on unknown space (unknown_rays=drop) [-]",
         "mean_density": "the scan's mean range jump between neighbouring beams, before clamping [m]",
@@ -281,11 +274,12 @@ class Crsm(SlamMethod):
                 values["rays_on_unknown"] = float(keep.shape[0] - kept)
                 if kept >= _MIN_RAYS:
                     qx, qy = qx[keep], qy[keep]
-            dx, dy, dk, fit, n, restarts, better, refined = rrhc_search(
+            dx, dy, dk, fit, n, restarts, better = rrhc_search(
                 self._map.values, ox, oy, p.resolution, qx, qy,
                 float(centre[0]), float(centre[1]), float(centre[2]),
-                p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random, p.refine_rounds,
+                p.hill_climbing_disparity, p.max_hill_climbing_iterations, self._random,
             )
+            refined = 0
             dqx = dqy = None  # the dense points, contiguous
             if ex is not None:
                 dqx, dqy = ex, ey

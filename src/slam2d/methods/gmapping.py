@@ -115,13 +115,6 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
     lstep: float = param(0.05, unit="m", low=1e-6, help="first translation step of the hill climb")
     astep: float = param(0.05, unit="rad", low=1e-6, help="first rotation step of the hill climb")
     iterations: int = param(5, low=0, high=30, help="step halvings before the hill climb stops")
-    angular_search: float = param(
-        0.0, unit="rad", low=0.0, high=3.2, help="not in GMapping: the hill climb starts from the best heading "
-        "within +-this of the particle's (steps of astep); 0: the original's climb",
-        advanced=True, group="scan matching")
-    angular_search_every: int = param(
-        1, low=1, help="not in GMapping: only every k-th particle does the angular_search, the others climb as "
-        "the original (a mixture proposal); 1: all particles", advanced=True, group="scan matching")
     linearOdometryReliability: float = param(
         0.0, unit="1/m^2", low=0.0, help="GMapping core (not in the ROS node): the hill climb multiplies a pose's "
         "score by exp(-this * d^2), d its distance from where the climb started; 0: off",
@@ -190,20 +183,12 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
     llsamplestep: float = param(0.01, unit="m", low=1e-6, help="improved proposal: translation sampling step")
     lasamplerange: float = param(0.005, unit="rad", low=0.0, help="improved proposal: rotation sampling range")
     lasamplestep: float = param(0.005, unit="rad", low=1e-6, help="improved proposal: rotation sampling step")
-    proposal_range: float = param(
-        0.0, unit="std", low=0.0, high=10.0, help="not in GMapping: proposal=gaussian samples on a grid of +-this "
-        "many of the motion model's standard deviations (of the odometry increment since the last update; forward, "
-        "left, heading, in the optimum's frame), at least the ll/la sample ranges, so the fitted Gaussian can be as "
-        "wide as the odometry where the scan is flat; 0: the original's ll/la grid", advanced=True, group="proposal")
-    proposal_points: int = param(
-        5, low=3, high=15, help="proposal_range > 0: grid points per axis (odd counts include the optimum)",
-        advanced=True, group="proposal")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
         "hill-climb", choices=("hill-climb", "gaussian", "laplace"),
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
         "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
-        "2007; uses ll/la sample range/step, proposal_range); laplace: the same improved proposal as the product "
+        "2007; uses ll/la sample range/step); laplace: the same improved proposal as the product "
         "of the scan's Gaussian (the log-likelihood's curvature at the optimum by finite differences, +-delta "
         "forward, +-llsamplerange sideways, +-lasamplerange in heading; a direction without curvature carries no "
         "information) and the odometry's, sampled and weighted in closed form", advanced=True, group="proposal")
@@ -550,7 +535,7 @@ class GMapping(SlamMethod):
         common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
                   p.free_cell_check)
         climb = (mount, beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep,
-                 p.iterations, p.angular_search, p.angular_search_every, p.linearOdometryReliability,
+                 p.iterations, p.linearOdometryReliability,
                  p.angularOdometryReliability, self._prior_info(p.odometry_prior), p.minimumScore)
         match_particles(*common, self._state, *climb, out_poses, score, like, ok)
         if p.coarse_kernel > 0:
@@ -613,7 +598,7 @@ class GMapping(SlamMethod):
         out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
                         p.coarse_kernel, p.free_cell_check, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                        beams.div_score, beams.div_like, p.lstep, p.astep, 0, 0.0, 1, 0.0, 0.0,
+                        beams.div_score, beams.div_like, p.lstep, p.astep, 0, 0.0, 0.0,
                         self._prior_info(p.odometry_prior), 0.0, out, score, like, ok)
         return np.where(ok[:, None], out, self._state)
 
@@ -649,12 +634,9 @@ class GMapping(SlamMethod):
             laplace_proposal(*common, optima, predicted, std, half, mount, beams.ex, beams.ey, beams.ux, beams.uy,
                              beams.div_score, beams.div_like, normals, sampled, logeta)
             return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
-        if p.proposal_range > 0.0:  # as wide as the odometry's spread
-            half = np.maximum(p.proposal_range * std, [p.llsamplerange, p.llsamplerange, p.lasamplerange])
-            fwd, left, ang = (np.linspace(-h, h, p.proposal_points) for h in half)
-        else:  # the original's grid (+-1 cm, +-0.005 rad)
-            fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
-            ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
+        # the original's grid (+-1 cm, +-0.005 rad)
+        fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
+        ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
         offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
         gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
                           beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
