@@ -522,3 +522,24 @@ def test_edges_added_one_at_a_time_equal_the_bulk_ones():
                 lambda g: g.add_edge(0, 1, [0, 0, 0], np.array([[1.0, 0.1, 0], [0.2, 1, 0], [0, 0, 1]]))):
         with pytest.raises(InputError):
             bad(one)
+
+
+def test_node_ordering_is_the_complete_factorizations_order_without_its_factors():
+    """The incomplete factorization node_ordering runs gives the order a complete one would (so results stay the same)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    from slam2d.backends.linear import node_ordering
+
+    rng = np.random.default_rng(3)
+    for n, loops in ((50, 5), (800, 300), (3000, 4000)):
+        ei = np.r_[np.arange(n - 1), rng.integers(0, n, loops)]
+        ej = np.r_[np.arange(1, n), rng.integers(0, n, loops)]
+        keep = ei != ej
+        ei, ej = ei[keep], ej[keep]
+        rank = node_ordering(ei, ej, n, 0)
+        a, b = ei[(ei != 0) & (ej != 0)] - 1, ej[(ei != 0) & (ej != 0)] - 1
+        adj = sp.coo_matrix((np.ones(2 * a.size), (np.r_[a, b], np.r_[b, a])), shape=(n - 1, n - 1)).tocsc()
+        lap = (sp.diags(np.asarray(adj.sum(axis=0)).ravel() + 1.0) - 0.5 * adj).tocsc()
+        complete = spla.splu(lap, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        assert rank[0] == -1 and np.array_equal(rank[1:], complete.perm_c)

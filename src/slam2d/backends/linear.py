@@ -32,7 +32,7 @@ def node_ordering(ei: NDArray, ej: NDArray, n: int, fixed: int) -> NDArray[np.in
     Ordering the N-node graph instead of the 3N-variable matrix is ~27x cheaper
     and as good, since every node is a dense 3x3 block. SuperLU's multiple
     minimum degree on A + A^T is used through a factorisation of the graph
-    Laplacian (diagonally dominant, so it never pivots off the diagonal).
+    Laplacian (diagonally dominant, so it never pivots off the diagonal), incomplete so the factors stay small.
     """
     others = np.flatnonzero(np.arange(n) != fixed)
     m = n - 1
@@ -47,7 +47,10 @@ def node_ordering(ei: NDArray, ej: NDArray, n: int, fixed: int) -> NDArray[np.in
     adj = sp.coo_matrix((np.ones(2 * a.size), (np.r_[a, b], np.r_[b, a])), shape=(m, m)).tocsc()
     deg = np.asarray(adj.sum(axis=0)).ravel()
     lap = (sp.diags(deg + 1.0) - 0.5 * adj).tocsc()
-    lu = spla.splu(lap, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+    # Only the order is wanted: an incomplete factorization that drops every fill-in computes the same column
+    # order (SuperLU orders and postorders from the pattern alone) without holding the complete factors, which
+    # grew with the loop edges to 57 MB on intel driven 8 times (benchmarks/memory.py --times 8).
+    lu = spla.spilu(lap, drop_tol=1e300, fill_factor=1.0, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
     rank = np.full(n, -1, dtype=np.int64)
     rank[others] = lu.perm_c.astype(np.int64)  # perm_c[k]: elimination position of node k
     return rank
