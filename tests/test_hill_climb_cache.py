@@ -58,7 +58,7 @@ def test_cached_score_equals_the_plain_evaluation_bit_for_bit(kernel):
         pose = pose + rng.normal(0.0, scale, 3) * np.array([1.0, 1.0, 0.5])
         p = i % 2
         plain = _evaluate(maps.pool, maps.occ, maps.table, p, maps.origin[0], maps.origin[1], maps.resolution,
-                          kernel, False, pose[0], pose[1], pose[2], mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                          kernel, pose[0], pose[1], pose[2], mount, beams.ex, beams.ey,
                           beams.div_score, beams.div_like, False)[0]
         if p == 0:  # one cache follows map 0's walk; map 1 gets a fresh cache each time
             cached = _score_cached(maps.pool, maps.occ, maps.table, p, maps.origin[0], maps.origin[1],
@@ -80,12 +80,12 @@ def test_match_one_climbs_as_match_particles_does():
     beams = BeamSet(ranges, angles, np.isfinite(ranges), np.full(ranges.shape, 0.05), np.full(ranges.shape, 0.075))
     start = np.array([[0.08, -0.05, 0.04], [-0.06, 0.07, -0.03], [0.01, 0.0, 0.0]])
     out, score, like, ok = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3, bool)
-    args = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
-    match_particles(*args, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
+    args = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1)
+    match_particles(*args, start, np.zeros(3), beams.ex, beams.ey, beams.div_score,
                     beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((3, 3)), 0.0, out, score, like, ok)
     assert ok.all() and np.all(np.hypot(out[:, 0], out[:, 1]) < 0.3)
     for p in range(3):
         x, y, th, sc, good = match_one(maps.pool, maps.occ, maps.table, p, *args[3:], start[p], np.zeros(3), beams.ex,
-                                       beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, 0.05, 5,
+                                       beams.ey, beams.div_score, beams.div_like, 0.05, 0.05, 5,
                                        0.0, 0.0, np.zeros(3), 0.0)
         assert good and (x, y, th, sc) == (out[p, 0], out[p, 1], out[p, 2], score[p])

@@ -5,16 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from slam2d.cli import main
-from slam2d.core.scan import LaserScan
 from slam2d.grids.tiled import TiledMaps
 from slam2d.matching.hill_climb import (
     BeamSet,
     _wall_end_step,
     along_terms,
     hold_flat_direction,
-    landmark_wall_ends,
     match_particles,
-    wall_end_terms,
     wall_ends,
 )
 from slam2d.methods.gmapping import GMapping, GMappingParams
@@ -47,13 +44,13 @@ def _mapped(ranges, angles, n, poses_x):
 def _climb_and_hold(maps, beams, start, ratio):
     n = start.shape[0]
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
-    common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
-    match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
+    common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1)
+    match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.div_score,
                     beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     climbed = out.copy()
     flat = np.zeros(n, dtype=np.int64)
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
-                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, ratio, np.zeros(0), np.zeros((0, 5)),
+                        beams.div_score, beams.div_like, 0.05, ratio, np.zeros(0), np.zeros((0, 5)),
                         0.0, np.zeros((n, 3)), np.zeros((n, 3)), like,
                         flat)
     return climbed, out, like, flat, ok
@@ -170,14 +167,14 @@ def test_flat_sigma_moves_a_held_pose_to_the_end_walls_position():
     n = start.shape[0]
     maps, beams = _mapped(ranges, angles, n, (0.0,))
     out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, bool)
-    common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1, False)
-    match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
+    common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], 0.05, 1)
+    match_particles(*common, start, np.zeros(3), beams.ex, beams.ey, beams.div_score,
                     beams.div_like, 0.05, 0.05, 5, 0.0, 0.0, np.zeros((n, 3)), 0.0, out, score, like, ok)
     flat = np.zeros(n, dtype=np.int64)
     w = np.full(beams.ex.size, 0.5 / 0.03**2)
     prior = np.tile([100.0, 100.0, 100.0], (n, 1))  # a 0.1 m odometry prior: far weaker than the end wall
     hold_flat_direction(*common, np.arange(n, dtype=np.int64), start, out, ok, np.zeros(3), beams.ex, beams.ey,
-                        beams.ux, beams.uy, beams.div_score, beams.div_like, 0.05, 0.5, w, np.zeros((0, 5)), 0.0,
+                        beams.div_score, beams.div_like, 0.05, 0.5, w, np.zeros((0, 5)), 0.0,
                         np.zeros((n, 3)), prior, like, flat)
     assert (flat == 1).sum() >= 2  # the end wall's ~110 beams against ~570 on the side walls: flat by the ratio
     held = flat == 1
@@ -225,37 +222,3 @@ def test_wall_ends_skips_walls_running_out_of_range_and_grazing_ones():
     assert wall_ends(grazing, angles, np.isfinite(grazing), 4.0).shape[0] == 0
 
 
-def test_landmark_wall_ends_agree_with_wall_ends_and_weigh_each_end():
-    """flat_wall_ends=landmark: the shared detector's end in wall_ends()' rows, weighted by its along-wall sigma.
-
-    The door's end is found by both detectors within a beam gap; its weight is sigma^2 / (sigma^2 + s^2),
-    s the beam gap over sqrt(12) (< 1), and with weight 1 the terms are wall_ends()' exactly. The weighted
-    step from 6 cm ahead or behind comes back as the unweighted one does.
-    """
-    angles = np.linspace(-2.0, 2.0, 682)
-    ranges = _corridor_with_door(angles, end=1.0)
-    scan = LaserScan(0.0, ranges, -2.0, 4.0 / 681, 0.02, 4.0, mount=np.array([0.1, 0.0, 0.0]))
-    line = wall_ends(ranges, angles, np.isfinite(ranges), 4.0)
-    land = landmark_wall_ends(scan, 4.0, 0.03)
-    assert land.shape == (1, 6)
-    grazing = _corridor_with_door(angles, end=2.5)  # 68 deg from the wall's normal: not taken, as by wall_ends()
-    assert landmark_wall_ends(LaserScan(0.0, grazing, -2.0, 4.0 / 681, 0.02, 4.0), 4.0, 0.03).shape[0] == 0
-    np.testing.assert_allclose(land[0, :4], line[0, :4], atol=1e-3)  # the mount does not move the laser-frame rows
-    gap = np.hypot(land[0, 0], land[0, 1]) * (4.0 / 681) / np.cos(np.pi / 4)  # between two rays, at 45 deg
-    assert 0.0 < land[0, 4] < 0.02 and 0.9 < land[0, 5] < 1.0
-    s2 = 0.03**2 * (1.0 / land[0, 5] - 1.0)
-    assert abs(np.sqrt(s2) - gap / np.sqrt(12.0)) < 0.3 * gap / np.sqrt(12.0)
-    maps, beams = _mapped(ranges, angles, 1, (0.0,))
-    args = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], 0.05, 0.03, 0.0, 0.0, 1.0, 0.0,
-            np.zeros(3))
-    ones = np.concatenate([line, np.ones((1, 1))], axis=1)
-    assert wall_end_terms(*args, ones, np.zeros(3)) == wall_end_terms(*args, line, np.zeros(3))
-    g, h, used = wall_end_terms(*args, land, np.zeros(3))
-    g1, h1, _ = wall_end_terms(*args, np.concatenate([land[:, :5], np.ones((1, 1))], axis=1), np.zeros(3))
-    assert used == 1 and np.isclose(h, land[0, 5] * h1) and np.isclose(g, land[0, 5] * g1)
-    w = np.full(beams.ex.size, 0.5 / 0.03**2)
-    common = (maps.pool, maps.occ, maps.table, 0, maps.origin[0], maps.origin[1], 0.05, 3)
-    for s0 in (-0.06, 0.06):
-        off = _wall_end_step(*common, s0, 0.0, 0.0, 1.0, 0.0, 0.05, np.zeros(3), beams.ex, beams.ey, w, np.zeros(3),
-                             1.0, 4, land, 1.0 / 0.03**2)
-        assert abs(s0 + off) < 0.015

@@ -56,8 +56,8 @@ def main() -> None:
         poses[:, 0] += np.cos(truth[i, 2]) * offsets
         poses[:, 1] += np.sin(truth[i, 2]) * offsets
         score, like, matched = np.empty(n), np.empty(n), np.empty(n, np.int64)
-        score_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, 1, False,
-                        poses, np.asarray(s.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux, beams.uy,
+        score_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, 1,
+                        poses, np.asarray(s.mount, dtype=np.float64), beams.ex, beams.ey,
                         beams.div_score, beams.div_like, score, like, matched)
         peak.append(abs(offsets[int(np.argmax(score))]))
         drop.append(score[zero] - 0.5 * (score[zero - five] + score[zero + five]))

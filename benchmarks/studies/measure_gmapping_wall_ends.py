@@ -55,8 +55,8 @@ def _score_curvature(maps, s, beams, pose):
     poses = np.repeat(pose[None], 9, axis=0)
     poses[:, :2] += d
     score, like, matched = np.empty(9), np.empty(9), np.empty(9, np.int64)
-    score_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], RES, 1, False, poses,
-                    np.asarray(s.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score,
+    score_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], RES, 1, poses,
+                    np.asarray(s.mount, dtype=np.float64), beams.ex, beams.ey, beams.div_score,
                     beams.div_like, score, like, matched)
     s0, sxp, sxm, syp, sym, spp, smm, spm, smp = score
     a = -(sxp + sxm - 2 * s0) / RES**2

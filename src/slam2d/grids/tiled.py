@@ -40,7 +40,7 @@ __all__ = ["TiledMaps", "TILE_SHIFT", "TILE", "HITS", "VISITS", "SUM_X", "SUM_Y"
 # 16 x 16 cells: 4 KB a tile, 0.8 m at 5 cm. A particle copies a whole tile to change one cell
 # of it, so smaller tiles copy less; trajectories do not depend on the size (bit for bit).
 # slam2d.matching.hill_climb compiles TILE_SHIFT in as a constant and numba's cache only
-# checks that file's own timestamp: after changing it, touch hill_climb.py and improved_proposal.py.
+# checks that file's own timestamp: after changing it, touch hill_climb.py.
 TILE_SHIFT = 4
 TILE = 1 << TILE_SHIFT
 _MASK = TILE - 1

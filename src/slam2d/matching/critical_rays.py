@@ -11,13 +11,13 @@ From the ranges ``d`` (0 where no return) with ``density[i] = |d[i] - d[i+1]|``:
    ``step`` is the segment's mean density: far beams have a lower
    threshold, so more far beams are kept (they pin rotation down).
 3. ``parameter`` persists from scan to scan and is adapted so the walk keeps
-   about ``desired`` beams. Outside +-25 % the original moves it by the
-   excess in beams (``proportional=False``); slam2d's default scales it by
-   ``picked / desired`` (clamped to 0.5..2). Why: the walk keeps roughly
-   ``1 / parameter`` beams, so the additive rule overshoots when ``desired``
-   is in the hundreds: ``parameter`` falls to or below 0 (every beam picked,
-   ~400), jumps by ~280 (30-60 beams for several scans) and saws between the
-   two (a tenth of the mines scans had under 60 rays this way).
+   about ``desired`` beams: outside +-25 % it is moved by the excess in beams,
+   as the original does. The walk keeps roughly ``1 / parameter`` beams, so
+   when ``desired`` is in the hundreds this overshoots: ``parameter`` falls to
+   or below 0 (every beam picked, ~400), jumps by ~280 (30-60 beams for
+   several scans) and saws between the two. Scaling it by ``picked / desired``
+   instead removed the sawtooth but not the heading errors, and was removed
+   (docs/methods/what-was-tried.md).
 4. Gaps of more than 25 beams are bisected until none is left, then beams
    with no return or at the maximum range are dropped.
 
@@ -38,7 +38,7 @@ _MAX_GAP = 25  # beams: larger gaps between picked beams are bisected
 
 
 @njit(cache=True)
-def critical_rays(d, laser_max, parameter, jump, desired, proportional=False):
+def critical_rays(d, laser_max, parameter, jump, desired):
     """``(selected indices, new parameter, mean density, rays picked by the walk)``."""
     n = d.shape[0]
     density = np.zeros(n)
@@ -96,12 +96,7 @@ def critical_rays(d, laser_max, parameter, jump, desired, proportional=False):
                     selected[k] = True
                     picked += 1
                     local = 0.0
-    if proportional:
-        if picked > desired * 1.25 or picked < desired * 0.75:
-            if parameter <= 0.0:
-                parameter = 1.0  # a scale needs a positive start (a state left by the additive rule)
-            parameter *= min(max(picked / max(desired, 1), 0.5), 2.0)
-    elif picked > desired * 1.25:
+    if picked > desired * 1.25:
         parameter += picked - desired
     elif picked < desired * 0.75:
         parameter -= desired - picked

@@ -7,9 +7,8 @@ does not depend on the thread count).
 
 **Score of a pose** (GMapping ``ScanMatcher::score``). For each beam, search
 the ``(2 kernel_size + 1)^2`` cells around its end point for an *occupied*
-cell (``hits / visits > 0.1``) whose neighbour one ``sqrt(2)`` cell step back
-along the beam is *not* occupied (so the beam could have reached it); ``d`` is
-the distance from the end point to the nearest such cell's mean hit point.
+cell (``hits / visits > 0.1``); ``d`` is the distance from the end point to
+the nearest such cell's mean hit point.
 The beam adds ``exp(-d^2 / sigma_j)`` to the score. The original's ``sigma``
 is that divisor (m^2, not a standard deviation): it equals ``2 s^2`` for a
 Gaussian of standard deviation ``s``, so the default 0.05 is ``s = 0.158 m``.
@@ -24,16 +23,17 @@ moves +-x, +-y (world frame, step ``lstep``) and +-theta (``astep``); take the
 best that improves the score; when none does, halve both steps. Stop when
 nothing improves and the steps have been halved ``iterations`` times.
 
-The "free neighbour" test. GMapping computes the neighbour's offset by
-passing a displacement through its point-to-cell conversion, which adds the
-map's centre offset: with the default map the "neighbour" lands thousands of
-cells away, almost always in unknown space, so the test never rejects
-anything. ``free_check`` False (the default of the method) reproduces that
-behaviour; True tests what the code means, the cell one sqrt(2) step back
-along the beam.
+The "free neighbour" test. GMapping's code also means to reject a cell whose
+neighbour one ``sqrt(2)`` cell step back along the beam is occupied, but it
+computes the neighbour's offset by passing a displacement through its
+point-to-cell conversion, which adds the map's centre offset: with the default
+map the "neighbour" lands thousands of cells away, almost always in unknown
+space, so the test never rejects anything. slam2d reproduces that by not
+testing it (the test as meant, ``free_cell_check``, was tried and removed:
+docs/methods/what-was-tried.md).
 
 **Speed, same numbers.** A climb scores ~80 poses a few millimetres to a
-few centimetres apart. Without the free neighbour test a beam's candidate map
+few centimetres apart. A beam's candidate map
 points depend only on the cell it ends in, so each beam keeps the windows of
 the last cells it ended in (:func:`_score_cached`, four slots: a 2 x 2 block
 of cells) and looks the map up again only on a new cell (about a quarter of
@@ -46,44 +46,40 @@ the climbs and so the filter are unchanged, bit for bit
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 from numba import njit, prange
 
 from slam2d.grids.tiled import HITS, SUM_X, SUM_Y, TILE_SHIFT, cell_tile
-from slam2d.matching.wall_ends import detect_wall_ends
 
 __all__ = ["BeamSet", "match_particles", "match_one", "score_particles", "gaussian_proposal", "hold_flat_direction",
-           "along_terms", "wall_ends", "landmark_wall_ends", "wall_end_terms"]
+           "along_terms", "wall_ends", "wall_end_terms"]
 
 # TILE_SHIFT is compiled in as a constant, and numba's cache only checks this file's timestamp:
-# touch this file (and improved_proposal.py, which calls _evaluate) when tiled.py changes it
+# touch this file when tiled.py changes it
 _MASK = (1 << TILE_SHIFT) - 1
 _SEEN = 256  # poses a climb remembers the score of
 _SLOTS = 4  # cached windows per beam in a climb: a 2 x 2 block of cells (by row and column parity)
-FREE_CELL_RATIO = math.sqrt(2.0)  # GMapping m_freeCellRatio
 NULL_LIKELIHOOD = -0.5  # GMapping nullLikelihood: an unmatched beam's log-likelihood x lsigma
 
 
 class BeamSet:
     """The beams of one scan a matcher uses, in the laser frame, with their divisors.
 
-    ``ex, ey``: end points (m); ``ux, uy``: unit directions; ``div_score`` and
+    ``ex, ey``: end points (m); ``div_score`` and
     ``div_like``: per-beam ``sigma`` and ``lsigma`` (m^2) of the score and the
     log-likelihood; ``var``: the sensor model's range variance per beam (m^2; zeros
     without a model). ``use`` selects the beams; every other argument has one
     entry per beam of the scan.
     """
 
-    __slots__ = ("ex", "ey", "ux", "uy", "div_score", "div_like", "var", "ends")
+    __slots__ = ("ex", "ey", "div_score", "div_like", "var", "ends")
 
     def __init__(self, ranges, angles, use, div_score, div_like, var=None, ends=None) -> None:
         r = np.asarray(ranges, dtype=np.float64)[use]
         a = np.asarray(angles, dtype=np.float64)[use]
-        self.ux, self.uy = np.cos(a), np.sin(a)
-        self.ex, self.ey = r * self.ux, r * self.uy
+        self.ex, self.ey = r * np.cos(a), r * np.sin(a)
         self.div_score = np.ascontiguousarray(np.asarray(div_score, dtype=np.float64)[use])
         self.div_like = np.ascontiguousarray(np.asarray(div_like, dtype=np.float64)[use])
         self.var = np.zeros(self.ex.shape[0]) if var is None else np.ascontiguousarray(
@@ -146,52 +142,18 @@ def wall_ends(ranges, angles, use, limit, jump=0.5, back=4, max_gap=0.15):
     return np.ascontiguousarray(np.concatenate(out)) if out else np.zeros((0, 5))
 
 
-
-_LANDMARK_RANGE_SIGMA = 0.01  # m: the least range sigma karto's wall-end landmarks give the detector (its default)
-# rad: as wall_ends(); beyond it the map's wall end, from a few grazing hits, moved a held pose started at the truth
-_LANDMARK_INCIDENCE = math.radians(60.0)
-
-
-def landmark_wall_ends(scan, limit, sigma):
-    """:func:`wall_ends`' rows from the shared detector (:func:`slam2d.matching.wall_ends.detect_wall_ends`), weighted.
-
-    Returned ``(K, 6)``, laser frame: the end beam's hit ``a`` (x, y), the wall's unit direction toward
-    the end (x, y), the distance from ``a`` to the detector's end point along it, and the end's weight
-    ``sigma^2 / (sigma^2 + s^2)``, ``s`` its along-wall standard deviation (the beam gap's): with the
-    common information ``1 / sigma^2`` (``flat_sigma``: the map's end and everything else) each end
-    counts with ``1 / (sigma^2 + s^2)``, so a near end's millimetre gap cannot pull harder than the
-    map can place it. Beams beyond ``limit`` (m) are no return to the detector, as the range used; ends
-    seen at over 60 degrees from the wall's normal are not taken (as :func:`wall_ends`; the detector's
-    own default is 80).
-    """
-    found = detect_wall_ends(dataclasses.replace(scan, mount=np.zeros(3)), _LANDMARK_RANGE_SIGMA, max_range=limit,
-                             max_incidence=_LANDMARK_INCIDENCE)
-    if len(found) == 0:
-        return np.zeros((0, 6))
-    k = found.beams
-    r = np.asarray(scan.ranges, dtype=np.float64)[k]
-    ang = np.asarray(scan.angles, dtype=np.float64)[k]
-    ax, ay = r * np.cos(ang), r * np.sin(ang)
-    wx, wy = -found.direction[:, 0], -found.direction[:, 1]  # the detector's points into the wall
-    half = (found.points[:, 0] - ax) * wx + (found.points[:, 1] - ay) * wy
-    s2 = np.einsum("ki,kij,kj->k", found.direction, found.covariances, found.direction)
-    weight = sigma * sigma / (sigma * sigma + s2)
-    return np.ascontiguousarray(np.stack([ax, ay, wx, wy, half, weight], axis=1))
-
-
 @njit(cache=True, inline="always")
 def _occupied(occ, t, row, col):
     return t >= 0 and occ[t, row & _MASK, col & _MASK]
 
 
 @njit(cache=True, inline="always")
-def _window_points(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, ox, oy, res, pts, j):
+def _window_points(pool, occ, table, p, t0, row, col, kernel, ox, oy, res, pts, j):
     """The usable map points around cell ``(row, col)``: written to ``pts[j, :k]``, returns ``k``.
 
-    A usable point is the mean hit point of an occupied cell in the window
-    (with ``free_check``, one whose neighbour ``(dfr, dfc)`` cells away is not
-    occupied). ``t0`` is the tile of ``(row, col)`` when the whole window and
-    its free neighbours lie in it (the common case: one table lookup), else -1.
+    A usable point is the mean hit point of an occupied cell in the window.
+    ``t0`` is the tile of ``(row, col)`` when the whole window lies in it (the
+    common case: one table lookup), else -1.
     """
     k = 0
     for dr in range(-kernel, kernel + 1):
@@ -205,10 +167,6 @@ def _window_points(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_che
             b = cc & _MASK
             if not occ[t, a, b]:
                 continue
-            if free_check:
-                tf = t0 if t0 >= 0 else cell_tile(table, p, rr + dfr, cc + dfc)
-                if _occupied(occ, tf, rr + dfr, cc + dfc):
-                    continue
             n = pool[t, a, b, HITS]
             pts[j, k, 0] = ox + (cc + 0.5) * res + pool[t, a, b, SUM_X] / n
             pts[j, k, 1] = oy + (rr + 0.5) * res + pool[t, a, b, SUM_Y] / n
@@ -238,13 +196,10 @@ def _laser_in_world(x, y, th, mount):
 
 
 @njit(cache=True, fastmath=True)
-def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l, want_like):
+def _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, div_l, want_like):
     """``(score, log-likelihood, matched beams)`` of robot pose ``(x, y, th)`` on map ``p``."""
     lx, ly, lc, ls = _laser_in_world(x, y, th, mount)
-    free_step = FREE_CELL_RATIO * res
     inv = 1.0 / res
-    # the window, plus the free neighbour when it is tested (sqrt(2) cells back: at most 2 cells further)
-    reach = kernel + 2 if free_check else kernel
     score = 0.0
     like = 0.0
     matched = 0
@@ -254,22 +209,16 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
         wy = ly + ls * ex[j] + lc * ey[j]
         col = int(math.floor((wx - ox) * inv))
         row = int(math.floor((wy - oy) * inv))
-        dfc = dfr = 0
-        if free_check:  # the neighbour's offset is only needed when it is tested
-            fx = wx - free_step * (lc * ux[j] - ls * uy[j])
-            fy = wy - free_step * (ls * ux[j] + lc * uy[j])
-            dfc = int(math.floor((fx - ox) * inv)) - col
-            dfr = int(math.floor((fy - oy) * inv)) - row
         a = row & _MASK
         b = col & _MASK
         t0 = -1
-        if reach <= a <= _MASK - reach and reach <= b <= _MASK - reach:
+        if kernel <= a <= _MASK - kernel and kernel <= b <= _MASK - kernel:
             t0 = cell_tile(table, p, row, col)
             if t0 < 0:  # the whole window is unknown
                 if want_like:
                     like += NULL_LIKELIHOOD / div_l[j]
                 continue
-        k = _window_points(pool, occ, table, p, t0, row, col, dfr, dfc, kernel, free_check, ox, oy, res, pts, 0)
+        k = _window_points(pool, occ, table, p, t0, row, col, kernel, ox, oy, res, pts, 0)
         best = _nearest(pts, 0, k, wx, wy)
         if best >= 0.0:
             score += math.exp(-best / div_s[j])
@@ -283,7 +232,7 @@ def _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mo
 
 @njit(cache=True, fastmath=True)
 def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, key, count, pts):
-    """The score of :func:`_evaluate` (``free_check`` off), reusing each beam's window points.
+    """The score of :func:`_evaluate`, reusing each beam's window points.
 
     A climb evaluates ~90 poses a few millimetres apart, so most beams end in
     the cell they ended in at the previous pose: ``key[j]`` is that cell and
@@ -310,8 +259,7 @@ def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex,
             if inside and t0 < 0:
                 count[slot] = 0  # the whole window is unknown
             else:
-                count[slot] = _window_points(pool, occ, table, p, t0, row, col, 0, 0, kernel, False, ox, oy, res, pts,
-                                             slot)
+                count[slot] = _window_points(pool, occ, table, p, t0, row, col, kernel, ox, oy, res, pts, slot)
         best = _nearest(pts, slot, count[slot], wx, wy)
         if best >= 0.0:
             score += math.exp(-best / div_s[j])
@@ -319,17 +267,14 @@ def _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex,
 
 
 @njit(cache=True, inline="always")
-def _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+def _score(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, div_l,
            key, count, pts):
-    """The score of a pose in a climb: cached windows unless the free neighbour is tested."""
-    if free_check:
-        return _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
-                         div_s, div_l, False)[0]
+    """The score of a pose in a climb (cached windows)."""
     return _score_cached(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, key, count, pts)
 
 
 @njit(cache=True)
-def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, ex, ey, ux, uy, div_s, div_l,
+def _climb(pool, occ, table, p, ox, oy, res, kernel, start, mount, ex, ey, div_s, div_l,
            lstep, astep, iterations, lin_rel, ang_rel, prior_info):
     """GMapping's ``optimize`` for one particle: ``(x, y, th, best score)``.
 
@@ -363,7 +308,7 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
     seen_score = np.empty(_SEEN)
     n_seen = 0
     use_prior = prior_info[0] > 0.0 or prior_info[1] > 0.0 or prior_info[2] > 0.0
-    current = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+    current = _score(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, div_l,
                      key, count, pts)
     seen[0, 0], seen[0, 1], seen[0, 2] = x, y, th
     seen_score[0] = current
@@ -400,7 +345,7 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
                     sc = seen_score[i]
                     break
             if sc < 0.0:
-                sc = _score(pool, occ, table, p, ox, oy, res, kernel, free_check, cx, cy, cth, mount, ex, ey, ux, uy,
+                sc = _score(pool, occ, table, p, ox, oy, res, kernel, cx, cy, cth, mount, ex, ey,
                             div_s, div_l, key, count, pts)
                 if n_seen < _SEEN:
                     seen[n_seen, 0], seen[n_seen, 1], seen[n_seen, 2] = cx, cy, cth
@@ -430,7 +375,7 @@ def _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, start, mount, e
 
 
 @njit(cache=True, parallel=True)
-def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
+def match_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey, div_s, div_l,
                     lstep, astep, iterations, lin_rel, ang_rel, prior_info, minimum_score,
                     out_poses, out_score, out_like, out_ok):
     """Hill-climb every particle from ``poses`` on its own map (GMapping ``scanMatch``).
@@ -441,7 +386,7 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mo
     row per particle (``(N, 3)``; zeros: GMapping's climb).
     """
     for p in prange(poses.shape[0]):
-        x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p], mount, ex, ey, ux, uy,
+        x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, poses[p], mount, ex, ey,
                               div_s, div_l, lstep, astep, iterations, lin_rel, ang_rel, prior_info[p])
         ok = sc > minimum_score
         if not ok:
@@ -450,18 +395,18 @@ def match_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mo
         out_poses[p, 2] = (th + math.pi) % (2.0 * math.pi) - math.pi
         out_score[p] = sc
         out_ok[p] = ok
-        out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
+        out_like[p] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey,
                                 div_s, div_l, True)[1]
 
 
 @njit(cache=True)
-def match_one(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy, div_s, div_l,
+def match_one(pool, occ, table, p, ox, oy, res, kernel, pose, mount, ex, ey, div_s, div_l,
               lstep, astep, iterations, lin_rel, ang_rel, prior_info, minimum_score):
     """Hill-climb one pose on map ``p`` (GMapping's climb): ``(x, y, theta, score, ok)``.
 
     ``ok`` False (score not above ``minimum_score``): the pose returned is ``pose``.
     """
-    x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount, ex, ey, ux, uy,
+    x, y, th, sc = _climb(pool, occ, table, p, ox, oy, res, kernel, pose, mount, ex, ey,
                           div_s, div_l, lstep, astep, iterations, lin_rel, ang_rel, prior_info)
     if not sc > minimum_score:
         return pose[0], pose[1], pose[2], sc, False
@@ -469,20 +414,20 @@ def match_one(pool, occ, table, p, ox, oy, res, kernel, free_check, pose, mount,
 
 
 @njit(cache=True, parallel=True)
-def score_particles(pool, occ, table, ox, oy, res, kernel, free_check, poses, mount, ex, ey, ux, uy, div_s, div_l,
+def score_particles(pool, occ, table, ox, oy, res, kernel, poses, mount, ex, ey, div_s, div_l,
                     out_score, out_like, out_matched):
     """Score and log-likelihood of every particle at its pose, no search."""
     for p in prange(poses.shape[0]):
-        sc, lk, m = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, poses[p, 0], poses[p, 1], poses[p, 2],
-                              mount, ex, ey, ux, uy, div_s, div_l, True)
+        sc, lk, m = _evaluate(pool, occ, table, p, ox, oy, res, kernel, poses[p, 0], poses[p, 1], poses[p, 2],
+                              mount, ex, ey, div_s, div_l, True)
         out_score[p] = sc
         out_like[p] = lk
         out_matched[p] = m
 
 
 @njit(cache=True, parallel=True)
-def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima, predicted, prior_std, offsets, mount,
-                      ex, ey, ux, uy, div_s, div_l, normals, out_poses, out_logeta):
+def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, optima, predicted, prior_std, offsets, mount,
+                      ex, ey, div_s, div_l, normals, out_poses, out_logeta):
     """Grisetti et al. 2007's improved proposal around each particle's scan-matching optimum.
 
     For each particle, ``tau(x) = p(z | m, x) p(x | x_prev, u)`` is evaluated
@@ -508,7 +453,7 @@ def gaussian_proposal(pool, occ, table, ox, oy, res, kernel, free_check, optima,
             x = optima[p, 0] + co * offsets[k, 0] - so * offsets[k, 1]
             y = optima[p, 1] + so * offsets[k, 0] + co * offsets[k, 1]
             th = optima[p, 2] + offsets[k, 2]
-            lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy,
+            lk = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey,
                            div_s, div_l, True)[1]
             dx, dy = x - predicted[p, 0], y - predicted[p, 1]
             fx = (c * dx + s * dy) / prior_std[0]
@@ -580,7 +525,7 @@ def along_terms(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, step
             wy = wy0 + (k - 1) * step * vy
             col = int(math.floor((wx - ox) * inv))
             row = int(math.floor((wy - oy) * inv))
-            n = _window_points(pool, occ, table, p, -1, row, col, 0, 0, kernel, False, ox, oy, res, pts, 0)
+            n = _window_points(pool, occ, table, p, -1, row, col, kernel, ox, oy, res, pts, 0)
             d2[k] = _nearest(pts, 0, n, wx, wy)
             if d2[k] < 0.0:
                 break
@@ -685,12 +630,8 @@ def wall_end_terms(pool, occ, table, p, ox, oy, res, x, y, th, vx, vy, mount, en
             end = l_out
         resid = end - ends[e, 4]
         jac = -(vx * wxw + vy * wyw)
-        if ends.shape[1] > 5:  # the end's own weight (its information over the common one)
-            grad += ends[e, 5] * resid * jac
-            curv += ends[e, 5] * jac * jac
-        else:
-            grad += resid * jac
-            curv += jac * jac
+        grad += resid * jac
+        curv += jac * jac
         used += 1
     return grad, curv, used
 
@@ -733,27 +674,27 @@ def _wall_end_step(pool, occ, table, p, ox, oy, res, kernel, x, y, th, vx, vy, s
 
 
 @njit(cache=True, inline="always")
-def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y, th, mount, ex, ey, ux, uy, div_s,
+def _hold_one(pool, occ, table, p, ox, oy, res, kernel, start, x, y, th, mount, ex, ey, div_s,
               div_l, step, ratio, end_w, ends, end_info, reach, prior_info):
     """:func:`hold_flat_direction` for one pose: ``(x, y, flat)``, ``flat`` 0 (kept), 1 (one axis held) or 2 (both)."""
-    s0 = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, th, mount, ex, ey, ux, uy, div_s, div_l,
+    s0 = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, th, mount, ex, ey, div_s, div_l,
                    False)[0]
-    sxp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y, th, mount, ex, ey, ux, uy,
+    sxp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x + step, y, th, mount, ex, ey,
                     div_s, div_l, False)[0]
-    sxm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y, th, mount, ex, ey, ux, uy,
+    sxm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x - step, y, th, mount, ex, ey,
                     div_s, div_l, False)[0]
-    syp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y + step, th, mount, ex, ey, ux, uy,
+    syp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y + step, th, mount, ex, ey,
                     div_s, div_l, False)[0]
-    sym = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y - step, th, mount, ex, ey, ux, uy,
+    sym = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y - step, th, mount, ex, ey,
                     div_s, div_l, False)[0]
-    spp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y + step, th, mount, ex, ey, ux,
-                    uy, div_s, div_l, False)[0]
-    smm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y - step, th, mount, ex, ey, ux,
-                    uy, div_s, div_l, False)[0]
-    spm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x + step, y - step, th, mount, ex, ey, ux,
-                    uy, div_s, div_l, False)[0]
-    smp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x - step, y + step, th, mount, ex, ey, ux,
-                    uy, div_s, div_l, False)[0]
+    spp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x + step, y + step, th, mount, ex, ey,
+                    div_s, div_l, False)[0]
+    smm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x - step, y - step, th, mount, ex, ey,
+                    div_s, div_l, False)[0]
+    spm = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x + step, y - step, th, mount, ex, ey,
+                    div_s, div_l, False)[0]
+    smp = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x - step, y + step, th, mount, ex, ey,
+                    div_s, div_l, False)[0]
     h2 = step * step
     # the score's information (minus its curvature) in x, y by central differences: a slope cancels
     a = -(sxp + sxm - 2.0 * s0) / h2
@@ -792,8 +733,8 @@ def _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, start, x, y,
 
 
 @njit(cache=True, parallel=True)
-def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which, starts, poses, ok, mount, ex, ey,
-                        ux, uy, div_s, div_l, step, ratio, end_w, ends, end_info, reach, prior_info, out_like,
+def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, which, starts, poses, ok, mount, ex, ey,
+                        div_s, div_l, step, ratio, end_w, ends, end_info, reach, prior_info, out_like,
                         out_flat):
     """Undo a climb's move along the direction its score does not constrain (not in GMapping).
 
@@ -825,11 +766,11 @@ def hold_flat_direction(pool, occ, table, ox, oy, res, kernel, free_check, which
         if not ok[i]:
             continue
         p = which[i]
-        x, y, flat = _hold_one(pool, occ, table, p, ox, oy, res, kernel, free_check, starts[i], poses[i, 0],
-                               poses[i, 1], poses[i, 2], mount, ex, ey, ux, uy, div_s, div_l, step, ratio, end_w,
+        x, y, flat = _hold_one(pool, occ, table, p, ox, oy, res, kernel, starts[i], poses[i, 0],
+                               poses[i, 1], poses[i, 2], mount, ex, ey, div_s, div_l, step, ratio, end_w,
                                ends, end_info, reach[i], prior_info[i])
         out_flat[i] = flat
         if flat:
             poses[i, 0], poses[i, 1] = x, y
-            out_like[i] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, free_check, x, y, poses[i, 2], mount,
-                                    ex, ey, ux, uy, div_s, div_l, True)[1]
+            out_like[i] = _evaluate(pool, occ, table, p, ox, oy, res, kernel, x, y, poses[i, 2], mount,
+                                    ex, ey, div_s, div_l, True)[1]

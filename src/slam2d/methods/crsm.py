@@ -65,12 +65,6 @@ class CrsmParams:
         help="rays the density walk aims to pick per scan (kept within +-25 %); the original's 40 leaves the "
         "URG-04LX's mines maps less consistent (docs/methods/what-was-tried.md)",
     )
-    ray_count_control: str = param(
-        "additive", choices=("additive", "proportional"),
-        help="how the density walk's threshold factor follows desired_number_of_picked_rays: scaled by picked / "
-        "desired (slam2d's; steady counts) or moved by the excess in rays (the original; with 120 rays it saws "
-        "between ~400 and ~40 rays per scan)",
-    )
     scan_density_lower_boundary: float = param(
         0.3, unit="m", low=0.0, help="range jump between neighbouring beams that makes both critical"
     )
@@ -113,11 +107,6 @@ class CrsmParams:
         10, low=0, high=1000,
         help="rounds of a final neighbour climb (1 cell, 1/180 rad) scored with every beam with a return, not only "
         "the critical rays: it picks between the near-equal fits a few rays leave (0 = the original)",
-    )
-    motion_model: str = param(
-        "none", choices=("none", "constant_velocity"),
-        help="search centre: the last pose (the original) or the last pose plus the last matched motion",
-        advanced=True, group="prediction",
     )
     unknown_rays: str = param(
         "drop", choices=("score", "drop"),
@@ -203,7 +192,7 @@ class Crsm(SlamMethod):
         self._map.ensure_contains(-half, -half, half, half, margin=0)
         self._map.draw_patch(np.zeros(3), p.robot_length, p.robot_width)
         self._pose = np.zeros(3)
-        self._step = np.zeros(3)  # the last matched motion, robot frame (constant-velocity prediction)
+        self._step = np.zeros(3)  # the last matched motion, robot frame
         self._recent: list[tuple[NDArray[np.float64], float]] = []  # the last matched motions and their intervals
         self._last_time = math.nan
         self._dt = 0.0
@@ -254,7 +243,6 @@ class Crsm(SlamMethod):
             self._previous_points = everywhere
         selected, self._parameter, mean_density, _ = critical_rays(
             d, laser_max, self._parameter, p.scan_density_lower_boundary, p.desired_number_of_picked_rays,
-            p.ray_count_control == "proportional",
         )
         values.update(rays=float(selected.shape[0]), mean_density=float(mean_density))
         if self._scans == 0:
@@ -262,10 +250,6 @@ class Crsm(SlamMethod):
         elif selected.shape[0] >= _MIN_RAYS:
             qx, qy = bx[selected], by[selected]
             centre = self._pose
-            if p.motion_model == "constant_velocity":
-                centre = se2.compose(self._pose, self._step)
-                # the map must hold the search window around a centre that may lie ahead of the old map
-                self._map.ensure_contains(centre[0] - 1.0, centre[1] - 1.0, centre[0] + 1.0, centre[1] + 1.0)
             ox, oy = self._map.origin
             if p.unknown_rays == "drop":
                 ahead = se2.compose(self._pose, self._step)

@@ -46,11 +46,9 @@ from slam2d.matching.hill_climb import (
     gaussian_proposal,
     hold_flat_direction,
     match_one,
-    landmark_wall_ends,
     match_particles,
     wall_ends,
 )
-from slam2d.matching.improved_proposal import laplace_proposal
 from slam2d.methods.base import SlamMethod
 from slam2d.methods.registry import register
 from slam2d.params import is_auto, param
@@ -144,13 +142,6 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
         "standard deviation, against the motion model's prior: the few beams that say where along a corridor the "
         "robot is, which the whole score's curvature cannot tell from the walls' ripple; 0: off, held at the "
         "odometry's", advanced=True, group="flat directions")
-    flat_wall_ends: str = param(
-        "line", choices=("line", "landmark"),
-        help="not in GMapping: the wall ends flat_sigma matches. line: a beam on a straight wall (four before it "
-        "within 2 cm of a line) whose next two pass 0.5 m beyond, each with flat_sigma; landmark: the wall-end "
-        "detector karto's wall_end_landmarks use (least-squares wall, mixed-return and occlusion checks, "
-        "lost-return doorways; at most 60 deg from the wall's normal, as line), each with sqrt(flat_sigma^2 + its "
-        "along-wall sigma^2) (the beam gap's)", advanced=True, group="flat directions")
     lsigma: float = param(
         0.075, unit="m^2", low=1e-9, help="likelihood divisor: a matched beam adds -d^2/lsigma to the "
         "log-likelihood, an unmatched one -0.5/lsigma")
@@ -185,13 +176,10 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
     lasamplestep: float = param(0.005, unit="rad", low=1e-6, help="improved proposal: rotation sampling step")
     occ_thresh: float = param(0.25, low=0.0, high=1.0, help="output map: a cell with hits/visits above it is occupied")
     proposal: str = param(
-        "hill-climb", choices=("hill-climb", "gaussian", "laplace"),
+        "hill-climb", choices=("hill-climb", "gaussian"),
         help="hill-climb: the original (particles take the optimum); gaussian: sample from the Gaussian "
         "fitted to likelihood x odometry prior on a grid around it and weight by its normaliser (Grisetti et al. "
-        "2007; uses ll/la sample range/step); laplace: the same improved proposal as the product "
-        "of the scan's Gaussian (the log-likelihood's curvature at the optimum by finite differences, +-delta "
-        "forward, +-llsamplerange sideways, +-lasamplerange in heading; a direction without curvature carries no "
-        "information) and the odometry's, sampled and weighted in closed form", advanced=True, group="proposal")
+        "2007's improved proposal; uses ll/la sample range/step)", advanced=True, group="proposal")
     generateMap: bool = param(
         False, help="particle maps also record free space (slam_gmapping: off, only hit cells)",
         advanced=True, group="maps")
@@ -199,16 +187,6 @@ class GMappingParams(LoopCorrectionParams, WallRefinementParams, OdometryGapPara
         "rebuilt", choices=("rebuilt", "best-particle"),
         help="rebuilt: the map re-drawn along the best particle's whole path with free space (as the ROS "
         "node publishes); best-particle: that particle's own map", advanced=True, group="maps")
-    free_cell_check: bool = param(
-        False, help="reject a map point whose cell one sqrt(2) step back along the beam is occupied (what "
-        "GMapping's code intends; its arithmetic makes the test a no-op, which the default reproduces)",
-        advanced=True, group="scan matching")
-    motion_noise: str = param(
-        "scan", choices=("update", "scan"),
-        help="update: one draw of the motion noise for the whole odometry increment since the last filter "
-        "update, so the particles' spread does not depend on the scan rate; scan: a draw per scan, as "
-        "GMapping's code (on dense logs the spread shrinks as 1/sqrt(scans per update))",
-        advanced=True, group="proposal")
     between_updates: str = param(
         "matched", choices=("matched", "odometry", "guided"), auto=_AUTO_BETWEEN,
         help="not in GMapping: the pose reported for a scan between filter updates. matched: the best "
@@ -372,10 +350,7 @@ class GMapping(SlamMethod):
             if tracked is not None:
                 delta = se2.relative(before, tracked)
                 step = math.hypot(delta[0], delta[1])
-        if p.motion_noise == "scan":
-            draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
-        else:  # odometry only here; the noise for the whole increment is drawn when the filter updates
-            draw_from_motion(self._state, delta, np.zeros((self._n, 3)), 0.0, 0.0, 0.0, 0.0)
+        draw_from_motion(self._state, delta, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str, p.stt)
         self._linear += step
         self._angular += abs(float(delta[2]))
         due = (self._linear >= p.linearUpdate or self._angular >= p.angularUpdate
@@ -437,10 +412,7 @@ class GMapping(SlamMethod):
         ends = None
         if p.flat_sigma > 0.0 and p.flat_ratio > 0.0:
             limit = min(self._max_range, self._usable, math.inf if p.match_range is None else p.match_range)
-            if p.flat_wall_ends == "line":
-                ends = wall_ends(r, scan.angles, use, limit)
-            else:
-                ends = landmark_wall_ends(scan, limit, p.flat_sigma)
+            ends = wall_ends(r, scan.angles, use, limit)
         return BeamSet(r, scan.angles, use, p.sigma + s2, p.lsigma + s2, np.nan_to_num(s * s), ends)
 
     def _track_start(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -463,9 +435,9 @@ class GMapping(SlamMethod):
         start = se2.compose(last, se2.relative(last_odom, self._odom))
         maps = self._maps
         x, y, th, _, ok = match_one(maps.pool, maps.occ, maps.table, best, maps.origin[0], maps.origin[1],
-                                    maps.resolution, p.kernelSize, p.free_cell_check, start,
-                                    np.asarray(frame.scan.mount, dtype=np.float64), beams.ex, beams.ey, beams.ux,
-                                    beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations,
+                                    maps.resolution, p.kernelSize, start,
+                                    np.asarray(frame.scan.mount, dtype=np.float64), beams.ex, beams.ey,
+                                    beams.div_score, beams.div_like, p.lstep, p.astep, p.iterations,
                                     p.linearOdometryReliability,
                                     p.angularOdometryReliability, self._prior_info(p.tracking_prior, last_odom)[0],
                                     p.minimumScore)
@@ -506,8 +478,8 @@ class GMapping(SlamMethod):
         else:
             end_w, prior = np.zeros(0), np.zeros((poses.shape[0], 3))
         hold_flat_direction(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
-                            p.kernelSize, p.free_cell_check, which, starts, poses, ok, mount, beams.ex, beams.ey,
-                            beams.ux, beams.uy, beams.div_score, beams.div_like, maps.resolution, p.flat_ratio,
+                            p.kernelSize, which, starts, poses, ok, mount, beams.ex, beams.ey,
+                            beams.div_score, beams.div_like, maps.resolution, p.flat_ratio,
                             end_w, beams.ends, end_info, reach, prior, like, flat)
         held = int((flat > 0).sum())
         if held:
@@ -520,21 +492,12 @@ class GMapping(SlamMethod):
         maps = self._maps
         if beams is None:  # counted by update()
             return {"updated": 0.0}
-        if p.motion_noise == "update":
-            # the increment since the update: the odometry's, or with guided the scan-matched one the particles
-            # followed (every particle the same, no noise drawn yet in this mode)
-            increment = (se2.relative(self._update_poses[0], self._state[0]) if p.between_updates == "guided"
-                         else se2.relative(self._update_odom, self._odom))
-            self._state = self._update_poses.copy()
-            draw_from_motion(self._state, increment, self.rng.standard_normal((self._n, 3)), p.srr, p.srt, p.str,
-                             p.stt)
         n = self._n
         out_poses = np.empty((n, 3))
         score, like, ok = np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
         mount = np.asarray(scan.mount, dtype=np.float64)
-        common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize,
-                  p.free_cell_check)
-        climb = (mount, beams.ex, beams.ey, beams.ux, beams.uy, beams.div_score, beams.div_like, p.lstep, p.astep,
+        common = (maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution, p.kernelSize)
+        climb = (mount, beams.ex, beams.ey, beams.div_score, beams.div_like, p.lstep, p.astep,
                  p.iterations, p.linearOdometryReliability,
                  p.angularOdometryReliability, self._prior_info(p.odometry_prior), p.minimumScore)
         match_particles(*common, self._state, *climb, out_poses, score, like, ok)
@@ -597,7 +560,7 @@ class GMapping(SlamMethod):
         n = self._n
         out, score, like, ok = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_)
         match_particles(maps.pool, maps.occ, maps.table, maps.origin[0], maps.origin[1], maps.resolution,
-                        p.coarse_kernel, p.free_cell_check, self._state, mount, beams.ex, beams.ey, beams.ux, beams.uy,
+                        p.coarse_kernel, self._state, mount, beams.ex, beams.ey,
                         beams.div_score, beams.div_like, p.lstep, p.astep, 0, 0.0, 0.0,
                         self._prior_info(p.odometry_prior), 0.0, out, score, like, ok)
         return np.where(ok[:, None], out, self._state)
@@ -627,19 +590,12 @@ class GMapping(SlamMethod):
         normals = self.rng.standard_normal((self._n, 3))
         sampled = np.empty_like(optima)
         logeta = np.empty(self._n)
-        if p.proposal == "laplace":
-            # forward one cell each way: the cells' ripple along a wall is periodic in it and averages out;
-            # sideways and in heading the original's small ranges, so few beams leave their kernel window
-            half = np.array([p.delta, max(p.llsamplerange, 1e-4), max(p.lasamplerange, 1e-5)])
-            laplace_proposal(*common, optima, predicted, std, half, mount, beams.ex, beams.ey, beams.ux, beams.uy,
-                             beams.div_score, beams.div_like, normals, sampled, logeta)
-            return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
         # the original's grid (+-1 cm, +-0.005 rad)
         fwd = left = np.arange(-p.llsamplerange, p.llsamplerange + 1e-12, p.llsamplestep)
         ang = np.arange(-p.lasamplerange, p.lasamplerange + 1e-12, p.lasamplestep)
         offsets = np.stack(np.meshgrid(fwd, left, ang, indexing="ij"), axis=-1).reshape(-1, 3)
-        gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey, beams.ux,
-                          beams.uy, beams.div_score, beams.div_like, normals, sampled, logeta)
+        gaussian_proposal(*common, optima, predicted, std, offsets, mount, beams.ex, beams.ey,
+                          beams.div_score, beams.div_like, normals, sampled, logeta)
         return np.where(ok[:, None], sampled, optima), np.where(ok, logeta, like)
 
     def _store_node(self, parents, scan) -> None:
