@@ -69,6 +69,24 @@ def _anchor(heading: str) -> str:
     return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
 
 
+def _same_advanced_as(name: str) -> str | None:
+    """The first registered method (by name) before ``name`` with the same advanced parameters (names, defaults,
+    groups), whose page then serves both (lago's 95 are karto's); None when there is none, or when they are few
+    enough (under 20) that a copy costs less than a detour."""
+    from slam2d.methods import available
+    from slam2d.params import describe
+
+    def key(params):
+        return [(i.name, repr(i.default), i.group) for i in describe(params) if i.advanced]
+
+    methods = available()
+    own = methods[name].Params
+    for other in sorted(methods):
+        if other < name and len(key(own)) >= 20 and key(own) == key(methods[other].Params):
+            return other
+    return None
+
+
 def _method(name: str) -> str:
     from slam2d.methods import get_method
     from slam2d.params import advanced_groups, markdown_table
@@ -80,7 +98,7 @@ def _method(name: str) -> str:
     text += markdown_table(cls.Params, names="settings", advanced="omit")
     groups = advanced_groups(cls.Params)
     if groups:
-        page = f"parameters/{cls.name}.md"
+        page = f"parameters/{_same_advanced_as(cls.name) or cls.name}.md"
         count = sum(map(len, groups.values()))
         text += (f"\n**Advanced**: {count} more parameters, most runs leave them at their defaults; their tables are on "
                  f"[{page}]({page}), by the feature they belong to: "
@@ -104,6 +122,16 @@ def parameter_pages() -> dict[Path, str]:
         if not groups:
             continue
         count = sum(map(len, groups.values()))
+        shared = _same_advanced_as(name)
+        if shared is not None:  # one table for both, not a copy
+            pages[PARAMETERS / f"{name}.md"] = (
+                f"# `{name}`: advanced parameters\n\n"
+                f"<!-- Written by docs/generate.py (`make docs`) from the method's parameter dataclass; do not edit. -->"
+                f"\n\n[`{name}`](../{name}.md) takes the same {count} advanced parameters as `{shared}` (names, "
+                f"defaults and groups): their tables are on [{shared}.md]({shared}.md) (where a help line names "
+                f"`{shared}`, read `{name}`). `slam2d methods {name} --all` lists them in the terminal.\n\n"
+                + "".join(f"- [{g}]({shared}.md#{_anchor(g)}) ({len(m)})\n" for g, m in groups.items()))
+            continue
         pages[PARAMETERS / f"{name}.md"] = (
             f"# `{name}`: advanced parameters\n\n"
             f"<!-- Written by docs/generate.py (`make docs`) from the method's parameter dataclass; do not edit. -->\n\n"
