@@ -87,8 +87,8 @@ _SEARCH_NEFF = 0.1
 _MAX_HYPOTHESES = 12
 _HYPOTHESIS_MARGIN = 3.0
 _HYPOTHESIS_DROP = 8.0
-# a hypothesis found during a search is scored on the scans before it too, at the poses the odometry puts its path
-# (its twin of the robot's path): at most this many scans back. Starting newcomers level with the best instead kept
+# a hypothesis found during a search is scored on the scans before it too, along its path traced back through the
+# odometry and matched to the map at each step: at most this many filter updates back. Starting newcomers level with the best instead kept
 # corridor-loop's search open until 44 % of its scans, though the scans had ruled out every twin by 14 %
 # (benchmarks/localization_bound.py)
 _SEARCH_HISTORY = 400
@@ -164,6 +164,7 @@ class Localizer:
         self.resolution = float(grid.resolution)
         self.near = 2.0 * self.resolution + 0.02  # "on a wall": within two cells (and 2 cm)
         self.field: LikelihoodField = likelihood_field(grid, max_distance=max(1.0, 5.0 * p.hit_sigma))
+        self.inv_two_sigma2 = 1.0 / (2.0 * p.hit_sigma ** 2)  # the beam model's exponent scale
         self.known = np.ascontiguousarray(grid.observed)
         free = np.argwhere(grid.observed & ~grid.occupied(0.5) & (grid.occupancy() <= 25))
         if len(free) == 0:
@@ -282,7 +283,7 @@ class Localizer:
         f = self.field
         ll = np.empty(len(poses))
         particle_log_likelihoods(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, poses,
-                                 bx, by, 1.0 / (2.0 * self.p.hit_sigma ** 2), _Z_HIT, _Z_RAND, ll)
+                                 bx, by, self.inv_two_sigma2, _Z_HIT, _Z_RAND, ll)
         return ll
 
     def _mean_pose(self, sel: NDArray[np.bool_], w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray]:
@@ -541,16 +542,15 @@ class Localizer:
         f = self.field
         return _INDEPENDENT_BEAMS * float(traced_path_log_likelihood(
             f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, float(pose[0]), float(pose[1]),
-            float(pose[2]), steps, bx, by, starts, 20, 0.1, _PRIOR_XY, _PRIOR_TH, 1.0 / (2.0 * self.p.hit_sigma ** 2),
-            _Z_HIT, _Z_RAND))
+            float(pose[2]), steps, bx, by, starts, 20, 0.1, _PRIOR_XY, _PRIOR_TH, self.inv_two_sigma2, _Z_HIT, _Z_RAND))
 
     def _unseen_rivals(self, floor: float, fx, fy, mx, my) -> list[dict]:
         """New hypotheses: places the scan fits well whose paths score over ``floor`` on the search's scans."""
         if not self.search_scans or len(self.rival_xy) == 0:
             return []
         f = self.field
-        inv = 1.0 / (2.0 * self.p.hit_sigma ** 2)
-        if self.rival_table is None:
+        inv = self.inv_two_sigma2
+        if self.rival_table is None:  # the beam model of particle_log_likelihoods, per cell
             self.rival_table = np.log(_Z_HIT * np.exp(-f.distance ** 2 * inv) + _Z_RAND)
         grid = np.empty((len(self.rival_xy), len(self.rival_headings)))
         scan_log_likelihood_grid(self.rival_table, f.origin[0], f.origin[1], f.resolution,
@@ -601,8 +601,8 @@ class Localizer:
                     score = self._path_score(pose) if self.search_scans else top
                     self.hypotheses.append({"pose": pose, "fit": fit, "score": score, "updates": 0})
             if self.search_scans and self.search_updates % _RIVAL_EVERY == 0:
-                floor = max((h["score"] for h in self.hypotheses), default=math.inf) - _HYPOTHESIS_DROP
-                self.hypotheses += self._unseen_rivals(floor if math.isfinite(floor) else -math.inf, fx, fy, mx, my)
+                floor = max((h["score"] for h in self.hypotheses), default=-math.inf) - _HYPOTHESIS_DROP
+                self.hypotheses += self._unseen_rivals(floor, fx, fy, mx, my)
         if not self.hypotheses:
             return None
         self.hypotheses.sort(key=lambda h: -h["score"])
