@@ -50,7 +50,7 @@ def filter_updates(frames, params):
         odom = np.asarray(frame.odometry, dtype=np.float64)
         if last is not None:
             d = se2.relative(last, odom).reshape(3)
-            if math.hypot(d[0], d[1]) < params.update_distance and abs(d[2]) < params.update_angle:
+            if not params.is_update(d):
                 continue
         last = odom
         yield i, frame

@@ -245,7 +245,7 @@ def _search_history(office, n):
     for frame in frames[: n + 1]:
         odom = np.asarray(frame.odometry, dtype=np.float64)
         d = se2.relative(last, odom) if last is not None else None
-        if d is None or math.hypot(d[0], d[1]) >= loc.p.update_distance or abs(d[2]) >= loc.p.update_angle:
+        if d is None or loc.p.is_update(d):
             loc.search_scans.append((odom, *loc._beams(frame.scan.points_in_base(), loc.p.match_beams)))
             last = odom
     tt, tp = read_tum(office / "truth.tum")

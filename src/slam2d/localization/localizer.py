@@ -139,6 +139,10 @@ class LocalizationParams:
                             "(3 in a row that fit under half of that are enough: a robot carried off)")
 
 
+    def is_update(self, delta: NDArray[np.float64]) -> bool:
+        """Whether the odometry increment ``delta`` since the last filter update calls for the next one."""
+        return math.hypot(delta[0], delta[1]) >= self.update_distance or abs(delta[2]) >= self.update_angle
+
 @dataclass
 class ScanResult:
     """What the localizer says about one scan."""
@@ -381,7 +385,7 @@ class Localizer:
                 moved = self.filter_odom is None or odom is None
             else:
                 delta = se2.relative(self.filter_odom, odom).reshape(3)
-                moved = math.hypot(delta[0], delta[1]) >= self.p.update_distance or abs(delta[2]) >= self.p.update_angle
+                moved = self.p.is_update(delta)
             if moved:
                 self._filter_update(delta, fx, fy)
                 self.filter_odom = odom
