@@ -67,6 +67,30 @@ def ate_in_frame(traj: Path, truth: Path, frame: np.ndarray | None, shift: float
     return float(absolute_trajectory_error(associate(t - shift, p, *read_tum(truth)), align=False)["translation_m"]["rmse"])
 
 
+def errors_at(traj: Path, truth: Path, frame: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Each pose of ``traj`` (moved by ``frame``) against ``truth`` at its time: the error vectors and the true
+    positions."""
+    from slam2d.core import se2
+    from slam2d.io.tum import read_tum
+
+    t, p = read_tum(traj)
+    if frame is not None:
+        p = se2.compose(frame, p)
+    tt, tp = read_tum(truth)
+    k = np.searchsorted(tt, t).clip(0, len(tt) - 1)
+    return p[:, :2] - tp[k, :2], tp[k, :2]
+
+
+def map_error_floor(map_run: Path, map_truth: Path, traj: Path, truth: Path, frame: np.ndarray | None) -> float:
+    """What a perfect localizer in ``map_run``'s map would score: the RMS of the map's own error (its run's pose
+    against the truth) at the map-run pose nearest each pose of ``traj``. A localizer that agrees with the map
+    inherits its error there."""
+    map_err, map_at = errors_at(map_run / "trajectory.tum", map_truth, frame)
+    _, at = errors_at(traj, truth, frame)
+    nearest = np.argmin(np.hypot(at[:, 0][:, None] - map_at[:, 0][None], at[:, 1][:, None] - map_at[:, 1][None]), axis=1)
+    return float(np.sqrt(np.mean(np.sum(map_err[nearest] ** 2, axis=1))))
+
+
 #: localizer settings to measure instead of the defaults (``--set NAME=VALUE``)
 OVERRIDES: dict[str, object] = {}
 
@@ -97,8 +121,10 @@ def sim_rows(world: str, work: Path) -> list[str]:
             if not rec["localized"]:
                 rows.append(f"| {world} | {label} | `{method}` | never | - | - | {rec['cpu_ms_per_scan']['median']:.1f} |")
                 continue
+            floor = "" if fr is None else (f" (the map's own error there "
+                                           f"{map_error_floor(map_source, d1 / 'truth.tum', out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m)")
             rows.append(f"| {world} | {label} | `{method}` | {100 * rec['first_localized']['fraction_of_scans']:.0f} % | "
-                        f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m | {rec['lost']} | "
+                        f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m{floor} | {rec['lost']} | "
                         f"{rec['cpu_ms_per_scan']['median']:.1f} |")
             print(rows[-1], file=sys.stderr, flush=True)
     rows.append(kidnap_row(world, d2, work))
@@ -136,8 +162,10 @@ def continue_row(method: str, world: str, d1: Path, d2: Path, work: Path) -> str
         return f"| {world} | `{method}` | failed: {exc} | | | |"
     rec = json.loads((out / "run.json").read_text())["resumed"]
     first_ate = ate_in_frame(first / "trajectory.tum", d1 / "truth.tum", frame)
+    floor = map_error_floor(first, d1 / "truth.tum", out / "trajectory.tum", d2 / "truth.tum", frame)
     return (f"| {world} | `{method}` | {rec['scans_before_placed']} | "
-            f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', frame):.3f} m (drive 1: {first_ate:.3f} m) | "
+            f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', frame):.3f} m (drive 1: {first_ate:.3f} m; "
+            f"drive 1's error where drive 2 drives: {floor:.3f} m) | "
             f"{map_error(first, d1):.3f} m | {map_error(out, d2):.3f} m |")
 
 
@@ -198,30 +226,14 @@ def fr079_rows(work: Path) -> list[str]:
     run_method("karto", work / "fr079-1.log", work / "fr079-karto")
     ref = SHARED / "fr079" / "reference.tum"
     frame = frame_of(work / "fr079-karto" / "trajectory.tum", ref)
-    from slam2d.core import se2
-    from slam2d.io.tum import read_tum
-
-    rt, rp = read_tum(ref)
-
-    def against_reference(path: Path) -> tuple[np.ndarray, np.ndarray]:
-        """Each pose's distance to the reference (in the map's frame as karto's first half fixes it), and the
-        reference pose it was compared with."""
-        t, p = read_tum(path)
-        p = se2.compose(frame, p)
-        k = np.searchsorted(rt, t).clip(0, len(rt) - 1)
-        return np.hypot(p[:, 0] - rp[k, 0], p[:, 1] - rp[k, 1]), k
-
-    # what a perfect localizer in this map would score: the map's own error (karto's first-half pose against
-    # the reference) at the first-half pose nearest each localized pose
-    karto_err, kk = against_reference(work / "fr079-karto" / "trajectory.tum")
     rows = []
     for method in ("mcl", "match"):
         out = work / f"fr079-{method}"
         rec = localize(work / "fr079-karto", work / "fr079-2.log", out, method)
         ate = ate_in_frame(out / "trajectory.tum", ref, frame) if rec["localized"] else float("nan")
-        err, k = against_reference(out / "trajectory.tum")
-        nearest = np.argmin(np.hypot(rp[k, 0][:, None] - rp[kk, 0][None], rp[k, 1][:, None] - rp[kk, 1][None]), axis=1)
-        floor = float(np.sqrt(np.mean(karto_err[nearest] ** 2)))
+        err = np.hypot(*errors_at(out / "trajectory.tum", ref, frame)[0].T)
+        # the reference is one trajectory through both halves, so it is the truth for the map run and the localizer
+        floor = map_error_floor(work / "fr079-karto", ref, out / "trajectory.tum", ref, frame)
         rows.append(f"| fr079 (2nd half) | karto map of the 1st half | `{method}` | "
                     f"{100 * rec['first_localized']['fraction_of_scans']:.0f} % | {ate:.3f} m (median {np.median(err):.3f} m, "
                     f"{100 * np.mean(err < 0.3):.0f} % within 0.3 m; the map's own error there {floor:.3f} m; "
@@ -260,7 +272,9 @@ def main() -> int:
              "targets from issue 34: ATE < 0.05 m after convergence, localized within the first 20 % of the scans, "
              "< 10 ms (mcl) / < 5 ms (match) CPU per scan, found again within 50 scans of a kidnapping; fr079 < 0.10 m. "
              "Drive 2 of each world starts half-way along the path and drives it backwards (seed 2); its map is karto's "
-             "(defaults) of drive 1 (seed 1), or the world's true map. ATE in the map's frame as drive 1 fixes it.")
+             "(defaults) of drive 1 (seed 1), or the world's true map. ATE in the map's frame as drive 1 fixes it. "
+             "The map's own error there (drive 1's RMS error at its poses nearest drive 2's) is what a localizer "
+             "that agrees with the map perfectly would score.")
     rows += ["", "Continue mapping (`slam2d run METHOD DRIVE2 --resume DRIVE1_RUN`, defaults, no initial pose): scans of drive 2 "
              "before it was placed in drive 1's map, drive 2's ATE in drive 1's frame, and the map error (mean "
              "distance from a true wall cell to the map's nearest) of drive 1's map and of the joined map (target: "
