@@ -15,6 +15,7 @@ from slam2d.graph.frontend import GraphFrontend
 from slam2d.graph.params import GraphSlamParams
 from slam2d.matching.correlative import MatchResult
 from slam2d.matching.grid_cache import GridCache
+from slam2d.matching.scan_matcher import ScanMatcher
 from tests.test_matching_bound import _walls
 
 
@@ -49,13 +50,13 @@ def test_hot_near_chains_get_the_bound_first_outcome(monkeypatch, office_frames)
     original = GraphFrontend._near_outcome
     seen = {"hot": 0, "hot_low": 0}
 
-    def checked(self, entry, points, pose, lo, hi, hot):
-        got = original(self, entry, points, pose, lo, hi, hot)
+    def checked(self, grid, points, pose, hot):
+        got = original(self, grid, points, pose, hot)
         if hot:
-            # The bound-first order on the same entry (counters off: the run's own are checked below).
+            # The bound-first order on the same grid (counters off: the run's own are checked below).
             diagnostics, self.diagnostics = self.diagnostics, None
             try:
-                want = original(self, entry, points, pose, lo, hi, False)
+                want = original(self, grid, points, pose, False)
             finally:
                 self.diagnostics = diagnostics
             assert _same(got, want, self.params.link_match_minimum_response_fine)
@@ -73,7 +74,7 @@ def test_hot_near_chains_leave_the_trajectory_bit_for_bit(monkeypatch, office_fr
     fast = _run(office_frames)
     original = GraphFrontend._near_outcome
     monkeypatch.setattr(GraphFrontend, "_near_outcome",
-                        lambda self, entry, points, pose, lo, hi, hot: original(self, entry, points, pose, lo, hi, False))
+                        lambda self, grid, points, pose, hot: original(self, grid, points, pose, False))
     slow = _run(office_frames)
     t_fast, p_fast = fast.trajectory()
     t_slow, p_slow = slow.trajectory()
@@ -111,10 +112,10 @@ def test_near_outcome_is_the_same_in_either_order_in_every_branch():
             outcomes = []
             for hot in (False, True):
                 fe = GraphFrontend(GraphSlamParams(link_match_minimum_response_fine=link))
-                fe._seq_cache = GridCache(fe.sequential, lambda i: (world, sig))
+                fe.seq_matcher = ScanMatcher(fe.sequential, lambda i: (world, sig))
                 lo, hi = fe.sequential.search_box(q, prior)
-                entry = fe._seq_cache.reserve([0], lo, hi)
-                outcomes.append(fe._near_outcome(entry, q, prior, lo, hi, hot))
+                grid = fe.seq_matcher.reserve([0], lo, hi)
+                outcomes.append(fe._near_outcome(grid, q, prior, hot))
             cold, hot_out = outcomes
             assert _same(cold, hot_out, link), (seed, link)
             effect = _effect(cold, link)
@@ -217,9 +218,9 @@ def test_near_chains_over_a_narrower_heading_window(monkeypatch, office_frames):
     seen = []
     original = GraphFrontend._near_outcome
 
-    def checked(self, entry, points, pose, lo, hi, hot):
+    def checked(self, grid, points, pose, hot):
         seen.append((self.near.coarse_angle_offset, self.sequential.coarse_angle_offset))
-        return original(self, entry, points, pose, lo, hi, hot)
+        return original(self, grid, points, pose, hot)
 
     monkeypatch.setattr(GraphFrontend, "_near_outcome", checked)
     slam = method(method.Params(near_chain_angle_offset=narrow), seed=0).run(office_frames)

@@ -126,7 +126,7 @@ def _estimate_with(drop, **settings):
     match = MatchResult(pose=np.array([1.0, 0.0, math.radians(6.0)]), covariance=np.diag([1e-4, 1e-4, 1e-4]),
                         response=0.7, raw_response=0.7, evaluated=0, heading_variance_coarse=math.radians(5.0) ** 2,
                         prior_heading_drop=drop)
-    fe._match = lambda *a, **k: dataclasses.replace(match)
+    fe.seq_matcher.match = lambda *a, **k: dataclasses.replace(match)
     pose, _, _ = fe._sequential_estimate(np.zeros((5, 2)), predicted)
     return pose
 

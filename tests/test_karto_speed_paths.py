@@ -132,8 +132,8 @@ def test_compiled_point_transforms_equal_transform_points():
 
 
 def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
-    """kernels' _smear_sigmas against CorrelativeMatcher.sigmas_for plus _scan_points' numpy gap share."""
-    from slam2d.graph.kernels import _smear_sigmas
+    """The compiled reference sigmas (CorrelativeMatcher.reference_sigmas, sigmas_for) against their numpy
+    arithmetic: the smear and the range sigma in quadrature, clipped, then the beam-gap share in quadrature."""
 
     rng = np.random.default_rng(13)
     for trial in range(200):
@@ -148,13 +148,18 @@ def test_compiled_smear_sigmas_equal_sigmas_for_and_the_gap_share():
         use = rng.random(n) < 0.8
         spacing = float(rng.choice([0.0, 0.5, 1.0]))
         inc = float(rng.uniform(0.001, 0.02))
-        with np.errstate(over="ignore"):  # an infinite sigma becomes the largest float in sigmas_for, then squared
-            want = m.sigmas_for(sig[use], int(use.sum()))
+        with np.errstate(over="ignore"):  # an infinite sigma becomes the largest float, then squared
+            b = np.nan_to_num(sig[use], nan=0.0)
+            base = np.full(b.shape[0], m.smear_deviation)
+            want = np.clip(np.sqrt(base * base + b * b), 0.5 * res, 10.0 * res)
+        assert np.array_equal(m.sigmas_for(sig[use], int(use.sum())), want)
         if spacing > 0:
             gap = spacing * ranges[use] * abs(inc)
             want = np.minimum(np.sqrt(want * want + gap * gap), 10.0 * res)
-        got = _smear_sigmas(float(m.smear_deviation), sig, use, ranges, spacing, abs(inc), 0.5 * res, 10.0 * res)
+        got = m.reference_sigmas(sig, use, ranges, spacing, -inc if trial % 2 else inc)
         assert np.array_equal(got, want)
+    m = CorrelativeMatcher(resolution=0.01, smear_deviation=0.03)
+    assert np.array_equal(m.sigmas_for(None, 5), np.full(5, 0.03))  # no range sigma: the smear itself
 
 
 def test_reference_positions_updated_row_by_row_are_the_whole_transform():

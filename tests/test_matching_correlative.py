@@ -363,6 +363,39 @@ def test_grid_cache_reserve_looser_superset_on_request():
     assert g.shape == fresh.shape and np.array_equal(g, fresh)
 
 
+def test_scan_matcher_matches_as_the_matcher_on_the_nodes_points():
+    """ScanMatcher: a match against nodes' scans (through its grids or not, in another window too), a reserved grid's
+    match and bound, and its counters, as the matcher and its bound on the nodes' points give them."""
+    from slam2d.matching.scan_matcher import ScanMatcher
+
+    m = CorrelativeMatcher()
+    parts = [ROOM[i::4] for i in range(4)]
+    sig = [np.full(len(p), 0.03) for p in parts]
+    box = ScanMatcher(m, lambda i: (parts[i], sig[i]))
+    prior = np.array([0.05, -0.04, 0.03])
+    for window in (None, m.with_window(0.2)):
+        w = window or m
+        direct = w.match(np.vstack(parts), np.concatenate(sig), ROOM, prior, penalize=False)
+        got = box.match([0, 1, 2, 3], ROOM, prior, window=window, penalize=False, refine=True)
+        assert np.array_equal(direct.pose, got.pose) and direct.response == got.response
+        got = box.match_uncached([0, 1, 2, 3], ROOM, prior, window=window, penalize=False, refine=True)
+        assert np.array_equal(direct.pose, got.pose) and direct.response == got.response
+    assert box.stats()["builds"] == 1 and box.stats()["draws"] == 1  # (the uncached grids are not kept)
+    grid = box.reserve([0, 1], *m.search_box(ROOM, prior), max_extra=0)  # not the grid of all four
+    assert not grid.drawn and box.stats()["builds"] == 2 and box.stats()["draws"] == 1
+    bound = grid.bound(ROOM, prior)
+    assert not grid.drawn and 0.0 < bound <= 1.0
+    smeared = box.points_smeared
+    got = grid.match(ROOM, prior, penalize=True, refine=True)
+    assert grid.drawn and box.points_smeared > smeared and got.response <= bound
+    direct = m.match(np.vstack(parts[:2]), np.concatenate(sig[:2]), ROOM, prior)
+    assert np.array_equal(direct.pose, got.pose) and direct.response == got.response
+    box.invalidate()
+    box.match([0, 1], ROOM, prior, penalize=True, refine=True)
+    assert box.stats()["builds"] == 3
+    box.release()
+
+
 def test_coarse_search_point_order_does_not_change_the_match():
     """The coarse search's integer sums do not depend on the points' order (its chunks are interleaved
     for pruning): any order of the query gives the same match bit for bit."""

@@ -135,8 +135,10 @@ def _count_matches(kinds) -> None:
 
         def wrapped(self, *a, _original=original, _name=name, **k):
             frame = sys._getframe(1)
+            if frame.f_code.co_filename.endswith("scan_matcher.py"):
+                frame = frame.f_back  # a ScanMatcher's method: its caller tells the kind
             kind = f"{_name} <- {frame.f_code.co_name}"
-            if frame.f_code.co_name in ("_match", "_seeded_match"):
+            if frame.f_code.co_name == "_seeded_match":
                 kind += f" <- {frame.f_back.f_code.co_name}"
             c0 = time.process_time()
             result = _original(self, *a, **k)
@@ -275,8 +277,8 @@ def _record_near_links(headings) -> None:
 
     original = GraphFrontend._near_outcome
 
-    def wrapped(self, entry, points, pose, lo, hi, hot):
-        out = original(self, entry, points, pose, lo, hi, hot)
+    def wrapped(self, grid, points, pose, hot):
+        out = original(self, grid, points, pose, hot)
         if not (out is None or isinstance(out, str)) and out.response > self.params.link_match_minimum_response_fine:
             headings.append(math.degrees(math.remainder(float(out.pose[2] - pose[2]), 2.0 * math.pi)))
         return out

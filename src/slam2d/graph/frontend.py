@@ -49,7 +49,8 @@ parts of :class:`GraphFrontend`: :mod:`~slam2d.graph.sequential` (1-3, and the e
 running scans), :mod:`~slam2d.graph.near_chains` (the near chains of 4),
 :mod:`~slam2d.graph.loop_closing` (5), :mod:`~slam2d.graph.nodes` (the nodes' points, positions
 and edges) and :mod:`~slam2d.graph.kernels` (their compiled helpers). The parameters are
-:class:`~slam2d.graph.params.GraphSlamParams`.
+:class:`~slam2d.graph.params.GraphSlamParams`. Every match against the nodes' scans goes through a
+:class:`~slam2d.matching.scan_matcher.ScanMatcher`, which keeps the correlation grids.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ from slam2d.core.arrays import grown
 from slam2d.core.frames import Frame
 from slam2d.grids.occupancy import GridParams, OccupancyGrid
 from slam2d.matching.correlative import CorrelativeMatcher
-from slam2d.matching.grid_cache import GridCache
+from slam2d.matching.scan_matcher import ScanMatcher
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks
 from slam2d.graph.wall_refinement import refine_path
@@ -126,8 +127,11 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         if p.near_chain_angle_offset > 0:
             self.near.coarse_angle_offset = p.near_chain_angle_offset
         self.backend = get_backend(p.backend)
-        self._seq_cache = GridCache(self.sequential, self._node_reference, max_entries=p.grid_cache_entries)
-        self._loop_cache = GridCache(self.loop, self._node_reference)
+        # The matches against the nodes' scans, each with the grids it keeps: the 1 cm grids serve
+        # the sequential matches, the near chains and the loop closures' fine step; the loop's coarse
+        # window has grids of its own.
+        self.seq_matcher = ScanMatcher(self.sequential, self._node_reference, max_entries=p.grid_cache_entries)
+        self.loop_matcher = ScanMatcher(self.loop, self._node_reference)
         self.graph = PoseGraph()
         # Per node: points (base frame), their range sigmas, odometry, time, base-frame barycentre.
         self._points: list[NDArray[np.float64]] = []
@@ -387,8 +391,8 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         else:
             self._count("optimizer_failures")
         self._world = [None] * len(self._world)
-        self._seq_cache.invalidate(self._moved_nodes(before, self.graph.poses))
-        self._loop_cache.invalidate()
+        self.seq_matcher.invalidate(self._moved_nodes(before, self.graph.poses))
+        self.loop_matcher.invalidate()
         self._tried.clear()
         self._near_failed.clear()
         self._near_between.clear()
@@ -468,20 +472,21 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
 
     def release_caches(self) -> None:
         """Drop the correlation grids kept between matches (the run is over; they are rebuilt if it goes on)."""
-        self._seq_cache.release()
-        self._loop_cache.release()
+        self.seq_matcher.release()
+        self.loop_matcher.release()
 
     def summary(self) -> Mapping[str, Any]:
+        seq, loop = self.seq_matcher.stats(), self.loop_matcher.stats()
         return {
             "nodes": self.graph.num_nodes,
             "edges": self.graph.num_edges,
             "loop_closures": [c.as_dict() for c in self.loop_closures],
             "loop_attempts": list(self.loop_attempts),
             "optimizations": list(self.optimizations),
-            "grid_builds": {"sequential": self._seq_cache.builds, "loop": self._loop_cache.builds},
-            "grid_extensions": {"sequential": self._seq_cache.extensions, "loop": self._loop_cache.extensions},
+            "grid_builds": {"sequential": seq["builds"], "loop": loop["builds"]},
+            "grid_extensions": {"sequential": seq["extensions"], "loop": loop["extensions"]},
             # Grids actually drawn (a build whose near chain the response bound skipped may never be).
-            "grid_draws": {"sequential": self._seq_cache.draws, "loop": self._loop_cache.draws},
-            "grid_points_smeared": {"sequential": self._seq_cache.smeared, "loop": self._loop_cache.smeared},
-            "grid_kept": self._seq_cache.kept,
+            "grid_draws": {"sequential": seq["draws"], "loop": loop["draws"]},
+            "grid_points_smeared": {"sequential": seq["smeared"], "loop": loop["smeared"]},
+            "grid_kept": seq["kept"],
         }

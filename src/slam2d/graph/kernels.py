@@ -6,8 +6,6 @@ the same arithmetic in the same order, so the results are bit for bit those of t
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
 from numba import njit
@@ -235,35 +233,3 @@ def _beam_points(x0, y0, c, s, ranges, cos, sin, use):
             out[m, 1] = y0 + s * px + c * py
             m += 1
     return out
-
-
-@njit(cache=True)
-def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
-    """CorrelativeMatcher.sigmas_for(sig[use]) then, with ``spacing`` > 0, the beam-gap share of
-    GraphFrontend._scan_points, per beam in ``use``: the same operations in the same order."""
-    n = 0
-    for k in range(use.shape[0]):
-        if use[k]:
-            n += 1
-    out = np.empty(n)
-    m = 0
-    big = 1.7976931348623157e308  # np.nan_to_num's stand-in for an infinite sigma
-    for k in range(use.shape[0]):
-        if not use[k]:
-            continue
-        b = sig[k]
-        if np.isnan(b):
-            b = 0.0
-        elif b == np.inf:
-            b = big
-        elif b == -np.inf:
-            b = -big
-        v = math.sqrt(smear * smear + b * b)
-        v = min(max(v, lo), hi)
-        if spacing > 0:
-            gap = spacing * ranges[k] * increment
-            v = min(math.sqrt(v * v + gap * gap), hi)
-        out[m] = v
-        m += 1
-    return out
-

@@ -105,8 +105,8 @@ class LoopClosing:
             # branch and bound must keep scoring poses that far below the threshold.
             floor = min(coarse_threshold, p.loop_match_minimum_response_confirmed)
             floor -= _REFINE_GAIN if p.loop_coarse_refine else 0.0
-            coarse = self._match(matcher, self._loop_cache, chain, points, pose, penalize=False,
-                                 refine=p.loop_coarse_refine, min_response=floor)
+            coarse = self.loop_matcher.match(chain, points, pose, window=matcher, penalize=False,
+                                             refine=p.loop_coarse_refine, min_response=floor)
             self._count("loop_attempts")
             correction = float(np.hypot(*(coarse.pose[:2] - pose[:2])))
             attempt = {"to": node, "chain": [a, b], "response_coarse": coarse.response,
@@ -160,7 +160,7 @@ class LoopClosing:
                 if ambiguous:
                     self._count("loop_ambiguous")
                     attempt["ambiguous"] = True
-            fine = self._match(self.sequential, self._seq_cache, chain, points, coarse.pose, penalize=False, refine=True)
+            fine = self.seq_matcher.match(chain, points, coarse.pose, penalize=False, refine=True)
             attempt["response_fine"] = fine.response
             strong = strong and fine.response >= p.loop_match_minimum_response_fine
             if not strong and fine.response < p.loop_match_minimum_response_confirmed:
@@ -228,12 +228,11 @@ class LoopClosing:
         near the first one. Returns (match, spread in m^2, the coarse surface's covariance
         about a pose: ``places(about=True)``).
         """
-        grid = self._loop_cache.get(chain, *matcher.search_box(points, pose))
         band = COVARIANCE_BAND
         places = [(coarse.pose, coarse.response)]
         if floor is None:
             floor = coarse.response - band - _REFINE_GAIN
-        found, surface_cov = matcher.places(points, pose, grid, floor=floor, about=True)
+        found, surface_cov = self.loop_matcher.places(chain, points, pose, window=matcher, floor=floor)
         for q_pose, q_resp in found:
             if float(np.hypot(*(q_pose[:2] - pose[:2]))) <= allowed:
                 places.append((q_pose, q_resp))

@@ -11,6 +11,7 @@ holds the state it reads and writes.
 
 from __future__ import annotations
 
+from slam2d.matching.scan_matcher import ChainGrid
 from slam2d.graph.kernels import _runs_counted
 
 __all__ = ["NearChainLinking"]
@@ -42,16 +43,16 @@ class NearChainLinking:
                 self._count("near_skipped_retry")
                 continue
             chain = range(a, b)  # a list only where it links (reserve reads a range's ends directly)
-            # The cache's book-keeping is done whatever happens, so later matches read the grids
-            # they would have (see GridCache.reserve).
-            entry = self._seq_cache.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
+            # Reserved whatever happens next, so later matches read the grids they would have
+            # (see ScanMatcher.reserve).
+            grid = self.seq_matcher.reserve(chain, lo, hi, max_extra=p.near_chain_grid_extra)
             # Hot: like a chain that responded well from the last node, its grid already drawn (a first
             # draw costs more than the bound it would spare).
-            warm = self._seq_cache.has_grid(entry) and any(ha < b and a < hb for ha, hb in hot)
+            warm = grid.drawn and any(ha < b and a < hb for ha, hb in hot)
             if not warm and self._tried_nearby(a, b, pose, p.near_bound_retry_distance, self._near_between):
                 self._count("near_skipped_between_retry")
                 continue
-            outcome = self._near_outcome(entry, points, pose, lo, hi, warm)
+            outcome = self._near_outcome(grid, points, pose, warm)
             if outcome is None:
                 if p.near_bound_retry_distance > 0:
                     self._near_between.append((a, b, float(pose[0]), float(pose[1])))
@@ -74,8 +75,9 @@ class NearChainLinking:
                 count += 1
         return count
 
-    def _near_outcome(self, entry: dict, points, pose, lo, hi, hot: bool):
-        """A near chain's match (a MatchResult), "failed" (record it), or None (not linked, not failed).
+    def _near_outcome(self, grid: ChainGrid, points, pose, hot: bool):
+        """A near chain's match on its reserved ``grid`` (a MatchResult), "failed" (record it), or None (not
+        linked, not failed).
 
         The response bound (no 1 cm grid needed) tells most chains that cannot link apart
         without drawing or searching: below the failure mark (half the link threshold) the
@@ -89,7 +91,7 @@ class NearChainLinking:
         fail = 0.5 * link
         bound = None
         if not hot:
-            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail, matcher=self.near)
+            bound = grid.bound(points, pose, window=self.near, stop=link, mark=fail)
             if bound < fail:
                 self._count("near_skipped_bound")
                 return "failed"
@@ -98,16 +100,15 @@ class NearChainLinking:
                 # failed: it is tried again from the next pose, as a match that nearly linked is.
                 self._count("near_skipped_bound_link")
                 return None
-        smeared = self._seq_cache.smeared
-        grid = self._seq_cache.materialize(entry, lo, hi)
-        self._count("near_points_smeared", self._seq_cache.smeared - smeared)
-        result = self.near.match(None, None, points, pose, penalize=False, refine=True, grid=grid)
+        smeared = self.seq_matcher.points_smeared
+        result = grid.match(points, pose, window=self.near, penalize=False, refine=True)
+        self._count("near_points_smeared", self.seq_matcher.points_smeared - smeared)
         if result.response >= fail:
             return result
         if bound is None:
             # Bound-first would not have matched a chain bounded in [fail, link), nor failed it.
             self._count("near_matched_before_bound")
-            bound = self._seq_cache.bound(entry, points, pose, stop=link, mark=fail, matcher=self.near)
+            bound = grid.bound(points, pose, window=self.near, stop=link, mark=fail)
             if fail <= bound < link:
                 self._count("near_skipped_bound_link")
                 return None

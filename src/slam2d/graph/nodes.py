@@ -12,10 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slam2d.core import se2
-from slam2d.matching.correlative import CorrelativeMatcher
-from slam2d.matching.grid_cache import GridCache
 from slam2d.graph.kernels import (_beam_points, _closest_row, _edge_between, _equal_rows, _reachable,
-    _smear_sigmas, _transform_rows, _transform_xy, _within)
+    _transform_rows, _transform_xy, _within)
 
 __all__ = ["NodeStore"]
 
@@ -46,18 +44,8 @@ class NodeStore:
             points = se2.transform_points(scan.mount, np.stack([r * cos[use], r * sin[use]], axis=-1))
         if sig is None:
             return points, None
-        m = self.sequential
-        if type(m).sigmas_for is CorrelativeMatcher.sigmas_for and sig.dtype == scan.ranges.dtype == np.float64:
-            # sigmas_for and the beam-gap share below in one compiled pass (the same arithmetic).
-            sigmas = _smear_sigmas(float(m.smear_deviation), sig, use, scan.ranges, float(p.smear_beam_spacing),
-                                   abs(float(scan.angle_increment)), *m.sigma_limits)
-            return points, sigmas
-        sigmas = self.sequential.sigmas_for(sig[use], int(use.sum()))
-        if p.smear_beam_spacing > 0:
-            # A reference point stands for the stretch of wall between it and its neighbours'
-            # beams: smear it by a share of that gap (range times the beam spacing), in quadrature.
-            gap = p.smear_beam_spacing * scan.ranges[use] * abs(float(scan.angle_increment))
-            sigmas = np.minimum(np.sqrt(sigmas * sigmas + gap * gap), self.sequential.sigma_limits[1])
+        # The range sigmas widened by a share of the beam gap (a point stands for its stretch of wall).
+        sigmas = self.sequential.reference_sigmas(sig, use, scan.ranges, p.smear_beam_spacing, scan.angle_increment)
         return points, sigmas
 
     def _beam_directions(self, scan) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -151,13 +139,6 @@ class NodeStore:
         return float(np.hypot(*np.diff(xy, axis=0).T).sum()) if j > i else 0.0
 
     # ----------------------------------------------------------------- matches and edges
-
-    def _match(self, matcher: CorrelativeMatcher, cache: GridCache, nodes, points, prior, *, penalize, refine,
-               min_response=-1.0):
-        """Match the query points at ``prior`` against the nodes' scans, through the grid cache."""
-        grid = cache.get(nodes, *matcher.search_box(points, prior))
-        return matcher.match(None, None, points, prior, penalize=penalize, refine=refine, grid=grid,
-                             min_response=min_response)
 
     def _match_information(self, covariance: NDArray[np.float64]) -> NDArray[np.float64]:
         """The information a scan-match edge gets from its covariance (scaled by match_covariance_scale)."""

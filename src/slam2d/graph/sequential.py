@@ -148,8 +148,8 @@ class SequentialMatching:
         if seed is not None and p.seeded_search_window > 0:
             result = self._seeded_match(matcher, points, predicted, seed, last_response)
         else:
-            result = self._match(matcher, self._seq_cache, self._running, points, predicted, penalize=True,
-                                 refine=True)
+            result = self.seq_matcher.match(self._running, points, predicted, window=matcher, penalize=True,
+                                            refine=True)
         recovered = False
         if values is not None:
             result, recovered = self._recover_sequential(result, points, predicted, values, last_response)
@@ -177,16 +177,16 @@ class SequentialMatching:
         surface).
         """
         p = self.params
-        grid = self._seq_cache.get(self._running, *matcher.search_box(points, predicted))
         half = int(round(0.5 * p.seeded_search_window / (2.0 * matcher.resolution)))
         steps = int(round(p.seeded_search_angle / matcher.coarse_angle_resolution))
-        near = matcher.match_near(points, predicted, seed, grid, half_steps=half, angle_steps=steps)
+        near = self.seq_matcher.match_near(self._running, points, predicted, seed, window=matcher, half_steps=half,
+                                           angle_steps=steps)
         if (near is not None and near.raw_response >= last_response - p.seeded_search_drop
                 and not (p.odometry_fusion and near.heading_variance_coarse > ODOMETRY_SIGMA_THETA**2)):
             self._count("seeded_matches")
             return near
         self._count("seeded_matches_searched_whole")
-        return matcher.match(None, None, points, predicted, penalize=True, refine=True, grid=grid)
+        return self.seq_matcher.match(self._running, points, predicted, window=matcher, penalize=True, refine=True)
 
     def _recover_sequential(self, result, points, predicted, values, last_response=math.nan):
         """Search a sequential match again over the wide recovery window when it is stuck or weak.
@@ -218,11 +218,9 @@ class SequentialMatching:
         # build, and the cached 1 cm grids stay as they were), then the usual 1 cm match there.
         wide = self.loop.with_window(p.sequential_recovery_window)
         wide.coarse_angle_offset = max(wide.coarse_angle_offset, p.sequential_recovery_angle)
-        parts = [self._node_reference(n) for n in self._running]
-        ref, sig = np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
-        grid = wide.correlation_grid(ref, sig, *wide.search_box(points, predicted))
-        coarse = wide.match(None, None, points, predicted, penalize=False, refine=True, grid=grid)
-        alt = self._match(m, self._seq_cache, self._running, points, coarse.pose, penalize=False, refine=True)
+        coarse = self.loop_matcher.match_uncached(self._running, points, predicted, window=wide, penalize=False,
+                                                  refine=True)
+        alt = self.seq_matcher.match(self._running, points, coarse.pose, penalize=False, refine=True)
         # It must fit clearly better, and not be a weak match itself (a 0.4 match 1 m away
         # on intel was a wrong one). "Better" is a share of the first match's misfit: a wider
         # smear (smear_beam_spacing) lifts every response towards 1 and shrinks differences in

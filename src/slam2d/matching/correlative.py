@@ -45,7 +45,8 @@ thirds of the lookups on real scans.
 This module holds the matcher (:class:`CorrelativeMatcher`); its compiled search kernels are in
 :mod:`slam2d.matching.correlative_search`, the grid drawing (the smear, row bands on threads) in
 :mod:`slam2d.matching.correlative_grid`, and the grids kept between matches in
-:mod:`slam2d.matching.grid_cache`.
+:mod:`slam2d.matching.grid_cache`, which :class:`~slam2d.matching.scan_matcher.ScanMatcher` (a
+matcher with its grids, what the graph front end calls) keeps to itself.
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCALE, _smear, smear_points, _split,
-    _THREADS)
+from slam2d.matching.correlative_grid import (_inside, _PIECES_PER_THREAD, _SCALE, _smear, _smear_sigmas, smear_points,
+    _split, _THREADS)
 from slam2d.matching.correlative_search import (_along_extent, _band_on_part_edge, _BLOCK, _block_bounds,
     _BNB_MIN_STEPS, _BOUND_BLOCK, _bound_levels, _bound_over, _BOUND_SPLITS, _bound_table, _COVARIANCE_BAND,
     _fine_stage, _finish_search, _heading_spread, _interleaved, _max_pool, MAX_VARIANCE, _PARALLEL_BOUND, _peaks,
@@ -170,15 +171,24 @@ class CorrelativeMatcher:
     # ----------------------------------------------------------------- pieces
 
     def sigmas_for(self, beam_sigma: NDArray[np.float64] | None, n: int) -> NDArray[np.float64]:
-        """Smear sigma per reference point: the smear combined with the beam's own range sigma.
+        """Smear sigma per reference point: the smear combined with the beam's own range sigma (None: none).
 
         Clamped to Karto's allowed [0.5, 10] cells so the kernel stays resolvable.
         """
-        base = np.full(n, self.smear_deviation)
-        if beam_sigma is not None:
-            b = np.nan_to_num(np.asarray(beam_sigma, dtype=np.float64), nan=0.0)
-            base = np.sqrt(base * base + b * b)
-        return np.clip(base, *self.sigma_limits)
+        # (Without a range sigma: sqrt(smear^2 + 0) is the smear itself, exactly.)
+        sig = np.zeros(n) if beam_sigma is None else np.asarray(beam_sigma, dtype=np.float64)
+        return self.reference_sigmas(sig, np.ones(n, dtype=np.bool_), sig, 0.0, 0.0)
+
+    def reference_sigmas(self, beam_sigma: NDArray[np.float64], use: NDArray[np.bool_], ranges: NDArray[np.float64],
+                         gap_share: float, increment: float) -> NDArray[np.float64]:
+        """Smear sigma of a scan's reference points, one per beam in ``use``: :meth:`sigmas_for` of their range
+        sigmas, then with ``gap_share`` > 0 widened in quadrature by that share of the beam gap (range times
+        ``increment``), at most 10 cells: a point stands for the stretch of wall between it and its
+        neighbours' beams. In one compiled pass (:func:`_smear_sigmas`)."""
+        lo, hi = self.sigma_limits
+        return _smear_sigmas(self.smear_deviation, np.ascontiguousarray(beam_sigma, dtype=np.float64),
+                             np.asarray(use, dtype=np.bool_), np.ascontiguousarray(ranges, dtype=np.float64),
+                             float(gap_share), abs(float(increment)), lo, hi)
 
     @property
     def sigma_limits(self) -> tuple[float, float]:
@@ -228,7 +238,7 @@ class CorrelativeMatcher:
         grid); a grid that will be extended later (:class:`~slam2d.matching.grid_cache.GridCache`) keeps it.
         """
         res = self.resolution
-        margin = 2.0 * float(ref_sigmas.max(initial=self.smear_deviation)) + 2.0 * res
+        margin = self.smear_reach(float(ref_sigmas.max(initial=self.smear_deviation)))
         lo = np.asarray(lo, dtype=np.float64).copy()
         hi = np.asarray(hi, dtype=np.float64).copy()
         if ref_points.shape[0]:
@@ -249,6 +259,11 @@ class CorrelativeMatcher:
             _smear(grid, float(origin[0]), float(origin[1]), res, px, py,
                                np.ascontiguousarray(ref_sigmas, dtype=np.float64), _uniform(ref_sigmas) is not None)
         return grid, float(origin[0]), float(origin[1])
+
+    def smear_reach(self, sigma: float) -> float:
+        """How far (m) from a reference point its smear of ``sigma`` can reach a grid cell: the kernel's
+        half-width (2 sigma) and two cells for the rounding of the point and the kernel to cells."""
+        return 2.0 * sigma + 2.0 * self.resolution
 
     def _geometry(self, lo, hi) -> tuple[float, float, int, int]:
         res = self.resolution

@@ -298,6 +298,40 @@ def _smear(grid, origin_x, origin_y, resolution, px, py, sigma, skip_drawn) -> N
 
 
 @njit(cache=True)
+def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
+    """The smear sigma of each beam in ``use`` (see :meth:`CorrelativeMatcher.reference_sigmas`): ``smear`` and
+    the beam's range sigma ``sig`` (NaN: none; inf: the largest float, as np.nan_to_num gives) in quadrature,
+    clamped to [lo, hi]; with ``spacing`` > 0 then ``spacing * ranges * increment`` (the share of the beam gap)
+    added in quadrature, clamped to ``hi``."""
+    n = 0
+    for k in range(use.shape[0]):
+        if use[k]:
+            n += 1
+    out = np.empty(n)
+    m = 0
+    big = 1.7976931348623157e308  # np.nan_to_num's stand-in for an infinite sigma
+    for k in range(use.shape[0]):
+        if not use[k]:
+            continue
+        b = sig[k]
+        if np.isnan(b):
+            b = 0.0
+        elif b == np.inf:
+            b = big
+        elif b == -np.inf:
+            b = -big
+        v = math.sqrt(smear * smear + b * b)
+        v = min(max(v, lo), hi)
+        if spacing > 0:
+            gap = spacing * ranges[k] * increment
+            v = min(math.sqrt(v * v + gap * gap), hi)
+        out[m] = v
+        m += 1
+    return out
+
+
+
+@njit(cache=True)
 def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
     """Indices of the points inside the box."""
     out = np.empty(px.shape[0], np.int64)

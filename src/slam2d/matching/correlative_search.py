@@ -412,7 +412,7 @@ def _node_blocks(px, py, sigma_max, resolution, block):
 
 @njit(cache=True)
 def _boxes_extent(box, idx):
-    """(min x, min y, max x, max y, max reach) over the rows ``idx`` of :func:`_node_stats` boxes (idx not empty)."""
+    """(min x, min y, max x, max y, max sigma) over the rows ``idx`` of :func:`_node_stats` boxes (idx not empty)."""
     out = np.empty(5)
     k = idx[0]
     out[0] = box[k, 0]
@@ -451,7 +451,7 @@ def _boxes_sigma(box, idx):
 
 @njit(cache=True)
 def _node_stats(pts, sig, out):
-    """out = (min x, min y, max x, max y, 2 max sigma, the one sigma or NaN); a scan without points:
+    """out = (min x, min y, max x, max y, max sigma, the one sigma or NaN); a scan without points:
     (inf, inf, -inf, -inf, 0, inf)."""
     n = pts.shape[0]
     if n == 0:
@@ -473,7 +473,7 @@ def _node_stats(pts, sig, out):
     out[1] = lo_y
     out[2] = hi_x
     out[3] = hi_y
-    out[4] = 2.0 * s_hi
+    out[4] = s_hi
     out[5] = s_lo if s_lo == s_hi else np.nan
 
 

@@ -1,4 +1,7 @@
-"""Correlation grids kept between matches (:class:`GridCache`), extended scan by scan instead of rebuilt."""
+"""Correlation grids kept between matches (:class:`GridCache`), extended scan by scan instead of rebuilt.
+
+Its user is :class:`~slam2d.matching.scan_matcher.ScanMatcher`, which keeps its entries to itself.
+"""
 
 from __future__ import annotations
 
@@ -58,7 +61,8 @@ class GridCache:
         self.max_entries = int(max_entries)
         self.draw_margin = 1.0  # m drawn beyond a request's box (see materialize)
         self._entries: list[dict] = []
-        # Per node: bounding box (lo x, lo y, hi x, hi y) of its points and 2 sigma of its widest smear.
+        # Per node: bounding box (lo x, lo y, hi x, hi y) of its points, its widest smear's sigma and its one sigma
+        # (see _node_stats).
         self._box = np.zeros((0, 6))
         self._known = np.zeros(0, dtype=bool)
         # Each node's share of a bound grid (see bound()), its blocks' rows, columns and values in
@@ -110,16 +114,16 @@ class GridCache:
         self._keep_blocks(~moved)
 
     def _extent(self, nodes) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
-        """Bounding box of the nodes' points and their largest smear reach (2 sigma + 2 cells)."""
+        """Bounding box of the nodes' points and their largest smear reach (:meth:`CorrelativeMatcher.smear_reach`)."""
         if len(nodes) == 1 and isinstance(nodes, list):
             # One node (a kept scan joining an entry): its own box, without the reductions below.
             n = int(nodes[0])
             if n < self._known.size and self._known[n]:
                 b = self._box[n]
-                return b[:2].copy(), b[2:4].copy(), float(b[4]) + 2.0 * self.matcher.resolution
+                return b[:2].copy(), b[2:4].copy(), self.matcher.smear_reach(float(b[4]))
         idx = np.asarray(nodes, dtype=np.int64)
         if idx.size == 0:
-            return np.full(2, np.inf), np.full(2, -np.inf), 2.0 * self.matcher.resolution
+            return np.full(2, np.inf), np.full(2, -np.inf), self.matcher.smear_reach(0.0)
         top, unknown = _unknown_nodes(self._known, idx)  # idx.max() + 1, and the nodes without a box yet
         if top > self._known.size:
             self._known = grown(self._known, top)
@@ -131,7 +135,7 @@ class GridCache:
             self._known[n] = True
         # One compiled pass over the nodes' boxes (min and max are exact in any order).
         out = _boxes_extent(self._box, idx)
-        return out[0:2], out[2:4], float(out[4]) + 2.0 * self.matcher.resolution
+        return out[0:2], out[2:4], self.matcher.smear_reach(float(out[4]))
 
     def _sigma_of(self, nodes) -> float | None:
         """The one sigma of every point of these nodes (as :func:`_uniform` of their sigmas; after :meth:`_extent`)."""
