@@ -119,13 +119,13 @@ def refine_on_field(field, ox, oy, res, max_d, x, y, th, bx, by, iterations, hub
 
 @njit(cache=True)
 def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, by, starts, iterations, huber,
-                               prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand):
+                               prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand, per_scan):
     """The summed mean log-likelihood per beam of scans ``0..n-1``, traced back from the last one at ``(x, y, th)``.
 
     Each earlier pose is the later one moved by ``steps[k]`` (scan ``k``'s pose in scan ``k + 1``'s frame, from the
     odometry) and matched to the map from there (:func:`refine_on_field`, the prediction as its prior), as a
     hypothesis is tracked forwards: odometry alone drifts a tenth of a radian in a second. Scan ``k``'s endpoints
-    are ``bx[starts[k]:starts[k + 1]], by[...]`` (base frame).
+    are ``bx[starts[k]:starts[k + 1]], by[...]`` (base frame). ``per_scan``: each scan's term, when it has ``n`` places.
     """
     n = starts.shape[0] - 1
     total = 0.0
@@ -138,8 +138,11 @@ def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, b
             prior[0], prior[1], prior[2] = x, y, th
             x, y, th, _ = refine_on_field(field, ox, oy, res, max_d, x, y, th, bx[lo:hi], by[lo:hi], iterations,
                                           huber, prior, prior_xy, prior_th)
-        total += _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit,
-                                        z_rand) / max(hi - lo, 1)
+        term = _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit,
+                                      z_rand) / max(hi - lo, 1)
+        if per_scan.shape[0] == n:
+            per_scan[k] = term
+        total += term
     return total
 
 
