@@ -217,6 +217,17 @@ class PoseGraph:
         self._m += k
         return np.arange(m, m + k, dtype=np.int64)
 
+    def truncate(self, num_nodes: int, num_edges: int) -> None:
+        """Forget the nodes from ``num_nodes`` on and the edges from ``num_edges`` on (the last added).
+
+        The edges kept must not touch a forgotten node.
+        """
+        if not (0 <= num_nodes <= self._n and 0 <= num_edges <= self._m):
+            raise InputError(f"cannot truncate {self._n} nodes, {self._m} edges to {num_nodes}, {num_edges}")
+        if num_edges and max(int(self._ei[:num_edges].max()), int(self._ej[:num_edges].max())) >= num_nodes:
+            raise InputError("a kept edge touches a forgotten node")
+        self._n, self._m = int(num_nodes), int(num_edges)
+
     # ------------------------------------------------------------- helpers
     def copy(self) -> PoseGraph:
         g = PoseGraph()

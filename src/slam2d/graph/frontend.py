@@ -20,6 +20,13 @@ For every scan (:meth:`GraphFrontend.process`):
    information-weighted mean of these matches. With ``odometry_fusion``, a
    sequential match whose coarse heading spread exceeds the odometry's is
    first fused with the odometry prediction.
+   With ``revisit_without_nodes`` a scan that retraces older passes adds no node (a *revisit
+   frame*, :meth:`GraphFrontend._covering_node`): once it links to two near chains (or the robot is
+   retracing already) and lies within the travel gate of one of their nodes, with no loop candidate
+   left to try, the node is taken back; the frame hangs from that old node, which joins the running
+   scans, and the next scans are predicted from it. Entering the covered place, the frame's sequential
+   and near-chain matches become edges from the last node to the chains' scans. Driving an area again
+   and again then grows the graph with the area, not with the scans.
 5. *Loop closure* (``TryCloseLoop``): candidate chains are runs of
    consecutive older scans within ``loop_search_maximum_distance`` that are
    *not* reachable in the graph through scans within that distance, at least
@@ -72,7 +79,7 @@ from slam2d.matching.scan_matcher import ScanMatcher
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks
 from slam2d.graph.wall_refinement import refine_path
-from slam2d.graph.kernels import _column_means, _in_range
+from slam2d.graph.kernels import _column_means, _in_range, _runs
 from slam2d.graph.loop_closing import LoopClosing, LoopClosure, _Hypothesis
 from slam2d.graph.near_chains import NearChainLinking
 from slam2d.graph.nodes import NodeStore
@@ -145,6 +152,19 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self._bary_store = self._bary_base  # _bary_base's rows, with room to grow (see _append_node)
         self._scans: list[Any] = []  # the kept scans, for the map
         self._running: list[int] = []
+        # Per node: the node its sequential edge comes from (-1: none); the previous node but after a revisit.
+        self._pred: list[int] = []
+        # Where the robot hangs from after a revisit frame (revisit_without_nodes): (old node, the frame's pose
+        # relative to it, the frame's odometry); None: from the last node, at its odometry.
+        self._base: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
+        # The odometry and time the travel gate measures from when that is not the last node's: a revisit frame's.
+        self._gate: tuple[NDArray[np.float64], float] | None = None
+        # The near chains the last kept scan linked to: (start, end, the scan linked, the match's pose, covariance).
+        self._near_linked: list[tuple] = []
+        # Edges revisit frames added (see _link_through): (from, to) -> edge index.
+        self._revisit_edges: dict[tuple[int, int], int] = {}
+        # The first node added since the last revisit frame (the running scans before it are an old pass's).
+        self._streak_start = 0
         self._put_at: NDArray[np.float64] | None = None  # a relocation waiting for the next frame
         self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
         self.loop_closures: list[LoopClosure] = []
@@ -169,6 +189,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         # Per node after the first: its sequential edge's measurement and covariance (previous node's frame).
         self._seq_steps: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
         self.anchor = -1  # node the last frame's pose hangs from (-1: none yet)
+        self.revisit_anchor = False  # whether that is an old node a revisit frame hung from (see revisit_without_nodes)
         self.offset = np.zeros(3)
         self.wall_ends = WallEndLandmarks(p, diagnostics) if p.wall_end_landmarks else None
 
@@ -209,6 +230,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
     def _append_node(self, scan, points, sigmas, pose, odom, timestamp: float) -> int:
         """Add a node at ``pose`` with the scan's points, reference, odometry and time; returns its index."""
         node = self.graph.add_node(pose)
+        self._pred.append(node - 1)
         self._points.append(points)
         self._sigmas.append(sigmas)
         self._ref.append((points, sigmas))
@@ -294,6 +316,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
             last = self.graph.num_nodes - 1
             self._odom[last] = se2.compose(odom, se2.inverse(se2.relative(self.graph.poses[last], self._put_at)))
             previous_odom, self._frame_pose, self._running = None, None, []
+            self._base, self._gate = None, None
             self._put_at = None
             self._count("relocations")
         # The last frame's response is a reference only for a scan taken close to it (less than
@@ -326,7 +349,9 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         values: dict[str, float] = {}
         pose, cov = self._node_estimate(points, predicted, last, relocating, values, last_response,
                                         seed if after_between else None)
+        edges = self.graph.num_edges
         node = self._append_node(scan, points, sigmas, pose, odom, frame.timestamp)
+        self._pred[node] = last
         if last >= 0:
             means = [pose]
             covs = [cov]
@@ -340,12 +365,26 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
                 pose = _weighted_mean(means, covs)
                 self.graph.poses[node] = pose
                 self._world[node] = None
+            covering = -1 if relocating or not p.revisit_without_nodes else self._covering_node(pose)
+            if covering >= 0 and not self._loop_candidates(node, pose):
+                # A revisit frame: no node. Entering the covered place from a node, the scan's matches still
+                # tie that node to the old passes (a loop constraint); once retracing them they add nothing.
+                self._drop_last_node(edges)
+                if self._base is None:
+                    for _, _, closest, near_pose, near_cov in self._near_linked:
+                        self._link_through(last, closest, means[0], covs[0], near_pose, near_cov)
+                self._hang_from(covering, pose, odom, frame.timestamp, cov)
+                return None
             # The step from the last node that the frames in between were placed along: their
             # matched poses end at this node as placed now, their odometry at the odometry step.
-            if self._matches_between_nodes(last):
+            if last != node - 1:
+                # After revisit frames: the frames hung from the previous node were not placed towards this one.
+                self._steps.append(np.zeros(3))
+            elif self._matches_between_nodes(last):
                 self._steps.append(se2.relative(self.graph.poses[last], self.graph.poses[node]))
             else:
                 self._steps.append(se2.relative(self._odom[last], odom))
+        self._base, self._gate, self.revisit_anchor = None, None, False
         self._running.append(node)
         self._trim_running()
         if self.wall_ends is None and node == 0 and 0.0 < scan.range_max < p.wall_end_auto_range:
@@ -362,6 +401,102 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
         return values
+
+    def _covering_node(self, pose: NDArray[np.float64]) -> int:
+        """An old node the new scan at ``pose`` adds nothing to (-1: none): see ``revisit_without_nodes``.
+
+        The place must be covered: the scan linked to at least two near chains (two older passes
+        connected here), or the robot is retracing an old pass already (the last kept scan was a
+        revisit frame). The node must lie less than the travel gate's distance and heading from
+        ``pose`` (the robot would not have kept the scan had it stayed there) in a near chain the
+        scan has just linked to, or, when retracing, among the old pass's running scans if the
+        sequential match responded at least the near-chain link threshold; the closest such node.
+        """
+        p = self.params
+        best, best_d = -1, math.inf
+        poses = self.graph.poses
+        x, y, t = float(pose[0]), float(pose[1]), float(pose[2])
+        groups = [(a, b, None) for a, b, *_ in self._near_linked]
+        if len(groups) < 2 and self._base is None:
+            return -1
+        if self._frame_response >= p.link_match_minimum_response_fine:
+            old = [i for i in self._running if i < self._streak_start]
+            if old:
+                groups.append((0, 0, np.asarray(old, dtype=np.int64)))
+        for a, b, idx in groups:
+            chain = poses[a:b] if idx is None else poses[idx]
+            d = np.hypot(chain[:, 0] - x, chain[:, 1] - y)
+            turn = np.abs(se2.wrap_angle(chain[:, 2] - t))
+            ok = np.flatnonzero((d < p.minimum_travel_distance) & (turn < p.minimum_travel_heading))
+            if ok.size:
+                k = int(ok[np.argmin(d[ok])])
+                if d[k] < best_d:
+                    best, best_d = (a + k if idx is None else int(idx[k])), float(d[k])
+        return best
+
+    def _loop_candidates(self, node: int, pose: NDArray[np.float64]) -> bool:
+        """Whether the loop closure search from ``node`` would match a chain (one not tried from nearby)."""
+        p = self.params
+        if not p.do_loop_closing:
+            return False
+        near, linked = self._near_and_linked(node, self.reference_positions(), p.loop_search_maximum_distance)
+        return any(b - a >= p.loop_match_minimum_chain_size and not self._tried_nearby(a, b, pose, p.loop_retry_distance)
+                   for a, b in _runs(near & ~linked))
+
+    def _link_through(self, last: int, to: int, seq_pose, seq_cov, near_pose, near_cov) -> None:
+        """The edge last -> ``to`` a revisit frame's two matches make (the sequential one from ``last`` at
+        ``seq_pose``, the near chain's from ``to`` at ``near_pose``), the frame eliminated; merged into the
+        one an earlier revisit frame made between the two (information added).
+
+        The covariance is the two matches' (world frame) summed, with the lever arm by which the
+        frame's heading error moves ``to`` (under the travel gate's distance), rotated into ``last``'s frame.
+        """
+        if to == last:
+            return
+        at = se2.compose(seq_pose, se2.relative(near_pose, self.graph.poses[to]))  # ``to`` as the matches place it
+        lx, ly = float(at[0] - seq_pose[0]), float(at[1] - seq_pose[1])
+        jac = np.array([[1.0, 0.0, -ly], [0.0, 1.0, lx], [0.0, 0.0, 1.0]])  # the frame's heading swings ``to``
+        cov = jac @ (seq_cov + near_cov) @ jac.T
+        z = se2.relative(self.graph.poses[last], at)
+        info = self._match_information(self._local_covariance(last, cov))
+        k = self._revisit_edges.get((last, to))
+        if k is None:
+            self._revisit_edges[(last, to)] = self.graph.num_edges
+            self.graph.add_edge(last, to, z, info)
+            return
+        old_z, old_info = self.graph.measurements[k].copy(), self.graph.information[k].copy()
+        merged = _weighted_mean([old_z, z], [np.linalg.inv(old_info), np.linalg.inv(info)])
+        self.graph.measurements[k] = merged
+        self.graph.information[k] = old_info + info
+
+    def _drop_last_node(self, edges: int) -> None:
+        """Forget the node just added (and its edges, from edge ``edges`` on): nothing else has seen it yet."""
+        node = self.graph.num_nodes - 1
+        self.graph.truncate(node, edges)
+        for per_node in (self._points, self._sigmas, self._ref, self._world, self._odom, self._times, self._scans,
+                         self._pred):
+            per_node.pop()
+        self._bary_base = self._bary_store[:node]
+        if node > 0:
+            self._seq_steps.pop()
+
+    def _hang_from(self, node: int, pose: NDArray[np.float64], odom: NDArray[np.float64], timestamp: float,
+                   cov: NDArray[np.float64]) -> None:
+        """A revisit frame at ``pose``: it hangs from the old ``node`` covering it, and so do the next frames' predictions."""
+        self._count("revisit_frames")
+        self._streak_start = self.graph.num_nodes
+        offset = se2.relative(self.graph.poses[node], pose)
+        self._base = (node, offset, odom)
+        self._gate = (odom, timestamp)
+        # The next scans are matched against the old pass the robot retraces, not the last nodes it left.
+        if node in self._running:
+            self._running.remove(node)
+        self._running.append(node)
+        self._trim_running()
+        self.anchor, self.offset, self.revisit_anchor = node, offset, True
+        self._frame_pose = np.array(pose, dtype=np.float64)
+        self._frame_degenerate = self._degenerate(cov)
+        self._after_between = True
 
     def _moved_nodes(self, before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.bool_] | None:
         """Per node, whether one of its reference points moved more than ``grid_keep_tolerance`` (None: all).

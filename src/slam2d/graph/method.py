@@ -47,6 +47,7 @@ class GraphSlam(SlamMethod):
         self.frontend = GraphFrontend(self.params, sensor_model=self.sensor_model, diagnostics=self.diagnostics)
         self._anchor: list[int] = []  # per placed frame: the node its pose hangs from
         self._offset: list[NDArray[np.float64]] = []  # and its pose relative to that node
+        self._revisit: list[bool] = []  # and whether that node is an old one a revisit frame hung from
         self._frame_times: list[float] = []
         self._grid: OccupancyGrid | None = None
         self._grid_nodes = 0  # nodes drawn into the grid
@@ -71,6 +72,7 @@ class GraphSlam(SlamMethod):
         if fe.anchor >= 0:
             self._anchor.append(fe.anchor)
             self._offset.append(np.asarray(fe.offset, dtype=np.float64))
+            self._revisit.append(fe.revisit_anchor)
             self._frame_times.append(frame.timestamp)
             if self.params.wall_refinement and self.params.wall_refinement_frames:
                 self._frame_scans.append(frame.scan)
@@ -98,6 +100,10 @@ class GraphSlam(SlamMethod):
         # Between two nodes, spread the correction the next node got over the frames in between
         # (by the share of the odometry motion done), instead of dead reckoning to the jump.
         dead_reckoned = spread_node_corrections(nodes, fe.between_node_steps(), anchor, offset)
+        revisit = np.asarray(self._revisit, dtype=bool)
+        if revisit.any():
+            # Hung from an old node (revisit_without_nodes): not between it and the next, so nothing to spread.
+            dead_reckoned[revisit] = se2.compose(nodes[anchor[revisit]], offset[revisit])
         return np.asarray(self._frame_times), dead_reckoned
 
     def map(self) -> OccupancyGrid:

@@ -31,6 +31,7 @@ class NearChainLinking:
         near, linked = self._near_and_linked(node, ref_xy, p.link_scan_maximum_distance)
         linked[node] = False
         hot, self._near_hot = self._near_hot, []
+        self._near_linked = []  # (start, end, the scan linked, the match's pose and covariance) per chain linked
         if not linked.any():
             return 0
         link = p.link_match_minimum_response_fine
@@ -71,7 +72,8 @@ class NearChainLinking:
                 cov = result.covariance
                 means.append(result.pose)
                 covs.append(cov)
-                self._link_chain_to_scan(list(chain), node, result.pose, cov)
+                closest = self._link_chain_to_scan(list(chain), node, result.pose, cov)
+                self._near_linked.append((a, b, closest, result.pose, cov))
                 count += 1
         return count
 

@@ -43,7 +43,12 @@ class SequentialMatching:
         """The frame's prediction: (last node (-1: none), odometry since it, predicted pose, the last
         frame's pose plus the odometry since it (or None), where the seeded search looks first (or None))."""
         p = self.params
-        if self.graph.num_nodes:
+        if self.graph.num_nodes and self._base is not None:
+            # After a revisit frame: from the old node it hung from, plus the odometry since that frame.
+            last, at, base_odom = self._base
+            offset = se2.compose(at, se2.relative(base_odom, odom))
+            predicted = se2.compose(self.graph.poses[last], offset)
+        elif self.graph.num_nodes:
             last = self.graph.num_nodes - 1
             offset = se2.relative(self._odom[last], odom)
             predicted = se2.compose(self.graph.poses[last], offset)
@@ -75,8 +80,8 @@ class SequentialMatching:
         if not self._odom:
             return True
         p = self.params
-        last = self._odom[-1]
-        if t - self._times[-1] >= p.minimum_time_interval:
+        last, t_last = (self._odom[-1], self._times[-1]) if self._gate is None else self._gate
+        if t - t_last >= p.minimum_time_interval:
             return True
         if math.hypot(odom[0] - last[0], odom[1] - last[1]) >= p.minimum_travel_distance:
             return True
@@ -260,6 +265,10 @@ class SequentialMatching:
         z = se2.relative(self.graph.poses[closest], pose)
         local = self._chain_covariance(closest, last, se2.relative(self.graph.poses[last], pose),
                                        self._local_covariance(last, cov))
+        if local is None:
+            # An old pass's scan (revisit frames): no sequential edges lead from it to ``last``; Karto's edge.
+            self._add_edge(closest, node, pose, cov)
+            return
         self._count("running_links_chained")
         self.graph.add_edge(closest, node, z, self._match_information(local))
 
@@ -270,11 +279,23 @@ class SequentialMatching:
         step): Ja covers how the heading error so far swings the step's translation, Jb rotates
         the step's own covariance. The chain is at most the running buffer long.
         """
+        # The sequential edges back from ``last`` (each node's from the one before it, but after revisit
+        # frames from the old node the robot hung from): None when they pass i by or take more steps than
+        # the running buffer holds scans.
+        path = [last]
+        pred = self._pred
+        k = last
+        while k > i and len(path) <= self.params.scan_buffer_size:
+            k = pred[k] if k < len(pred) else k - 1  # (a node's predecessor is always an older node)
+            path.append(k)
+        if k != i:
+            return None
+        path.reverse()
         heading = 0.0  # of the relative pose so far (se2.compose's heading: its x, y are not needed)
         acc = np.zeros((3, 3))
         seq = self._seq_steps
-        for k in range(i, last + 1):  # a few dozen 3x3 products per linked scan, not a per-beam loop
-            z, c = seq[k] if k < last else (step, step_cov)
+        for m, k in enumerate(path):  # a few dozen 3x3 products per linked scan, not a per-beam loop
+            z, c = seq[path[m + 1] - 1] if k != last else (step, step_cov)
             z0, z1, z2 = float(z[0]), float(z[1]), float(z[2])
             ct, st = math.cos(heading), math.sin(heading)
             ja = np.array([[1.0, 0.0, -st * z0 - ct * z1], [0.0, 1.0, ct * z0 - st * z1], [0.0, 0.0, 1.0]])
