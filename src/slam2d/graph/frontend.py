@@ -79,7 +79,7 @@ from slam2d.matching.scan_matcher import ScanMatcher
 from slam2d.sensors.beam_model import beam_sigmas
 from slam2d.graph.wall_end_landmarks import WallEndLandmarks
 from slam2d.graph.wall_refinement import refine_path
-from slam2d.graph.kernels import _column_means, _in_range, _runs
+from slam2d.graph.kernels import _column_means, _in_range
 from slam2d.graph.loop_closing import LoopClosing, LoopClosure, _Hypothesis
 from slam2d.graph.near_chains import NearChainLinking
 from slam2d.graph.nodes import NodeStore
@@ -433,15 +433,6 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
                 if d[k] < best_d:
                     best, best_d = (a + k if idx is None else int(idx[k])), float(d[k])
         return best
-
-    def _loop_candidates(self, node: int, pose: NDArray[np.float64]) -> bool:
-        """Whether the loop closure search from ``node`` would match a chain (one not tried from nearby)."""
-        p = self.params
-        if not p.do_loop_closing:
-            return False
-        near, linked = self._near_and_linked(node, self.reference_positions(), p.loop_search_maximum_distance)
-        return any(b - a >= p.loop_match_minimum_chain_size and not self._tried_nearby(a, b, pose, p.loop_retry_distance)
-                   for a, b in _runs(near & ~linked))
 
     def _link_through(self, last: int, to: int, seq_pose, seq_cov, near_pose, near_cov) -> None:
         """The edge last -> ``to`` a revisit frame's two matches make (the sequential one from ``last`` at

@@ -76,10 +76,8 @@ class LoopClosing:
         candidate = None
         while True:
             if candidate is None:  # the graph changes only when a closure is accepted
-                ref_xy = self.reference_positions()
-                near, linked = self._near_and_linked(node, ref_xy, p.loop_search_maximum_distance)
-                candidate = near & ~linked
-            chains = [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
+                candidate = self._loop_candidate_nodes(node)
+            chains = self._loop_chains(candidate, start)
             if not chains:
                 return closed
             a, b = chains[0]
@@ -296,6 +294,26 @@ class LoopClosing:
                     best, best_err = h, score
         self._hypotheses = keep
         return best
+
+    def _loop_candidate_nodes(self, node: int) -> NDArray[np.bool_]:
+        """Per node, whether it lies within the loop search distance of ``node`` but the graph does not reach
+        ``node`` from it through scans that near (Karto's candidates for a loop closure)."""
+        near, linked = self._near_and_linked(node, self.reference_positions(), self.params.loop_search_maximum_distance)
+        return near & ~linked
+
+    def _loop_chains(self, candidate: NDArray[np.bool_], start: int = 0) -> list[tuple[int, int]]:
+        """The runs of ``candidate`` nodes long enough to be matched as a chain, from node ``start`` on."""
+        p = self.params
+        return [(a, b) for a, b in _runs(candidate) if b - a >= p.loop_match_minimum_chain_size and a >= start]
+
+    def _loop_candidates(self, node: int, pose: NDArray[np.float64]) -> bool:
+        """Whether the loop closure search from ``node`` at ``pose`` would match a chain (one not tried from
+        nearby)."""
+        p = self.params
+        if not p.do_loop_closing:
+            return False
+        return any(not self._tried_nearby(a, b, pose, p.loop_retry_distance)
+                   for a, b in self._loop_chains(self._loop_candidate_nodes(node)))
 
     def _tried_nearby(self, a: int, b: int, pose: NDArray[np.float64], distance: float, tried=None) -> bool:
         """Whether a chain overlapping [a, b) was tried from within ``distance`` of ``pose`` since the last optimisation."""

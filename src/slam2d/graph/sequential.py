@@ -286,7 +286,9 @@ class SequentialMatching:
         pred = self._pred
         k = last
         while k > i and len(path) <= self.params.scan_buffer_size:
-            k = pred[k] if k < len(pred) else k - 1  # (a node's predecessor is always an older node)
+            # (a node's predecessor is always an older node; one put in the graph directly, not through
+            # _append_node, has none recorded and follows the one before it)
+            k = pred[k] if k < len(pred) else k - 1
             path.append(k)
         if k != i:
             return None

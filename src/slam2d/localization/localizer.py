@@ -235,8 +235,7 @@ class Localizer:
         self.search_scans.clear()
         self.search_updates = 0
         self.recent_fits.clear()
-        self.track_scans.clear()
-        self.track_ll.clear()
+        self._forget_track()
         self.w_slow = self.w_fast = 0.0
         self.confirm = 1 if initial_pose is not None else _CONFIRM_UPDATES
         if initial_pose is not None:
@@ -465,8 +464,7 @@ class Localizer:
                     self._spread_around(self.pose, _DRIFTED_STD, self.p.max_particles)
                     self.drifted = (self.pose.copy(), 0.0)
                 self.filter_odom, self.misfits, self.far_misfits, self.confirm = odom, 0, 0, _CONFIRM_UPDATES
-                self.track_scans.clear()
-                self.track_ll.clear()
+                self._forget_track()
                 return ScanResult(t, "lost", None, fit, spread, len(self.particles))
             if self._doubt(odom, fx, fy, mx, my, t):
                 return ScanResult(t, "lost", None, fit, spread, len(self.particles))
@@ -513,17 +511,20 @@ class Localizer:
             self._set_state("off_map", t, why)
         self.pose, self.off_travel = pose, travel
         self.challenger, self.drifted, self.misfits, self.far_misfits = None, None, 0, 0
-        self.track_scans.clear()
-        self.track_ll.clear()
+        self._forget_track()
         return ScanResult(t, "off_map", pose.copy(), self._fit(pose, mx, my), spread,
                           len(self.particles) if self.p.method == "mcl" else 0)
+
+    def _forget_track(self) -> None:
+        """Drop the tracked pose's recent scans and scores (:meth:`_doubt`): it was lost, moved or found again."""
+        self.track_scans.clear()
+        self.track_ll.clear()
 
     def _doubt(self, odom, fx, fy, mx, my, t: float) -> bool:
         """Whether places elsewhere fit the last updates' scans clearly better than the tracked pose does (checked
         when the tracked pose fitted some of them poorly): then the robot is lost, and searched for among them."""
         if odom is None:
-            self.track_scans.clear()
-            self.track_ll.clear()
+            self._forget_track()
             return False
         if self.track_scans and not self.p.is_update(se2.relative(self.track_scans[-1][0], odom).reshape(3)):
             return False
@@ -601,8 +602,7 @@ class Localizer:
         self.hypotheses, self.challenger, self.drifted = [], None, None
         self.search_scans.clear()
         self.search_updates = 0
-        self.track_scans.clear()
-        self.track_ll.clear()
+        self._forget_track()
         self._set_state("localized", t, why)
         if self.p.method == "mcl":  # the filter goes on from where the scan says the robot is
             self._spread_around(pose, _FOUND_STD)

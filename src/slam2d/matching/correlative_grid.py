@@ -330,7 +330,6 @@ def _smear_sigmas(smear, sig, use, ranges, spacing, increment, lo, hi):
     return out
 
 
-
 @njit(cache=True)
 def _inside(px, py, lo_x, lo_y, hi_x, hi_y):
     """Indices of the points inside the box."""
