@@ -163,10 +163,18 @@ def continue_row(method: str, world: str, d1: Path, d2: Path, work: Path) -> str
     rec = json.loads((out / "run.json").read_text())["resumed"]
     first_ate = ate_in_frame(first / "trajectory.tum", d1 / "truth.tum", frame)
     floor = map_error_floor(first, d1 / "truth.tum", out / "trajectory.tum", d2 / "truth.tum", frame)
-    return (f"| {world} | `{method}` | {rec['scans_before_placed']} | "
+    # the peer: the same method on drive 2 alone, from scratch
+    alone = work / f"{world}-{method}-2-alone"
+    run_method(method, d2 / "recording.log.gz", alone)
+
+    def own_ate(run: Path) -> float:
+        return ate_in_frame(run / "trajectory.tum", d2 / "truth.tum", frame_of(run / "trajectory.tum", d2 / "truth.tum"))
+
+    left_out = f", {rec['scans_before_placed']} left out" if rec["scans_before_placed"] else ""
+    return (f"| {world} | `{method}` | {rec['found_at_scan']}{left_out} | "
             f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', frame):.3f} m (drive 1: {first_ate:.3f} m; "
-            f"drive 1's error where drive 2 drives: {floor:.3f} m) | "
-            f"{map_error(first, d1):.3f} m | {map_error(out, d2):.3f} m |")
+            f"drive 1's error where drive 2 drives: {floor:.3f} m) | {own_ate(out):.3f} m ({own_ate(alone):.3f} m) | "
+            f"{map_error(first, d1):.3f} m | {map_error(out, d2):.3f} m ({map_error(alone, d2):.3f} m) |")
 
 
 def kidnap_row(world: str, d2: Path, work: Path) -> str:
@@ -275,12 +283,14 @@ def main() -> int:
              "(defaults) of drive 1 (seed 1), or the world's true map. ATE in the map's frame as drive 1 fixes it. "
              "The map's own error there (drive 1's RMS error at its poses nearest drive 2's) is what a localizer "
              "that agrees with the map perfectly would score.")
-    rows += ["", "Continue mapping (`slam2d run METHOD DRIVE2 --resume DRIVE1_RUN`, defaults, no initial pose): scans of drive 2 "
-             "before it was placed in drive 1's map, drive 2's ATE in drive 1's frame, and the map error (mean "
-             "distance from a true wall cell to the map's nearest) of drive 1's map and of the joined map (target: "
-             "ATE < 0.10 m, joined map no worse).", "",
-             "| world | method | scans before placed | drive 2 ATE | drive 1 map error | joined map error |",
-             "|---|---|---|---|---|---|", *CONTINUE_ROWS]
+    rows += ["", "Continue mapping (`slam2d run METHOD DRIVE2 --resume DRIVE1_RUN`, defaults, no initial pose): the scan "
+             "of drive 2 at which it was found in drive 1's map (the scans before it traced back and mapped too), "
+             "drive 2's ATE in drive 1's frame and with its own alignment, and the map error (mean distance from a "
+             "true wall cell to the map's nearest) of drive 1's map and of the joined map (target: ATE < 0.10 m, "
+             "joined map no worse). In brackets, the peer: the same method on drive 2 alone, from scratch.", "",
+             "| world | method | found at scan | drive 2 ATE in drive 1's frame | drive 2 ATE, own alignment (alone) | "
+             "drive 1 map error | joined map error (drive 2 alone) |",
+             "|---|---|---|---|---|---|---|", *CONTINUE_ROWS]
     from datetime import datetime, timezone
 
     when = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -56,7 +56,12 @@ def test_a_resumed_drive_is_mapped_in_the_first_maps_frame(drives, tmp_path):
     assert main(["run", "karto", str(drives / "d2" / "recording.log.gz"), "--resume", str(drives / "k1"),
                  "--out", str(out), "--initial-pose", ",".join(map(str, start))]) == 0
     run = json.loads((out / "run.json").read_text())
-    assert run["resumed"]["session_frames"] > 300 and run["resumed"]["scans_before_placed"] <= 2
+    assert run["resumed"]["session_frames"] > 300 and run["resumed"]["found_at_scan"] <= 2
+    # the scans before it was found are traced back and mapped too: every scan of the recording is in the run
+    from slam2d.io import open_recording
+
+    assert run["resumed"]["scans_before_placed"] == 0
+    assert run["scans"] == len(list(open_recording(drives / "d2" / "recording.log.gz").frames()))
     # the first map's frame, as the first drive's trajectory against its truth fixes it
     first = absolute_trajectory_error(associate(*read_tum(drives / "k1" / "trajectory.tum"),
                                                 *read_tum(drives / "d1" / "truth.tum")))
@@ -81,7 +86,7 @@ def test_a_resumed_drive_is_mapped_in_the_first_maps_frame(drives, tmp_path):
     again = tmp_path / "k3"
     assert main(["run", "karto", str(drives / "d2" / "recording.log.gz"), "--resume", str(out), "--out", str(again),
                  "--initial-pose", ",".join(str(v) for v in p[0])]) == 0
-    assert json.loads((again / "run.json").read_text())["resumed"]["scans_before_placed"] <= 2
+    assert json.loads((again / "run.json").read_text())["resumed"]["found_at_scan"] <= 2
 
 
 def test_a_session_cut_short_edited_or_from_elsewhere_is_refused(drives, tmp_path, capsys):

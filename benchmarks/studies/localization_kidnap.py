@@ -128,9 +128,14 @@ def main() -> int:
                 hs = loc.hypotheses
                 d = [math.hypot(h["pose"][0] - true[0], h["pose"][1] - true[1]) for h in hs]
                 i = int(np.argmin(d))
-                other = max((h["score"] for j, h in enumerate(hs) if j != i), default=float("nan"))
+                others = [j for j in range(len(hs)) if j != i]
+                j = max(others, key=lambda j: hs[j]["score"]) if others else None
+                other = hs[j]["score"] if j is not None else float("nan")
                 cs = (f"{len(hs)} places; nearest the truth {d[i]:.2f} m, rank {i + 1}, "
                       f"lead {hs[i]['score'] - other:+.1f} after {hs[i]['updates']}")
+                if j is not None:  # the runner-up: how far from the truth, and turned how much
+                    turn = math.degrees(math.remainder(hs[j]["pose"][2] - true[2], math.tau))
+                    cs += f"; next {d[j]:.1f} m off, turned {turn:+.0f} deg"
             # the doubt check's trigger: the tracked pose's worst summed log-likelihood over the last 20-30 updates
             track = np.array(getattr(loc, "track_ll", []))[::-1]
             doubt = float(np.min(np.cumsum(track)[19:])) if len(track) >= 20 else float("nan")

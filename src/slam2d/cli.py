@@ -521,9 +521,13 @@ def cmd_run(args: argparse.Namespace) -> int:
                                  read_options=_read_options(args), progress=progress, command=_command_line())
         out = _console()
         resumed = summary.record["resumed"]
+        traced = (f"traced back to its first scan at ({', '.join(f'{v:.2f}' for v in resumed['placed_at'])})"
+                  if resumed["found_at_scan"] and not resumed["scans_before_placed"] else
+                  f"its first {resumed['scans_before_placed']} scans left out (no odometry to trace them back)"
+                  if resumed["scans_before_placed"] else "")
         out.print(f"{args.method}: {resumed['session_frames']} scans of {args.resume} replayed; {args.data.name} "
-                  f"placed at ({', '.join(f'{v:.2f}' for v in resumed['placed_at'])}) after "
-                  f"{resumed['scans_before_placed']} scans, then {summary.frames} scans mapped in "
+                  f"found at ({', '.join(f'{v:.2f}' for v in resumed['found_at'])}) at scan "
+                  f"{resumed['found_at_scan'] + 1}{', ' + traced if traced else ''}; {summary.frames} scans mapped in "
                   f"{summary.seconds:.1f} s", markup=False)
         for path in summary.written:
             _print_written(out, path)

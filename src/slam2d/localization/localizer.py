@@ -376,6 +376,24 @@ class Localizer:
                 best, best_fit = cand, fit
         return best, best_fit
 
+    def traced_back(self, frames: Sequence[Any], pose: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The poses of ``frames`` when the last one is at ``pose``: each earlier pose is the later one moved by the
+        odometry between them and matched to the map from there (where its scan ends mostly in the map's known area;
+        elsewhere the odometry alone), as the search traces a place back. None when a frame has no odometry."""
+        if any(f.odometry is None for f in frames):
+            return None
+        poses = np.empty((len(frames), 3))
+        poses[-1] = pose
+        for k in range(len(frames) - 2, -1, -1):
+            step = se2.relative(np.asarray(frames[k + 1].odometry, dtype=np.float64),
+                                np.asarray(frames[k].odometry, dtype=np.float64)).reshape(3)
+            predicted = se2.compose(poses[k + 1], step).reshape(3)
+            mx, my = self._beams(frames[k].scan.points_in_base(), self.p.match_beams)
+            if len(mx) >= 10 and self._known_share(predicted, mx, my) >= _MIN_KNOWN:
+                predicted = self._refine(predicted, mx, my, wide=False)[0]
+            poses[k] = predicted
+        return poses
+
     # -- the per-scan step -----------------------------------------------------------------------------
 
     @staticmethod

@@ -437,8 +437,8 @@ def resume_run(
 
     The session's frames are fed again (the method's state rebuilt, same settings and seed),
     the new recording's start is found in ``run``'s map (:class:`~slam2d.localization.Localizer`,
-    matching from ``initial_pose`` or a global search), the method is put down there, and the new
-    frames follow, their times moved after the session's when they start earlier. ``trajectory.tum``
+    matching from ``initial_pose`` or a global search), the scans before that traced back along the
+    odometry in the same map, the method is put down at the first one, and the new frames follow, their times moved after the session's when they start earlier. ``trajectory.tum``
     holds the new recording's poses (at its own times), in the saved map's frame.
     """
     from slam2d import __version__
@@ -469,7 +469,11 @@ def resume_run(
     if start is None:
         raise InputError(f"its robot was never found in {run / 'map.yaml'}: no place fits its scans well and for long "
                          "enough (is it the same building? try --initial-pose X,Y,THETA)", path=data)
-    first, pose = start
+    found, pose = start
+    # the scans before it was found are mapped too: their poses traced back from there along the odometry,
+    # matched to the saved map (the search told the place apart on them); without odometry they cannot be
+    traced = localizer.traced_back(new[:found + 1], pose) if found else None
+    first, placed = (0, traced[0]) if traced is not None else (found, pose)
     rss_before = _rss_mb()
     compile0 = compile_clock()[0]
     wall0 = time.perf_counter()
@@ -478,8 +482,8 @@ def resume_run(
     replayed, old_last_t = replay_session(slam, session, recorder)
     period = float(np.median(np.diff([f.timestamp for f in new[first:]]))) if len(new) - first > 1 else 0.1
     shift = max(0.0, (old_last_t or 0.0) + period - new[first].timestamp)
-    slam.relocate(pose)
-    recorder.relocated(pose)
+    slam.relocate(placed)
+    recorder.relocated(placed)
     for frame in new[first:]:
         moved = dataclasses.replace(frame, scan=dataclasses.replace(frame.scan, timestamp=frame.scan.timestamp + shift))
         recorder.add(moved)
@@ -490,8 +494,9 @@ def resume_run(
     seconds = _finish(slam, compile0, wall0)
     times, poses = slam.trajectory()
     own = times[replayed:] - shift  # the new recording's poses, at its own times
-    extra = {"resumed": {"from": str(run.resolve()), "session_frames": len(session), "placed_at": [float(v) for v in pose],
-                         "scans_before_placed": first, "time_shift_s": shift}}
+    extra = {"resumed": {"from": str(run.resolve()), "session_frames": len(session),
+                         "found_at_scan": found, "found_at": [float(v) for v in pose],
+                         "placed_at": [float(v) for v in placed], "scans_before_placed": first, "time_shift_s": shift}}
     return _write_run(
         OwnTrajectory(slam, own, poses[replayed:]), out_dir, data=data, data_format=detect_format(data),
         digest=input_digest(data), options=options, frames=len(new) - first,
