@@ -11,6 +11,7 @@ log's reference (GMapping-corrected, not independent truth). CPU per scan exclud
 
     .venv/bin/python benchmarks/localization.py [--write BENCHMARKS.md]
     .venv/bin/python benchmarks/localization.py --set lost_after=3   # a candidate setting, every row
+    .venv/bin/python benchmarks/localization.py --set _SEARCH_PRIOR_XY=10.0 --set _SEARCH_PRIOR_TH=40.0  # a constant
 """
 
 from __future__ import annotations
@@ -262,9 +263,14 @@ def main() -> int:
         parser.error("--set measures a candidate; the table in BENCHMARKS.md is the defaults'")
     from slam2d.localization.localizer import LocalizationParams
 
+    import slam2d.localization.localizer as localizer
+
     defaults = LocalizationParams()
     for item in args.set:
         name, _, value = item.partition("=")
+        if name.startswith("_") and hasattr(localizer, name):  # a module constant of the localizer
+            setattr(localizer, name, type(getattr(localizer, name))(value))
+            continue
         if not hasattr(defaults, name):
             parser.error(f"--set {item}: LocalizationParams has no field {name!r}")
         OVERRIDES[name] = type(getattr(defaults, name))(value)

@@ -67,6 +67,12 @@ _KLD_ERROR, _KLD_Z = 0.01, 2.326
 # the pull of the predicted pose in matching, against the endpoints' unit weights (m^2 per m^2, m^2 per rad^2):
 # (0.05 m of endpoint noise / 0.1 m of prediction error)^2, (0.05 m / 0.05 rad)^2
 _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
+# ... and of a search's hypotheses and the paths traced back for them: as loose. The simulated odometry errs by some
+# 0.03 m and 0.06 rad over one scan's step (GMapping's noise defaults, benchmarks/localization.py's drives), and the true
+# place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
+# karto's map of drive 1 ended at scan 130 of 637, not 266, and its kidnapping was found again after 86 scans, not 162,
+# but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE)
+_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
 _CONFIRM_UPDATES = 5
@@ -354,8 +360,11 @@ class Localizer:
         inside = (row >= 0) & (col >= 0) & (row < self.known.shape[0]) & (col < self.known.shape[1])
         return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
 
-    def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool) -> tuple[NDArray[np.float64], float]:
-        """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly."""
+    def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool,
+                prior: tuple[float, float] | None = None) -> tuple[NDArray[np.float64], float]:
+        """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly.
+        ``prior``: the pull of ``pose`` (m^2 per m^2, m^2 per rad^2; the tracked pose's when None)."""
+        prior = (_PRIOR_XY, _PRIOR_TH) if prior is None else prior
         f = self.field
         best, best_fit = pose, self._fit(pose, bx, by)
         starts = [(0.0, 0.0, 0.0)]
@@ -365,7 +374,7 @@ class Localizer:
         for dx, dy, dt in starts:
             x, y, th, used = refine_on_field(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
                                              float(pose[0] + dx), float(pose[1] + dy), float(pose[2] + dt),
-                                             bx, by, 20, 0.1, pose, _PRIOR_XY, _PRIOR_TH)
+                                             bx, by, 20, 0.1, pose, *prior)
             if used < 10:
                 continue
             cand = np.array([x, y, th])
@@ -559,8 +568,9 @@ class Localizer:
         self.doubt_wait = _RIVAL_EVERY
         own_terms = np.zeros(n)
         own = {"pose": self.pose.copy(), "fit": self._fit(self.pose, mx, my),
-               "score": self._path_score(self.pose, self.track_scans, own_terms), "updates": 0}
-        places = self._unseen_rivals(-math.inf, fx, fy, mx, my, self.track_scans, [own])
+               "score": self._path_score(self.pose, self.track_scans, own_terms, loose=True), "updates": 0}
+        # (matched as the tracked pose is: _DOUBT_FLOOR asks for a nearly perfect fit)
+        places = self._unseen_rivals(-math.inf, fx, fy, mx, my, self.track_scans, [own], loose=True)
         if not places:
             return False
         # over the last L updates (L from _DOUBT_MIN to n: the robot may have been carried off in between), a place
@@ -573,13 +583,10 @@ class Localizer:
             return False
         back = int(np.flatnonzero(wins.any(axis=0)).max())  # the longest such stretch
         length = back + _DOUBT_MIN
-        rivals = []
-        for h, won, score in zip(places, wins[:, back], sums[:, back]):
-            if won:
-                h["score"] = float(score)
-                rivals.append(h)
-        own["score"] = float(own_sums[back])
+        rivals = [h for h, won in zip(places, wins[:, back]) if won]
         scans = list(self.track_scans)[-length:]
+        for h in rivals + [own]:  # scored over the stretch as the search scores its hypotheses
+            h["score"] = self._path_score(h["pose"], scans)
         self.restart(None, said=False)
         self.search_scans.extend(scans)  # the search goes on with them, and from the tracked pose and those places
         self.hypotheses = sorted(rivals + [own], key=lambda h: -h["score"])[:_MAX_HYPOTHESES]
@@ -641,7 +648,7 @@ class Localizer:
         return modes
 
     def _path_score(self, pose: NDArray[np.float64], scans: Sequence | None = None,
-                    per_scan: NDArray[np.float64] | None = None) -> float:
+                    per_scan: NDArray[np.float64] | None = None, loose: bool = False) -> float:
         """The summed log-likelihood of the search's scans (or ``scans``) along the path traced back from ``pose``
         (now, at the last of them); each scan's term in ``per_scan`` when given."""
         scans = self.search_scans if scans is None else scans
@@ -654,11 +661,11 @@ class Localizer:
         f = self.field
         return _INDEPENDENT_BEAMS * float(traced_path_log_likelihood(
             f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, float(pose[0]), float(pose[1]),
-            float(pose[2]), steps, bx, by, starts, 20, 0.1, _PRIOR_XY, _PRIOR_TH, self.inv_two_sigma2, _Z_HIT, _Z_RAND,
+            float(pose[2]), steps, bx, by, starts, 20, 0.1, *((_PRIOR_XY, _PRIOR_TH) if loose else (_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH)), self.inv_two_sigma2, _Z_HIT, _Z_RAND,
             per_scan if per_scan is not None else np.empty(0)))
 
     def _unseen_rivals(self, floor: float, fx, fy, mx, my, scans: Sequence | None = None,
-                       known: list[dict] | None = None) -> list[dict]:
+                       known: list[dict] | None = None, loose: bool = False) -> list[dict]:
         """New hypotheses: places the scan fits well whose paths score over ``floor`` on the search's scans (or
         ``scans``), other than the search's hypotheses (or ``known``); each with its path's per-scan terms."""
         scans = self.search_scans if scans is None else scans
@@ -688,7 +695,7 @@ class Localizer:
             if fit < _FOUND_FIT or any(_near(pose, q["pose"], 1.0, 0.3) for q in known + rivals):
                 continue
             terms = np.zeros(len(scans))
-            score = self._path_score(pose, scans, terms)
+            score = self._path_score(pose, scans, terms, loose)
             if score > floor:
                 rivals.append({"pose": pose, "fit": fit, "score": score, "updates": 0, "terms": terms})
         return rivals
@@ -696,7 +703,8 @@ class Localizer:
     def _track_hypotheses(self, odom, step, fx, fy, mx, my, moved: bool) -> tuple[dict, float] | None:
         """Move and match every hypothesis, score it, add the particles' new places, drop the hopeless."""
         for h in self.hypotheses:
-            h["pose"], h["fit"] = self._refine(se2.compose(h["pose"], step).reshape(3), mx, my, wide=False)
+            h["pose"], h["fit"] = self._refine(se2.compose(h["pose"], step).reshape(3), mx, my, wide=False,
+                                               prior=(_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH))
         if moved:  # scored at the filter's updates only: a robot standing still sees the same scan again
             if odom is not None:
                 self.search_scans.append((odom, mx, my))
