@@ -26,8 +26,10 @@ spread over the map's free space. A robot carried to where its scans fit the map
 is noticed when they stop fitting well: the whole map is checked for places whose paths fit the last updates' scans
 clearly better; any there and it is lost, searched for among them. Where a localized robot's scans end mostly
 outside the map's known area (``_MIN_KNOWN``) it is off the map: its pose follows the odometry (state
-``off_map``, reported with that state) until the scans reach the map again and matching takes over. Poses are
-reported only while localized or off the map.
+``off_map``, reported with that state) until the scans reach the map again and matching takes over, or a place near
+where the odometry took it fits the last updates' scans clearly better than any other (the odometry drifted it off
+the map meanwhile). Matching never moves the tracked pose further from the odometry's prediction than the motion
+model allows (``_REACH``). Poses are reported only while localized or off the map.
 """
 
 from __future__ import annotations
@@ -73,6 +75,11 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # karto's map of drive 1 ended at scan 130 of 637, not 266, and its kidnapping was found again after 86 scans, not 162,
 # but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE)
 _SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
+# how far matching may move the tracked pose from the odometry's prediction, beyond three times the motion model's
+# spread over the step (m, rad): at a map's edge, where few beams reach its walls, the best of the matcher's starts
+# turned intel's second half 30-85 degrees a scan against the odometry while it turned in place, and it left the map
+# facing backwards
+_REACH = (0.2, 0.15)
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
 _CONFIRM_UPDATES = 5
@@ -360,10 +367,11 @@ class Localizer:
         inside = (row >= 0) & (col >= 0) & (row < self.known.shape[0]) & (col < self.known.shape[1])
         return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
 
-    def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool,
-                prior: tuple[float, float] | None = None) -> tuple[NDArray[np.float64], float]:
+    def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool, prior: tuple[float, float] | None = None,
+                reach: tuple[float, float] | None = None) -> tuple[NDArray[np.float64], float]:
         """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly.
-        ``prior``: the pull of ``pose`` (m^2 per m^2, m^2 per rad^2; the tracked pose's when None)."""
+        ``prior``: the pull of ``pose`` (m^2 per m^2, m^2 per rad^2; the tracked pose's when None). ``reach`` (m, rad):
+        a matched pose further from ``pose`` is not taken."""
         prior = (_PRIOR_XY, _PRIOR_TH) if prior is None else prior
         f = self.field
         best, best_fit = pose, self._fit(pose, bx, by)
@@ -378,6 +386,8 @@ class Localizer:
             if used < 10:
                 continue
             cand = np.array([x, y, th])
+            if reach is not None and not _near(cand, pose, *reach):
+                continue
             fit = self._fit(cand, bx, by)
             # another start must fit clearly better: in a corridor many fit alike, and picking the best of
             # them scan after scan walks the pose along it
@@ -452,7 +462,8 @@ class Localizer:
                 # off the map: the odometry carries the pose until the scans reach the map again
                 travel = self.off_travel if self.state == "off_map" else 0.0
                 return self._off_map(t, predicted, travel + math.hypot(step[0], step[1]), mx, my, spread,
-                                     f"{known:.0%} of the scan ends in the map's known area: following the odometry")
+                                     f"{known:.0%} of the scan ends in the map's known area: following the odometry",
+                                     (odom, fx, fy))
             back = self.state == "off_map"
             if back and self.off_travel > _OFF_MAP_TRUST:
                 self._set_state("searching", t, f"back on the map after {self.off_travel:.1f} m off it: searching "
@@ -461,14 +472,16 @@ class Localizer:
                 self._spread_around(predicted, (std, std, _DRIFTED_STD[2]), self.p.max_particles)
                 self.drifted = (predicted.copy(), self.off_travel)
                 self.filter_odom, self.confirm = odom, 1
+                self._forget_track()
                 return ScanResult(t, "searching", None, self._fit(predicted, mx, my), spread, len(self.particles))
-            pose, fit = self._refine(predicted, mx, my, wide=back)
+            pose, fit = self._refine(predicted, mx, my, wide=back, reach=None if back else _reach(step))
             if back:  # the odometry drifted while off the map: the filter goes on from the matched place
                 self._set_state("localized", t, f"back on the map ({known:.0%} of the scan in its known area, "
                                 f"{fit:.0%} on walls)")
                 if self.p.method == "mcl":
                     self._spread_around(pose, _FOUND_STD)
                 self.filter_odom = odom
+                self._forget_track()  # (the scans off the map)
             elif self.p.method == "mcl":
                 pose, fit = self._challenge(pose, fit, estimate, step, mx, my, moved, t)
             self.pose = pose
@@ -532,15 +545,47 @@ class Localizer:
         return ScanResult(t, self.state, None, h["fit"], spread, len(self.particles))
 
     def _off_map(self, t: float, pose: NDArray[np.float64], travel: float, mx, my, spread: float,
-                 why: str) -> ScanResult:
-        """The robot at ``pose``, ``travel`` m of odometry since it left the map: said when it just left."""
+                 why: str, scan: tuple | None = None) -> ScanResult:
+        """The robot at ``pose``, ``travel`` m of odometry since it left the map: said when it just left. With
+        ``scan`` (odometry, filter beams x, y), checked for a place it rejoined the map (:meth:`_rejoin`)."""
         if self.state != "off_map":
             self._set_state("off_map", t, why)
+            self._forget_track()
         self.pose, self.off_travel = pose, travel
         self.challenger, self.drifted, self.misfits, self.far_misfits = None, None, 0, 0
-        self._forget_track()
+        if scan is not None and scan[0] is not None:
+            found = self._rejoin(t, *scan, mx, my, spread)
+            if found is not None:
+                return found
         return ScanResult(t, "off_map", pose.copy(), self._fit(pose, mx, my), spread,
                           len(self.particles) if self.p.method == "mcl" else 0)
+
+    def _rejoin(self, t: float, odom, fx, fy, mx, my, spread: float) -> ScanResult | None:
+        """Off the map: found again where a place near where the odometry took the robot (within _DRIFT_RADIUS) fits
+        the last updates' scans better than any other place by the search's margin, checked every _RIVAL_EVERY updates.
+        The odometry's pose alone comes back to the map only if it did not drift off it meanwhile: intel's second half
+        in the map of its first left it 1 m off at the map's edge and drifted 8 m off within 4 scans, then followed the
+        odometry for its last 373 scans, most of them in the map."""
+        if self.track_scans and not self.p.is_update(se2.relative(self.track_scans[-1][0], odom).reshape(3)):
+            return None
+        self.track_scans.append((odom, mx, my))
+        self.doubt_wait -= 1
+        if self.doubt_wait > 0 or len(self.track_scans) < _DOUBT_MIN:
+            return None
+        self.doubt_wait = _RIVAL_EVERY
+        places = sorted(self._unseen_rivals(-math.inf, fx, fy, mx, my, self.track_scans, []), key=lambda h: -h["score"])
+        if not places:
+            return None
+        best = places[0]
+        lead = best["score"] - places[1]["score"] if len(places) > 1 else math.inf
+        radius = _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1] * self.off_travel
+        if (lead < _HYPOTHESIS_MARGIN or not _near(best["pose"], self.pose, radius, math.tau)
+                or self._known_share(best["pose"], mx, my) < _BACK_KNOWN):
+            return None
+        self.filter_odom = odom  # the filter goes on from there (it waited off the map)
+        return self._found(t, best["pose"], best["fit"], f"back on the map {math.hypot(*(best['pose'][:2] - self.pose[:2])):.1f} m "
+                           f"from where the odometry took it: {best['fit']:.0%} of the scan on walls, other places fit "
+                           f"the last {len(self.track_scans)} updates worse (by {lead:.1f} in log-likelihood)", spread)
 
     def _forget_track(self) -> None:
         """Drop the tracked pose's recent scans and scores (:meth:`_doubt`): it was lost, moved or found again."""
@@ -746,6 +791,14 @@ class Localizer:
     def _set_state(self, state: str, t: float, why: str) -> None:
         self.events.append({"time": t, "state": state, "why": why})
         self.state = state
+
+
+def _reach(step: NDArray[np.float64]) -> tuple[float, float]:
+    """How far (m, rad) matching may move the tracked pose from where the odometry ``step`` took it: _REACH plus three
+    times the motion model's spread over the step (_MOTION_NOISE, as the particles move)."""
+    srr, srt, str_, stt = _MOTION_NOISE
+    travel, turn = math.hypot(step[0], step[1]), abs(step[2])
+    return (_REACH[0] + 3.0 * (srr * travel + str_ * turn), _REACH[1] + 3.0 * (srt * travel + stt * turn))
 
 
 def _near(a: NDArray[np.float64], b: NDArray[np.float64], distance: float, angle: float) -> bool:
