@@ -406,7 +406,9 @@ def test_live_mapping_goes_on_from_a_saved_session(ros, office_bag, tmp_path):
         log = _stop(node)
     assert (out / "run.json").is_file(), log
     record = json.loads((out / "run.json").read_text())
-    assert record["resumed"]["scans_before_placed"] <= 20, log  # (placed once the robot has moved)
+    # (found once the robot has moved; the scans before are traced back from there and mapped too)
+    assert record["resumed"]["scans_before_placed"] == 0, log
+    assert "scans: mapping on" in log and " after 0 scans" not in log, log  # there were scans before it
     monday = json.loads((tmp_path / "monday" / "run.json").read_text())
     session = json.loads((out / "session" / "session.json").read_text())
     assert session["frames"]["count"] == monday["scans"] + record["scans"] and len(session["relocations"]) == 1

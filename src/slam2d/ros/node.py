@@ -63,6 +63,9 @@ class NodeParams:
 
 #: ROS-only parameters a node takes (slam_gmapping's) that slam2d's node has no use for: accepted, ignored
 _IGNORED = ("throttle_scans", "tf_delay", "use_sim_time", "scan_topic")
+# with ~session: the live scans kept until the robot is found in the saved map (then traced back and mapped); a
+# search that takes longer maps only the last of them (5 minutes of a 10 Hz laser)
+_WAITING_SCANS = 3000
 
 
 class TfFeed:
@@ -254,6 +257,7 @@ class _Node:
 
         self.session = SessionRecorder()  # the frames fed: the run folder's session/
         self.placing: Any = None
+        self.waiting: deque[tuple[LaserScan, Any]] = deque()
         self.replayed, self.shift, self.session_last_t = 0, 0.0, None
         if not self.p.session:
             self.slam = build_method(self.method_name, **self.build)
@@ -272,6 +276,7 @@ class _Node:
         self.map_grid, self.map_path = load_map_grid(self.p.session)
         self.placing = Localizer(self.map_grid, LocalizationParams(method="match"), seed=self.slam.seed)
         self.counts["scans_before_placed"] = 0
+        self.waiting = deque(maxlen=_WAITING_SCANS)  # the live scans (and odometry) until they are placed
 
     def _new_localizer(self, initial_pose: Any = None) -> Any:
         from slam2d.localization.localizer import LocalizationParams, Localizer
@@ -414,25 +419,39 @@ class _Node:
             return
         started = time.process_time()
         with self.lock:
+            backlog: list[tuple[LaserScan, Any]] = []
             if self.placing is not None:  # ~session: where in the saved map do the live scans start?
                 found = self.placing.feed(Frame(self.frames, scan, odometry))
                 if found.pose is None:
                     self.counts["scans_before_placed"] += 1
+                    self.waiting.append((scan, odometry))
                     return
-                self.slam.relocate(found.pose)
-                self.session.relocated(found.pose)
+                # the scans before it was found, traced back from there along the odometry in the saved map (as
+                # `slam2d run --resume` does), are mapped first; without odometry they are left out
+                waiting = [Frame(k, w, o) for k, (w, o) in enumerate([*self.waiting, (scan, odometry)])]
+                traced = self.placing.traced_back(waiting, found.pose) if len(waiting) > 1 else None
+                start = found.pose if traced is None else traced[0]
+                if traced is not None:
+                    backlog = list(self.waiting)
+                    self.counts["scans_before_placed"] -= len(backlog)  # (those the buffer could not hold stay)
+                self.waiting.clear()
+                self.slam.relocate(start)
+                self.session.relocated(start)
                 self.placing = None
                 # the method's clock goes on after the session's (a replayed bag starts earlier)
-                self.shift = max(0.0, (self.session_last_t or t) + 0.1 - t)
-                rospy.loginfo("slam2d: found in %s at (%.2f, %.2f, %.2f): mapping on", self.p.session, *found.pose)
+                t0 = backlog[0][0].timestamp if backlog else t
+                self.shift = max(0.0, (self.session_last_t or t0) + 0.1 - t0)
+                rospy.loginfo("slam2d: found in %s at (%.2f, %.2f, %.2f) after %d scans: mapping on", self.p.session,
+                              *found.pose, len(waiting) - 1)
             self.beams = len(msg.ranges)
-            if self.shift:
-                scan = dataclasses.replace(scan, timestamp=scan.timestamp + self.shift)
-            frame = Frame(self.frames, scan, odometry)
-            self.session.add(frame)
-            self.slam.feed(frame)
-            self.frames += 1
-            self.first_t = t if self.first_t is None else self.first_t
+            for earlier, earlier_odometry in [*backlog, (scan, odometry)]:
+                if self.shift:
+                    earlier = dataclasses.replace(earlier, timestamp=earlier.timestamp + self.shift)
+                frame = Frame(self.frames, earlier, earlier_odometry)
+                self.session.add(frame)
+                self.slam.feed(frame)
+                self.frames += 1
+            self.first_t = (backlog[0][0].timestamp if backlog else t) if self.first_t is None else self.first_t
             self.last_t = t
             pose = self.slam.current_pose()
             if pose is not None:
