@@ -69,9 +69,9 @@ _KLD_ERROR, _KLD_Z = 0.01, 2.326
 # the pull of the predicted pose in matching, against the endpoints' unit weights (m^2 per m^2, m^2 per rad^2):
 # (0.05 m of endpoint noise / 0.1 m of prediction error)^2, (0.05 m / 0.05 rad)^2
 _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
-# ... and of a search's hypotheses and the paths traced back for them: as loose. The simulated odometry errs by some
-# 0.03 m and 0.06 rad over one scan's step (GMapping's noise defaults, benchmarks/localization.py's drives), and the true
-# place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
+# ... and of a search's hypotheses and the paths traced back for them: as loose. The simulated odometry errs by 0.031 m
+# and 0.055 rad (RMS) over one scan's step of 0.08 m (GMapping's noise defaults; office's drive 2 of
+# benchmarks/localization.py), and the true place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
 # karto's map of drive 1 ended at scan 130 of 637, not 266, and its kidnapping was found again after 86 scans, not 162,
 # but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE)
 _SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
@@ -583,9 +583,10 @@ class Localizer:
                 or self._known_share(best["pose"], mx, my) < _BACK_KNOWN):
             return None
         self.filter_odom = odom  # the filter goes on from there (it waited off the map)
-        return self._found(t, best["pose"], best["fit"], f"back on the map {math.hypot(*(best['pose'][:2] - self.pose[:2])):.1f} m "
-                           f"from where the odometry took it: {best['fit']:.0%} of the scan on walls, other places fit "
-                           f"the last {len(self.track_scans)} updates worse (by {lead:.1f} in log-likelihood)", spread)
+        off = math.hypot(*(best["pose"][:2] - self.pose[:2]))
+        return self._found(t, best["pose"], best["fit"], f"back on the map {off:.1f} m from where the odometry took it: "
+                           f"{best['fit']:.0%} of the scan on walls, other places fit the last {len(self.track_scans)} "
+                           f"updates worse (by {lead:.1f} in log-likelihood)", spread)
 
     def _forget_track(self) -> None:
         """Drop the tracked pose's recent scans and scores (:meth:`_doubt`): it was lost, moved or found again."""
@@ -704,9 +705,10 @@ class Localizer:
         starts = np.zeros(len(odoms) + 1, dtype=np.int64)
         np.cumsum([len(s[1]) for s in scans], out=starts[1:])
         f = self.field
+        prior = (_PRIOR_XY, _PRIOR_TH) if loose else (_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH)
         return _INDEPENDENT_BEAMS * float(traced_path_log_likelihood(
             f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, float(pose[0]), float(pose[1]),
-            float(pose[2]), steps, bx, by, starts, 20, 0.1, *((_PRIOR_XY, _PRIOR_TH) if loose else (_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH)), self.inv_two_sigma2, _Z_HIT, _Z_RAND,
+            float(pose[2]), steps, bx, by, starts, 20, 0.1, *prior, self.inv_two_sigma2, _Z_HIT, _Z_RAND,
             per_scan if per_scan is not None else np.empty(0)))
 
     def _unseen_rivals(self, floor: float, fx, fy, mx, my, scans: Sequence | None = None,

@@ -438,8 +438,9 @@ def resume_run(
     The session's frames are fed again (the method's state rebuilt, same settings and seed),
     the new recording's start is found in ``run``'s map (:class:`~slam2d.localization.Localizer`,
     matching from ``initial_pose`` or a global search), the scans before that traced back along the
-    odometry in the same map, the method is put down at the first one, and the new frames follow, their times moved after the session's when they start earlier. ``trajectory.tum``
-    holds the new recording's poses (at its own times), in the saved map's frame.
+    odometry in the same map, the method is put down at the first one, and the new frames follow,
+    their times moved after the session's when they start earlier. ``trajectory.tum`` holds the new
+    recording's poses (at its own times), in the saved map's frame.
     """
     from slam2d import __version__
     from slam2d.io import detect_format, open_recording
