@@ -73,7 +73,8 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # and 0.055 rad (RMS) over one scan's step of 0.08 m (GMapping's noise defaults; office's drive 2 of
 # benchmarks/localization.py), and the true place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
 # karto's map of drive 1 ended at scan 130 of 637, not 266, and its kidnapping was found again after 86 scans, not 162,
-# but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE)
+# but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE); the
+# position alone (10, 1.0): scan 130 and 141 scans, and the same one search in nine
 _SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
 # how far matching may move the tracked pose from the odometry's prediction, beyond three times the motion model's
 # spread over the step (m, rad): at a map's edge, where few beams reach its walls, the best of the matcher's starts
