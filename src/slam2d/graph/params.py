@@ -177,7 +177,8 @@ class GraphSlamParams(GridParams, WallEndParams, WallRefinementParams, DenseRefi
         "and leaves no loop candidate to try, its pose (the matches' mean) hangs from that old node, which joins "
         "the running scans, and the next scans are predicted from it; entering the covered place its matches become "
         "edges from the last node. Intel driven 8 times (benchmarks/memory.py): peak 418 MB instead of 507 MB "
-        "(346 MB once), 133 s of CPU instead of 463 s; the real logs' and simulated worlds' ATE as before (docs)",
+        "(346 MB once), 133 s of CPU instead of 463 s, when added (389 MB with the odometry guard's reversing "
+        "check since, BENCHMARKS.md); the real logs' and simulated worlds' ATE as before (docs)",
         advanced=True, group="revisits",
     )
     scan_buffer_size: int = param(70, low=1, help="running scans the sequential matcher matches against [ScanBufferSize]")

@@ -567,11 +567,7 @@ class Localizer:
         The odometry's pose alone comes back to the map only if it did not drift off it meanwhile: intel's second half
         in the map of its first left it 1 m off at the map's edge and drifted 8 m off within 4 scans, then followed the
         odometry for its last 373 scans, most of them in the map."""
-        if self.track_scans and not self.p.is_update(se2.relative(self.track_scans[-1][0], odom).reshape(3)):
-            return None
-        self.track_scans.append((odom, mx, my))
-        self.doubt_wait -= 1
-        if self.doubt_wait > 0 or len(self.track_scans) < _DOUBT_MIN:
+        if not self._tracked_update(odom, mx, my) or self.doubt_wait > 0 or len(self.track_scans) < _DOUBT_MIN:
             return None
         self.doubt_wait = _RIVAL_EVERY
         places = sorted(self._unseen_rivals(-math.inf, fx, fy, mx, my, self.track_scans, []), key=lambda h: -h["score"])
@@ -589,6 +585,15 @@ class Localizer:
                            f"{best['fit']:.0%} of the scan on walls, other places fit the last {len(self.track_scans)} "
                            f"updates worse (by {lead:.1f} in log-likelihood)", spread)
 
+    def _tracked_update(self, odom, mx, my) -> bool:
+        """Keep the scan (odometry, matched endpoints) in the tracked history when the odometry moved a filter update's
+        worth since the last one kept: whether it did (:meth:`_doubt` and :meth:`_rejoin` check every _RIVAL_EVERY)."""
+        if self.track_scans and not self.p.is_update(se2.relative(self.track_scans[-1][0], odom).reshape(3)):
+            return False
+        self.track_scans.append((odom, mx, my))
+        self.doubt_wait -= 1
+        return True
+
     def _forget_track(self) -> None:
         """Drop the tracked pose's recent scans and scores (:meth:`_doubt`): it was lost, moved or found again."""
         self.track_scans.clear()
@@ -600,17 +605,14 @@ class Localizer:
         if odom is None:
             self._forget_track()
             return False
-        if self.track_scans and not self.p.is_update(se2.relative(self.track_scans[-1][0], odom).reshape(3)):
+        if not self._tracked_update(odom, mx, my):
             return False
-        self.track_scans.append((odom, mx, my))
         self.track_ll.append(_INDEPENDENT_BEAMS * float(self._log_likelihoods(self.pose[None], mx, my)[0]))
-        self.doubt_wait -= 1
         n = len(self.track_scans)
-        if self.doubt_wait > 0 or n < _DOUBT_MIN:
-            return False
         # the tracked pose's summed log-likelihood over the last 1, 2, ... n updates: a stretch of them under the
         # margin, and places elsewhere might fit them better
-        if float(np.min(np.cumsum(np.array(self.track_ll)[::-1])[_DOUBT_MIN - 1:])) >= -_HYPOTHESIS_MARGIN:
+        if self.doubt_wait > 0 or n < _DOUBT_MIN or float(
+                np.min(np.cumsum(np.array(self.track_ll)[::-1])[_DOUBT_MIN - 1:])) >= -_HYPOTHESIS_MARGIN:
             return False
         self.doubt_wait = _RIVAL_EVERY
         own_terms = np.zeros(n)

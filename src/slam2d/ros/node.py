@@ -257,7 +257,8 @@ class _Node:
 
         self.session = SessionRecorder()  # the frames fed: the run folder's session/
         self.placing: Any = None
-        self.waiting: deque[tuple[LaserScan, Any]] = deque()
+        # with ~session: the live scans (and odometry) until they are placed
+        self.waiting: deque[tuple[LaserScan, Any]] = deque(maxlen=_WAITING_SCANS)
         self.replayed, self.shift, self.session_last_t = 0, 0.0, None
         if not self.p.session:
             self.slam = build_method(self.method_name, **self.build)
@@ -276,7 +277,6 @@ class _Node:
         self.map_grid, self.map_path = load_map_grid(self.p.session)
         self.placing = Localizer(self.map_grid, LocalizationParams(method="match"), seed=self.slam.seed)
         self.counts["scans_before_placed"] = 0
-        self.waiting = deque(maxlen=_WAITING_SCANS)  # the live scans (and odometry) until they are placed
 
     def _new_localizer(self, initial_pose: Any = None) -> Any:
         from slam2d.localization.localizer import LocalizationParams, Localizer
