@@ -119,13 +119,16 @@ def refine_on_field(field, ox, oy, res, max_d, x, y, th, bx, by, iterations, hub
 
 @njit(cache=True)
 def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, by, starts, iterations, huber,
-                               prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand, per_scan):
+                               prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand, slide_std, slide_per_m, per_scan):
     """The summed mean log-likelihood per beam of scans ``0..n-1``, traced back from the last one at ``(x, y, th)``.
 
     Each earlier pose is the later one moved by ``steps[k]`` (scan ``k``'s pose in scan ``k + 1``'s frame, from the
     odometry) and matched to the map from there (:func:`refine_on_field`, the prediction as its prior), as a
     hypothesis is tracked forwards: odometry alone drifts a tenth of a radian in a second. Scan ``k``'s endpoints
     are ``bx[starts[k]:starts[k + 1]], by[...]`` (base frame). ``per_scan``: each scan's term, when it has ``n`` places.
+    With ``slide_std > 0`` each matched pose also pays for how far matching moved it from the prediction (the
+    odometry's likelihood: Gaussian, ``slide_std + slide_per_m`` x the step's travel metres per axis): a twin of the
+    true place fits the scans by sliding along its corridors, the true path follows the odometry.
     """
     n = starts.shape[0] - 1
     total = 0.0
@@ -140,6 +143,9 @@ def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, b
                                           huber, prior, prior_xy, prior_th)
         term = _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit,
                                       z_rand) / max(hi - lo, 1)
+        if k < n - 1 and slide_std > 0.0:
+            sigma = slide_std + slide_per_m * math.hypot(steps[k, 0], steps[k, 1])
+            term -= 0.5 * ((x - prior[0]) ** 2 + (y - prior[1]) ** 2) / (sigma * sigma)
         if per_scan.shape[0] == n:
             per_scan[k] = term
         total += term

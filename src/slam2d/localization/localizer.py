@@ -16,7 +16,8 @@ slam_toolbox's localization mode tracks.
 
 Without an initial pose the particles spread over the map's free space, and every place they gather
 becomes a hypothesis, tracked by matching and scored by the likelihood of the scans there (a place found
-late also on the earlier scans, along its path traced back through the odometry); every few updates,
+late also on the earlier scans, along its path traced back through the odometry) and of the odometry given how far
+the matching moved it from the odometry's prediction; every few updates,
 and before one wins, the scan is scored over the whole free space for places the particles missed. One
 wins when it leads every other clearly (a symmetric building keeps two alive until the scans tell them
 apart). Either way a scan whose endpoints miss the map's walls (``lost_fit``) for ``lost_after`` scans in a
@@ -76,10 +77,21 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # but office's half-turn twin won one search in nine (localization.py / localization_search.py, NAME=VALUE); the
 # position alone (10, 1.0): scan 130 and 141 scans, and the same one search in nine
 _SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
+# ... but a path pays for each step matching moved it from the odometry's prediction (m, and m per m of travel: the
+# std of a Gaussian on each axis). Matched at every step, a twin of the true place fits the scans nearly as well by
+# sliding along its corridors: over 10 filter updates the true path slid 0.11-0.17 m (RMS) from the odometry, its
+# twins 0.3-1.5 m (corridor-loop and office, karto's maps of drive 1). Without it corridor-loop's search in karto's
+# map ended at scan 266 of 637, with it at 44; office's at 94 and 78 of 680 (true map: 94 and 41); corridor-loop's
+# kidnapping was found again after 162 scans, now 87-93; aces's second half was never localized, now at 43 %.
+# Looser (0.1, 1.0): office's true map at 12 %, the kidnapping after 115-133 scans (benchmarks/localization.py)
+_SLIDE_STD = (0.05, 0.5)
 # how far matching may move the tracked pose from the odometry's prediction, beyond three times the motion model's
 # spread over the step (m, rad): at a map's edge, where few beams reach its walls, the best of the matcher's starts
 # turned intel's second half 30-85 degrees a scan against the odometry while it turned in place, and it left the map
-# facing backwards
+# facing backwards. A match beyond it in position is taken where nothing within fits (_FOUND_FIT) and it does: held by the
+# prior along corridor-loop's corridor in karto's map, the pose slid 0.3 m from the walls' ends, and at the next
+# junction the walls put it 0.44 m on; refused, it turned away and was lost. A wider reach (0.5 m) instead: fr079's
+# ATE 0.148 m, not 0.119, intel's 0.34 m, not 0.29
 _REACH = (0.2, 0.15)
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
@@ -380,6 +392,7 @@ class Localizer:
         if wide or best_fit < 0.8:
             starts += [(dx, dy, dt) for dx in (-0.2, 0.0, 0.2) for dy in (-0.2, 0.0, 0.2) for dt in (-0.15, 0.0, 0.15)
                        if (dx, dy, dt) != (0.0, 0.0, 0.0)]
+        beyond, beyond_fit = pose, 0.0  # the best match out of reach
         for dx, dy, dt in starts:
             x, y, th, used = refine_on_field(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
                                              float(pose[0] + dx), float(pose[1] + dy), float(pose[2] + dt),
@@ -387,13 +400,19 @@ class Localizer:
             if used < 10:
                 continue
             cand = np.array([x, y, th])
-            if reach is not None and not _near(cand, pose, *reach):
-                continue
             fit = self._fit(cand, bx, by)
+            if reach is not None and not _near(cand, pose, *reach):
+                if fit > beyond_fit and _near(cand, pose, math.inf, reach[1]):
+                    beyond, beyond_fit = cand, fit
+                continue
             # another start must fit clearly better: in a corridor many fit alike, and picking the best of
             # them scan after scan walks the pose along it
             if fit > best_fit + (1e-9 if (dx, dy, dt) == (0.0, 0.0, 0.0) else 0.05):
                 best, best_fit = cand, fit
+        # ... but where nothing in reach fits and a match beyond it (in position, not heading) does, the pose had slid
+        # where the walls said nothing (along a corridor, held by the prior) and the walls now say where it is
+        if best_fit < _FOUND_FIT <= beyond_fit:
+            return beyond, beyond_fit
         return best, best_fit
 
     def traced_back(self, frames: Sequence[Any], pose: NDArray[np.float64]) -> NDArray[np.float64] | None:
@@ -709,9 +728,10 @@ class Localizer:
         np.cumsum([len(s[1]) for s in scans], out=starts[1:])
         f = self.field
         prior = (_PRIOR_XY, _PRIOR_TH) if loose else (_SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH)
+        slide = (0.0, 0.0) if loose else _SLIDE_STD
         return _INDEPENDENT_BEAMS * float(traced_path_log_likelihood(
             f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance, float(pose[0]), float(pose[1]),
-            float(pose[2]), steps, bx, by, starts, 20, 0.1, *prior, self.inv_two_sigma2, _Z_HIT, _Z_RAND,
+            float(pose[2]), steps, bx, by, starts, 20, 0.1, *prior, self.inv_two_sigma2, _Z_HIT, _Z_RAND, *slide,
             per_scan if per_scan is not None else np.empty(0)))
 
     def _unseen_rivals(self, floor: float, fx, fy, mx, my, scans: Sequence | None = None,
@@ -764,7 +784,7 @@ class Localizer:
             if self.hypotheses:
                 ll = self._log_likelihoods(np.array([h["pose"] for h in self.hypotheses]), mx, my)
                 for h, v in zip(self.hypotheses, ll):
-                    h["score"] += _INDEPENDENT_BEAMS * float(v)
+                    h["score"] += _INDEPENDENT_BEAMS * float(v) - _slide_cost(h, odom)
                     h["updates"] += 1
             top = max((h["score"] for h in self.hypotheses), default=0.0)
             for mode in self._modes():
@@ -796,6 +816,19 @@ class Localizer:
     def _set_state(self, state: str, t: float, why: str) -> None:
         self.events.append({"time": t, "state": state, "why": why})
         self.state = state
+
+
+def _slide_cost(h: dict[str, Any], odom: NDArray[np.float64] | None) -> float:
+    """What hypothesis ``h`` pays for how far matching moved it from where the odometry since its last filter update
+    took it (as :func:`~slam2d.localization.kernels.traced_path_log_likelihood` charges a path traced back)."""
+    anchor = h.get("anchor")
+    h["anchor"] = None if odom is None else (h["pose"].copy(), odom)
+    if anchor is None or odom is None:
+        return 0.0
+    step = se2.relative(anchor[1], odom).reshape(3)
+    predicted = se2.compose(anchor[0], step).reshape(3)
+    sigma = _SLIDE_STD[0] + _SLIDE_STD[1] * math.hypot(step[0], step[1])
+    return 0.5 * float((h["pose"][0] - predicted[0]) ** 2 + (h["pose"][1] - predicted[1]) ** 2) / sigma ** 2
 
 
 def _reach(step: NDArray[np.float64]) -> tuple[float, float]:
