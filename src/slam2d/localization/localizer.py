@@ -50,7 +50,7 @@ from slam2d.grids.likelihood_field import LikelihoodField, likelihood_field
 from slam2d.localization.kernels import (fit_fraction, particle_log_likelihoods, refine_on_field,
                                          scan_log_likelihood_grid, traced_path_log_likelihood)
 from slam2d.params import param
-from slam2d.sensors.motion_noise import draw_from_motion
+from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 
 __all__ = ["LocalizationParams", "Localizer", "ScanResult", "STATES"]
 
@@ -833,10 +833,9 @@ def _slide_cost(h: dict[str, Any], odom: NDArray[np.float64] | None) -> float:
 
 def _reach(step: NDArray[np.float64]) -> tuple[float, float]:
     """How far (m, rad) matching may move the tracked pose from where the odometry ``step`` took it: _REACH plus three
-    times the motion model's spread over the step (_MOTION_NOISE, as the particles move)."""
-    srr, srt, str_, stt = _MOTION_NOISE
-    travel, turn = math.hypot(step[0], step[1]), abs(step[2])
-    return (_REACH[0] + 3.0 * (srr * travel + str_ * turn), _REACH[1] + 3.0 * (srt * travel + stt * turn))
+    times the motion model's spread over the step (_MOTION_NOISE, as the particles move; the larger of its two axes)."""
+    sx, sy, sth = gmapping_motion_std(step, *_MOTION_NOISE)
+    return (_REACH[0] + 3.0 * max(sx, sy), _REACH[1] + 3.0 * sth)
 
 
 def _near(a: NDArray[np.float64], b: NDArray[np.float64], distance: float, angle: float) -> bool:
