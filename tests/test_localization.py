@@ -273,6 +273,29 @@ def test_off_a_partial_map_the_pose_follows_the_odometry_and_is_placed_again_whe
     assert np.nanmax(error[off_map]) < 1.0  # odometry over a few metres
 
 
+@pytest.mark.parametrize("anchor_off", [1.0, 5.0])
+def test_back_on_the_map_a_place_is_taken_only_near_where_the_odometry_took_the_robot(office, anchor_off):
+    """Searching near where the odometry took a robot back on the map (as after a stretch off it): the particles gather
+    on the true place at once, which is taken only within _DRIFT_RADIUS (3 m after no travel) of the odometry's pose."""
+    from slam2d.io import open_recording
+    from slam2d.io.map_server import read_map
+
+    tt, tp = read_tum(office / "truth.tum")
+    frames = list(open_recording(office / "recording.log.gz").frames())
+    loc = Localizer(read_map(office / "truth-map.yaml").to_grid(), LocalizationParams(method="match"), seed=0)
+    start = 100
+    truth = tp[min(np.searchsorted(tt, frames[start].timestamp), len(tt) - 1)]
+    loc.restart(truth, said=False)  # the particles around the true place ...
+    anchor = truth + np.array([0.0, anchor_off, 0.0])  # ... the odometry's pose this far off it
+    assert loc._known_share(anchor, *loc._beams(frames[start].scan.points_in_base(), 180)) > 0.5
+    loc.drifted = (anchor, 0.0)
+    states = [loc.feed(f).state for f in frames[start:start + 30]]
+    if anchor_off < 3.0:
+        assert "localized" in states
+    else:
+        assert "localized" not in states
+
+
 @pytest.mark.slow
 def test_fr079_second_half_reports_no_far_place_after_leaving_the_first_halfs_map(tmp_path):
     """fr079's second half drives a hall and rooms its first half never saw. Off the map the pose follows the
