@@ -233,8 +233,8 @@ def test_a_robot_carried_into_a_twin_of_its_corridor_is_noticed_and_found_again(
     assert doubted and "fit the last" in doubted[0]["why"], twin.events
     # once doubted, no place is reported but the right one. Found there again before the drive ends only sometimes
     # (the search's last lead over a twin 18 m off: 4.2 one day, 2.4 after a change elsewhere moved the doubt by one
-    # update): the whole-map check proposes one place per metre of a corridor, matched where the prior holds it, 0.8-2.7 m
-    # from the true place, which it scores 10 under it (docs/commands/localize.md, "How it fails")
+    # update): the whole-map check proposes one place per metre of a corridor, matched where the prior holds it,
+    # 0.8-2.7 m from the true place, which it scores 10 under it (docs/commands/localize.md, "How it fails")
     doubt = min(k for k, r in after.items() if r.state == "lost")
     assert all(math.hypot(*(r.pose[:2] - truth(k)[:2])) < 0.3 for k, r in after.items()
                if k > doubt and r.state == "localized"), twin.events

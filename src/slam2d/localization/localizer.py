@@ -84,14 +84,16 @@ _SEARCH_PRIOR_XY, _SEARCH_PRIOR_TH = _PRIOR_XY, _PRIOR_TH
 # map ended at scan 266 of 637, with it at 44; office's at 94 and 78 of 680 (true map: 94 and 41); corridor-loop's
 # kidnapping was found again after 162 scans, now 87-93; aces's second half was never localized, now at 43 %.
 # Looser (0.1, 1.0): office's true map at 12 %, the kidnapping after 115-133 scans (benchmarks/localization.py)
+# (one odometry reading a step: not tempered as the scans are; _INDEPENDENT_BEAMS, which also scales the traced
+# paths' sums, is 1)
 _SLIDE_STD = (0.05, 0.5)
 # how far matching may move the tracked pose from the odometry's prediction, beyond three times the motion model's
 # spread over the step (m, rad): at a map's edge, where few beams reach its walls, the best of the matcher's starts
 # turned intel's second half 30-85 degrees a scan against the odometry while it turned in place, and it left the map
-# facing backwards. A match beyond it in position is taken where nothing within fits (_FOUND_FIT) and it does: held by the
-# prior along corridor-loop's corridor in karto's map, the pose slid 0.3 m from the walls' ends, and at the next
-# junction the walls put it 0.44 m on; refused, it turned away and was lost. A wider reach (0.5 m) instead: fr079's
-# ATE 0.148 m, not 0.119, intel's 0.34 m, not 0.29
+# facing backwards. A match beyond it in position is taken where nothing within fits (_FOUND_FIT) and it does: held
+# by the prior along corridor-loop's corridor in karto's map, the pose slid 0.3 m from the walls' ends, and at the
+# next junction the walls put it 0.44 m on; refused, it turned away and was lost. A wider reach (0.5 m) instead:
+# fr079's ATE 0.148 m, not 0.119, intel's 0.34 m, not 0.29
 _REACH = (0.2, 0.15)
 # filter updates in a row (each after some travel) the particles must agree before a search ends: one scan
 # of a symmetric building fits in several places, motion tells them apart
