@@ -254,26 +254,26 @@ def real_rows(work: Path) -> list[str]:
         write_carmen(work / f"{name}-1.log", frames[:half])
         write_carmen(work / f"{name}-2.log", frames[half:])
         ref = SHARED / name / "reference.tum"
-        for maker, method in [(m, w) for m in MAP_MAKERS for w in ("mcl", "match")]:
+        for maker in MAP_MAKERS:
             map_run = work / f"{name}-{maker}"
-            if not (map_run / "map.yaml").is_file():
-                run_method(maker, work / f"{name}-1.log", map_run)
+            run_method(maker, work / f"{name}-1.log", map_run)
             frame = frame_of(map_run / "trajectory.tum", ref)
-            out = work / f"{name}-{maker}-{method}"
-            rec = localize(map_run, work / f"{name}-2.log", out, method)
-            label = f"| {name} (2nd half, {len(frames) - half} scans) | {maker} map of the 1st half | `{method}` |"
-            if not rec["localized"]:
-                rows.append(f"{label} never | - | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
-                continue
-            ate = ate_in_frame(out / "trajectory.tum", ref, frame)
-            err = np.hypot(*errors_at(out / "trajectory.tum", ref, frame)[0].T)
-            # the reference is one trajectory through both halves, so it is the truth for the map run and the localizer
-            floor = map_error_floor(map_run, ref, out / "trajectory.tum", ref, frame)
-            rows.append(f"{label} {100 * rec['first_localized']['fraction_of_scans']:.0f} % | {ate:.3f} m (median "
-                        f"{np.median(err):.3f} m, {100 * np.mean(err < 0.3):.0f} % within 0.3 m; the map's own error there "
-                        f"{floor:.3f} m; {rec['localized_scans']} scans localized, {rec['off_map_scans']} off the map) | "
-                        f"{rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
-            print(rows[-1], file=sys.stderr, flush=True)
+            for method in ("mcl", "match"):
+                out = work / f"{name}-{maker}-{method}"
+                rec = localize(map_run, work / f"{name}-2.log", out, method)
+                label = f"| {name} (2nd half, {len(frames) - half} scans) | {maker} map of the 1st half | `{method}` |"
+                if not rec["localized"]:
+                    rows.append(f"{label} never | - | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
+                    continue
+                ate = ate_in_frame(out / "trajectory.tum", ref, frame)
+                err = np.hypot(*errors_at(out / "trajectory.tum", ref, frame)[0].T)
+                # the reference is one trajectory through both halves: the truth for the map run and the localizer
+                floor = map_error_floor(map_run, ref, out / "trajectory.tum", ref, frame)
+                rows.append(f"{label} {100 * rec['first_localized']['fraction_of_scans']:.0f} % | {ate:.3f} m (median "
+                            f"{np.median(err):.3f} m, {100 * np.mean(err < 0.3):.0f} % within 0.3 m; the map's own error "
+                            f"there {floor:.3f} m; {rec['localized_scans']} scans localized, {rec['off_map_scans']} off "
+                            f"the map) | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
+                print(rows[-1], file=sys.stderr, flush=True)
     return rows
 
 

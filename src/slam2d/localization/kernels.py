@@ -13,8 +13,8 @@ from numba import njit
 
 from slam2d.grids.likelihood_field import bilinear_gradient_at
 
-__all__ = ["particle_log_likelihoods", "traced_path_log_likelihood", "scan_log_likelihood_grid", "refine_on_field",
-           "fit_fraction"]
+__all__ = ["particle_log_likelihoods", "traced_path_log_likelihood", "slide_cost", "scan_log_likelihood_grid",
+           "refine_on_field", "fit_fraction"]
 
 
 @njit(cache=True)
@@ -118,6 +118,14 @@ def refine_on_field(field, ox, oy, res, max_d, x, y, th, bx, by, iterations, hub
 
 
 @njit(cache=True)
+def slide_cost(dx, dy, travel, slide_std, slide_per_m):
+    """What a pose pays for lying ``(dx, dy)`` from the odometry's prediction over a step of ``travel`` metres: the
+    negative log of a Gaussian of std ``slide_std + slide_per_m * travel`` on each axis (its constant left out)."""
+    sigma = slide_std + slide_per_m * travel
+    return 0.5 * (dx * dx + dy * dy) / (sigma * sigma)
+
+
+@njit(cache=True)
 def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, by, starts, iterations, huber,
                                prior_xy, prior_th, inv_two_sigma2, z_hit, z_rand, slide_std, slide_per_m, per_scan):
     """The summed mean log-likelihood per beam of scans ``0..n-1``, traced back from the last one at ``(x, y, th)``.
@@ -144,8 +152,7 @@ def traced_path_log_likelihood(field, ox, oy, res, max_d, x, y, th, steps, bx, b
         term = _summed_log_likelihood(field, ox, oy, res, max_d, x, y, th, bx, by, lo, hi, inv_two_sigma2, z_hit,
                                       z_rand) / max(hi - lo, 1)
         if k < n - 1 and slide_std > 0.0:
-            sigma = slide_std + slide_per_m * math.hypot(steps[k, 0], steps[k, 1])
-            term -= 0.5 * ((x - prior[0]) ** 2 + (y - prior[1]) ** 2) / (sigma * sigma)
+            term -= slide_cost(x - prior[0], y - prior[1], math.hypot(steps[k, 0], steps[k, 1]), slide_std, slide_per_m)
         if per_scan.shape[0] == n:
             per_scan[k] = term
         total += term

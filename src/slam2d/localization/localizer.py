@@ -48,7 +48,7 @@ from slam2d.core import se2
 from slam2d.errors import InputError
 from slam2d.grids.likelihood_field import LikelihoodField, likelihood_field
 from slam2d.localization.kernels import (fit_fraction, particle_log_likelihoods, refine_on_field,
-                                         scan_log_likelihood_grid, traced_path_log_likelihood)
+                                         scan_log_likelihood_grid, slide_cost, traced_path_log_likelihood)
 from slam2d.params import param
 from slam2d.sensors.motion_noise import draw_from_motion, gmapping_motion_std
 
@@ -573,7 +573,7 @@ class Localizer:
         if self.drifted is None:
             return True
         where, travelled = self.drifted
-        return _near(pose, where, _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1] * travelled, math.tau)
+        return _near(pose, where, _drift_radius(travelled), math.tau)
 
     def _off_map(self, t: float, pose: NDArray[np.float64], travel: float, mx, my, spread: float,
                  why: str, scan: tuple | None = None) -> ScanResult:
@@ -605,8 +605,7 @@ class Localizer:
             return None
         best = places[0]
         lead = best["score"] - places[1]["score"] if len(places) > 1 else math.inf
-        radius = _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1] * self.off_travel
-        if (lead < _HYPOTHESIS_MARGIN or not _near(best["pose"], self.pose, radius, math.tau)
+        if (lead < _HYPOTHESIS_MARGIN or not _near(best["pose"], self.pose, _drift_radius(self.off_travel), math.tau)
                 or self._known_share(best["pose"], mx, my) < _BACK_KNOWN):
             return None
         self.filter_odom = odom  # the filter goes on from there (it waited off the map)
@@ -838,8 +837,14 @@ def _slide_cost(h: dict[str, Any], odom: NDArray[np.float64] | None) -> float:
         return 0.0
     step = se2.relative(anchor[1], odom).reshape(3)
     predicted = se2.compose(anchor[0], step).reshape(3)
-    sigma = _SLIDE_STD[0] + _SLIDE_STD[1] * math.hypot(step[0], step[1])
-    return 0.5 * float((h["pose"][0] - predicted[0]) ** 2 + (h["pose"][1] - predicted[1]) ** 2) / sigma ** 2
+    return float(slide_cost(float(h["pose"][0] - predicted[0]), float(h["pose"][1] - predicted[1]),
+                            math.hypot(step[0], step[1]), *_SLIDE_STD))
+
+
+def _drift_radius(travelled: float) -> float:
+    """How far (m) from where the odometry took a robot off the map's walls a place found for it may lie, after
+    ``travelled`` metres of odometry (_DRIFT_RADIUS)."""
+    return _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1] * travelled
 
 
 def _reach(step: NDArray[np.float64]) -> tuple[float, float]:
