@@ -412,6 +412,8 @@ def test_live_mapping_goes_on_from_a_saved_session(ros, office_bag, tmp_path):
     monday = json.loads((tmp_path / "monday" / "run.json").read_text())
     session = json.loads((out / "session" / "session.json").read_text())
     assert session["frames"]["count"] == monday["scans"] + record["scans"] and len(session["relocations"]) == 1
+    # the localization in Monday's map goes on: the scans it places hold karto's new nodes there (map anchors)
+    assert len(session["map_anchors"]) > 0.5 * record["scans"]
     t, p = read_tum(out / "trajectory.tum")  # Tuesday's poses, at Tuesday's times, in Monday's frame
     mt, mp = read_tum(tmp_path / "monday" / "trajectory.tum")
     assert t[0] >= truth_t[0] and len(t) > 0.9 * record["scans"]

@@ -38,7 +38,7 @@ def test_every_run_writes_a_session_that_reads_back_as_its_frames(drives):
     run = json.loads((drives / "k1" / "run.json").read_text())
     assert session.record["params"] == run["params"] and session.record["seed"] == run["seed"]
     frames = list(open_recording(drives / "d1" / "recording.log.gz").frames())
-    back = [f for f, _ in session.frames()]
+    back = [f for f, *_ in session.frames()]
     assert len(back) == len(frames) == run["scans"]
     for a, b in zip(frames[::50], back[::50]):
         assert a.timestamp == b.timestamp and np.allclose(a.odometry, b.odometry)
@@ -76,6 +76,8 @@ def test_a_resumed_drive_is_mapped_in_the_first_maps_frame(drives, tmp_path):
     assert ate < 1.2 * first["translation_m"]["rmse"]
     diag = json.loads((out / "diagnostics.json").read_text())
     assert diag["counters"]["relocations"] == 1
+    # localization in the first map goes on: the new nodes are held where it places them (map anchors)
+    assert diag["counters"]["map_anchors"] > 20
     # the joined map holds both drives: larger than the first one's
     assert json.loads((out / "map.json").read_text())["size_cells"] != json.loads(
         (drives / "k1" / "map.json").read_text())["size_cells"]
@@ -83,6 +85,18 @@ def test_a_resumed_drive_is_mapped_in_the_first_maps_frame(drives, tmp_path):
     session = json.loads((out / "session" / "session.json").read_text())
     assert session["frames"]["count"] == run["resumed"]["session_frames"] + run["scans"]
     assert len(session["relocations"]) == 1
+    assert len(session["map_anchors"]) >= diag["counters"]["map_anchors"]
+    # replayed (relocation and map anchors included), the session rebuilds the joined run's poses
+    from slam2d import __version__
+    from slam2d.io.session import SessionRecorder, read_session
+    from slam2d.methods.runner import build_method, replay_session
+
+    saved = read_session(out, version=__version__, method="karto")
+    slam = build_method("karto", settings=saved.record["params"], seed=int(saved.record["seed"]))
+    replay_session(slam, saved, SessionRecorder())
+    slam.timed_finish()
+    assert np.abs(slam.trajectory()[1][-len(p):] - p).max() < 1e-3
+    assert slam.diagnostics.counters["map_anchors"] == diag["counters"]["map_anchors"]
     again = tmp_path / "k3"
     assert main(["run", "karto", str(drives / "d2" / "recording.log.gz"), "--resume", str(out), "--out", str(again),
                  "--initial-pose", ",".join(str(v) for v in p[0])]) == 0
@@ -163,3 +177,38 @@ def test_a_replayed_session_rebuilds_the_run_and_gmapping_goes_on_too(drives, tm
     code = main(["run", "known-poses", str(drives / "d2" / "recording.log.gz"), "--resume", str(tmp_path / "g"),
                  "--out", str(tmp_path / "x")])
     assert code == 2 and "not of known-poses" in capsys.readouterr().err
+
+
+def test_a_map_anchor_far_from_where_the_matches_put_the_node_is_refused(drives):
+    """Localization in the saved map can take a wrong place: an anchor more than MAP_ANCHOR_GATE from the
+    node's matched pose is not believed (no edge, the node not moved); a near one ties the node to the gauge."""
+    from slam2d import __version__
+    from slam2d.graph.sequential import MAP_ANCHOR_GATE
+    from slam2d.io import open_recording
+    from slam2d.io.session import SessionRecorder, read_session
+    from slam2d.methods.runner import build_method, replay_session
+
+    saved = read_session(drives / "k1", version=__version__, method="karto")
+    new = list(open_recording(drives / "d2" / "recording.log.gz").frames())
+    truth = read_tum(drives / "d2" / "truth.tum")[1]
+
+    def resumed(offset):
+        slam = build_method("karto", settings=saved.record["params"], seed=int(saved.record["seed"]))
+        replay_session(slam, saved, SessionRecorder())
+        graph = slam.frontend.graph
+        nodes, edges = graph.num_nodes, graph.num_edges
+        slam.relocate(truth[0])
+        slam.anchor_to_map(truth[0] + offset)
+        slam.feed(new[0])
+        return slam, graph, nodes, edges
+
+    slam, graph, nodes, edges = resumed(np.array([MAP_ANCHOR_GATE + 0.5, 0.0, 0.0]))
+    assert graph.num_nodes == nodes + 1 and graph.num_edges == edges + 1  # the relocation's edge alone
+    assert slam.diagnostics.counters["map_anchors_refused"] == 1
+    assert np.hypot(*(graph.poses[nodes][:2] - truth[0][:2])) < 0.3
+    slam, graph, nodes, edges = resumed(np.array([0.1, 0.0, 0.0]))
+    assert graph.num_edges == edges + 2 and slam.diagnostics.counters["map_anchors"] == 1
+    anchor_edge = graph.num_edges - 1
+    assert graph.edge_i[anchor_edge] == graph.fixed and graph.edge_j[anchor_edge] == nodes
+    # the node's estimate is averaged with it: it moves towards the anchor
+    assert graph.poses[nodes][0] > truth[0][0] + 0.02

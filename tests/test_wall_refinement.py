@@ -399,3 +399,19 @@ def test_two_pass_refines_with_the_landmarks_detector_first_then_its_own():
     single, _ = refine_path(scans, graph.poses, one, graph=graph)
     assert len(single.rounds) == len(second.rounds) and np.abs(single.poses - res.poses).max() > 0
     assert _rms(res.poses, truth) < 0.01
+
+
+def test_no_odometry_edge_into_a_break_where_another_recording_starts():
+    """A resumed session's new recording: its odometry does not follow on from the old one's last frame, so the
+    refinement over all frames must not tie the two by it (the graph's relocation edge does)."""
+    from slam2d.graph.wall_refinement import odometry_graph
+
+    p = from_mapping(GraphSlamParams, {})
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.1, 5.0, 1.0], [3.1, 5.0, 1.0]])
+    # the second recording's odometry starts anywhere (here: far off and turned)
+    odom = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [-7.0, 3.0, -2.0], [-6.0, 3.0, -2.0]])
+    whole = odometry_graph(poses, odom, p)
+    cut = odometry_graph(poses, odom, p, breaks=np.array([3]))
+    assert whole.num_edges == 4 and cut.num_edges == 3
+    assert [(int(i), int(j)) for i, j in zip(cut.edge_i, cut.edge_j)] == [(0, 1), (1, 2), (3, 4)]
+    assert np.allclose(cut.measurements[2], se2.relative(odom[3], odom[4]))

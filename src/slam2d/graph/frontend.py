@@ -84,7 +84,8 @@ from slam2d.graph.loop_closing import LoopClosing, LoopClosure, _Hypothesis
 from slam2d.graph.near_chains import NearChainLinking
 from slam2d.graph.nodes import NodeStore
 from slam2d.graph.params import GraphSlamParams
-from slam2d.graph.sequential import SequentialMatching, _weighted_mean
+from slam2d.graph.sequential import (MAP_ANCHOR_GATE, MAP_ANCHOR_SIGMA_THETA, MAP_ANCHOR_SIGMA_XY, SequentialMatching,
+                                     _weighted_mean)
 
 __all__ = ["GraphFrontend"]
 
@@ -166,6 +167,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         # The first node added since the last revisit frame (the running scans before it are an old pass's).
         self._streak_start = 0
         self._put_at: NDArray[np.float64] | None = None  # a relocation waiting for the next frame
+        self._map_anchor: NDArray[np.float64] | None = None  # the next frame's pose in the saved map (anchor_to_map)
         self._directions: dict = {}  # beam layout -> cos, sin of its beam angles
         self.loop_closures: list[LoopClosure] = []
         self.loop_attempts: list[dict[str, Any]] = []
@@ -294,6 +296,13 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         """The next frame is taken at ``pose`` (map frame): see :meth:`process`."""
         self._put_at = np.asarray(pose, dtype=np.float64).reshape(3)
 
+    def anchor_to_map(self, pose: NDArray[np.float64]) -> None:
+        """The next frame's pose in the saved map, as localization in it finds it: if the frame makes a node
+        less than ``MAP_ANCHOR_GATE`` from where the matches put it, the node is tied to it (an edge from the
+        gauge node) and its estimate averaged with it. Without these, a resumed run's new nodes slid along
+        featureless corridors, beyond the near chains' window (corridor-loop: 0.156 m, with them 0.03 m)."""
+        self._map_anchor = np.asarray(pose, dtype=np.float64).reshape(3)
+
     def process(self, frame: Frame) -> dict[str, float] | None:
         """Handle one frame; returns the values to log, or None when the scan added no node.
 
@@ -308,6 +317,7 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         odom = np.asarray(odom, dtype=np.float64)
         previous_odom = self._last_odom
         self._last_odom = odom
+        anchor, self._map_anchor = self._map_anchor, None
         relocating = self._put_at is not None and self.graph.num_nodes > 0
         if relocating:
             # A resumed session's new recording: the next node is predicted at the given pose (the last
@@ -361,6 +371,8 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
                 self._link_running_scan(last, node, pose, cov)
             linked = self._link_near_chains(node, points, pose, means, covs)
             values["near_links"] = float(linked)
+            if anchor is not None:
+                self._anchor_node(node, anchor, pose, means, covs)
             if len(means) > 1:
                 pose = _weighted_mean(means, covs)
                 self.graph.poses[node] = pose
@@ -401,6 +413,18 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         self._frame_pose = self.graph.poses[node].copy()
         self._frame_degenerate = self._degenerate(cov)
         return values
+
+    def _anchor_node(self, node: int, at: NDArray[np.float64], pose: NDArray[np.float64], means: list,
+                     covs: list) -> None:
+        """Tie ``node`` (matched to ``pose``) to ``at``, its pose in the saved map (:meth:`anchor_to_map`)."""
+        if math.hypot(float(at[0] - pose[0]), float(at[1] - pose[1])) > MAP_ANCHOR_GATE:
+            self._count("map_anchors_refused")
+            return
+        cov = np.diag([MAP_ANCHOR_SIGMA_XY**2, MAP_ANCHOR_SIGMA_XY**2, MAP_ANCHOR_SIGMA_THETA**2])
+        means.append(at)
+        covs.append(cov)
+        self._add_edge(int(self.graph.fixed), node, at, cov)
+        self._count("map_anchors")
 
     def _covering_node(self, pose: NDArray[np.float64]) -> int:
         """An old node the new scan at ``pose`` adds nothing to (-1: none): see ``revisit_without_nodes``.
@@ -542,9 +566,9 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
         cpu = time.process_time()
         p = self.params
         if frames is None:
-            scans, odom, poses, node_frame = self._scans, self.odometry_at_nodes(), self.graph.poses, None
+            scans, odom, poses, node_frame, breaks = self._scans, self.odometry_at_nodes(), self.graph.poses, None, None
         else:
-            scans, odom, poses, node_frame = frames
+            scans, odom, poses, node_frame, breaks = frames
         we = self.wall_ends
         obs = we.observations() if we is not None else None
         if obs is not None and node_frame is not None:
@@ -563,7 +587,8 @@ class GraphFrontend(NodeStore, SequentialMatching, NearChainLinking, LoopClosing
             else:
                 sel = np.zeros(ei.shape[0], dtype=bool)
             extra = (where(ei[sel]), where(ej[sel]), self.graph.measurements[sel], self.graph.information[sel])
-        res, segs = refine_path(scans, poses, p, graph=graph, odometry=odom, fixed=int(where(self.graph.fixed)),
+        res, segs = refine_path(scans, poses, p, graph=graph, odometry=odom, odometry_breaks=breaks,
+                                fixed=int(where(self.graph.fixed)),
                                 extra_edges=extra, sensor_model=self.sensor_model, range_limit=p.range_threshold,
                                 points=obs, point_count=we.num_landmarks if we is not None else 0,
                                 dense=p if p.dense_refinement else None)

@@ -57,6 +57,9 @@ class GraphSlam(SlamMethod):
         self._frame_odom: list[Any] = []
         self._frame_node: list[int] = []
         self._refined: NDArray[np.float64] | None = None  # the refined pose of every placed frame
+        # placed frames that follow a relocation: the odometry from the frame before is another recording's
+        self._frame_breaks: list[int] = []
+        self._relocated = False
 
     def _grid_params(self) -> GridParams:
         names = {p.name for p in describe(GridParams)}
@@ -64,6 +67,10 @@ class GraphSlam(SlamMethod):
 
     def _relocate(self, pose: NDArray[np.float64]) -> None:
         self.frontend.relocate(pose)
+        self._relocated = True
+
+    def _anchor_to_map(self, pose: NDArray[np.float64]) -> None:
+        self.frontend.anchor_to_map(pose)
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         nodes = self.frontend.num_nodes
@@ -75,6 +82,9 @@ class GraphSlam(SlamMethod):
             self._revisit.append(fe.revisit_anchor)
             self._frame_times.append(frame.timestamp)
             if self.params.wall_refinement and self.params.wall_refinement_frames:
+                if self._relocated and self._frame_scans:
+                    self._frame_breaks.append(len(self._frame_scans))
+                self._relocated = False
                 self._frame_scans.append(frame.scan)
                 self._frame_odom.append(frame.odometry)
                 self._frame_node.append(fe.anchor if fe.num_nodes > nodes else -1)
@@ -154,7 +164,8 @@ class GraphSlam(SlamMethod):
             if np.all(node_frame >= 0):
                 self._refined = None
                 _, poses = self.trajectory()
-                frames = (self._frame_scans, np.asarray(self._frame_odom, dtype=np.float64), poses, node_frame)
+                frames = (self._frame_scans, np.asarray(self._frame_odom, dtype=np.float64), poses, node_frame,
+                          np.asarray(self._frame_breaks, dtype=np.int64))
         summary, self._refined = fe.refine_walls(frames)
         self.diagnostics.summary["wall_refinement"] = summary
 

@@ -577,9 +577,12 @@ def associate_ends(ends: EndSightings, poses: NDArray[np.float64], gate: float, 
 # ----------------------------------------------------------------------------- the joint solve
 
 
-def odometry_graph(poses: NDArray[np.float64], odometry: NDArray[np.float64], p: Any, fixed: int = 0) -> PoseGraph:
+def odometry_graph(poses: NDArray[np.float64], odometry: NDArray[np.float64], p: Any, fixed: int = 0,
+                   breaks: NDArray[np.int64] | None = None) -> PoseGraph:
     """A pose graph over ``poses`` with one edge per consecutive pair: the odometry increment, its covariance
-    from the GMapping-style noise model (:func:`slam2d.sensors.motion_noise.step_variances`) plus a floor."""
+    from the GMapping-style noise model (:func:`slam2d.sensors.motion_noise.step_variances`) plus a floor.
+    ``breaks``: poses whose odometry does not follow on from the one before (a resumed session's new
+    recording): no edge into them."""
     from slam2d.sensors.motion_noise import OdometryNoise, step_variances
 
     g = PoseGraph()
@@ -594,7 +597,10 @@ def odometry_graph(poses: NDArray[np.float64], odometry: NDArray[np.float64], p:
     info = np.zeros((inc.shape[0], 3, 3))
     info[:, np.arange(3), np.arange(3)] = 1.0 / var
     idx = np.arange(poses.shape[0] - 1)
-    g.add_edges(idx, idx + 1, inc, info)
+    keep = np.ones(idx.size, dtype=bool)
+    if breaks is not None and len(breaks):
+        keep[np.asarray(breaks, dtype=np.int64) - 1] = False
+    g.add_edges(idx[keep], idx[keep] + 1, inc[keep], info[keep])
     return g
 
 
@@ -813,15 +819,15 @@ def refine_walls(graph: PoseGraph, segs: Segments, p: Any, points: PointObservat
 
 
 def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: PoseGraph | None = None,
-                odometry: NDArray[np.float64] | None = None, fixed: int = 0,
-                extra_edges: tuple | None = None, sensor_model: Any = None, range_limit: float = math.inf,
+                odometry: NDArray[np.float64] | None = None, odometry_breaks: NDArray[np.int64] | None = None,
+                fixed: int = 0, extra_edges: tuple | None = None, sensor_model: Any = None, range_limit: float = math.inf,
                 points: PointObservations | None = None, point_count: int = 0,
                 detector: Any = None, dense: Any = None) -> tuple[WallRefinementResult, Segments]:
     """The wall bundle adjustment of a path of scans, as a method calls it after its run.
 
     ``poses`` (one per scan) are the starting estimate. They are tied by ``graph`` when given (its own
     edges), else by the odometry between consecutive scans (:func:`odometry_graph`, ``odometry`` one
-    reading per scan, ``fixed`` the gauge) plus ``extra_edges`` ``(i, j, measurements, information)``.
+    reading per scan, none into the ``odometry_breaks``, ``fixed`` the gauge) plus ``extra_edges`` ``(i, j, measurements, information)``.
     The per-beam range sigma comes from ``sensor_model`` (none: ``wall_refinement_range_sigma``);
     returns beyond ``range_limit`` are not fitted. With ``wall_refinement_ends`` the wall ends are
     detected with ``detector``'s wall-end settings (default ``p``) and associated over all scans;
@@ -838,7 +844,7 @@ def refine_path(scans: list[Any], poses: NDArray[np.float64], p: Any, *, graph: 
     det = p if detector is None else detector
     ends = scan_wall_ends(scans, sig, det) if p.wall_refinement_ends else None
     if graph is None:
-        graph = odometry_graph(poses, odometry, p, int(fixed))
+        graph = odometry_graph(poses, odometry, p, int(fixed), odometry_breaks)
         if extra_edges is not None and len(extra_edges[0]):
             graph.add_edges(*extra_edges)
     if ends is not None:

@@ -1,12 +1,13 @@
 """A run's session (``RUN/session/``): what a method needs to go on mapping another day.
 
 A session holds the frames the method was fed (every scan and its odometry), the places where the
-robot was put down in the map (``relocations``: where a resumed recording started) and the settings
+robot was put down in the map (``relocations``: where a resumed recording started), where localization
+in the saved map placed the new recording's frames (``map_anchors``, see ``SlamMethod.anchor_to_map``) and the settings
 and seed of the run. Resuming feeds them to the method again, which rebuilds its state (the methods are
 deterministic for a seed and a version; ranges are kept as 32-bit floats, so poses agree to a tenth of a
 millimetre), and then goes on with the new recording.
 
-Files: ``session.json`` (format, slam2d version, method, settings, seed, relocations, the frames'
+Files: ``session.json`` (format, slam2d version, method, settings, seed, relocations, map anchors, the frames'
 file name, size and SHA-256) and ``frames.npz`` (numpy arrays, no pickled objects: a session from a
 stranger cannot run code). A session of another format, version or method, or whose frames do not
 match their checksum (cut short, edited), is refused with the reason.
@@ -47,6 +48,7 @@ class SessionRecorder:
         self.ranges: list[NDArray[np.float32]] = []
         self.rows: list[tuple] = []
         self.relocations: list[dict[str, Any]] = []
+        self.map_anchors: list[dict[str, Any]] = []
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -62,6 +64,10 @@ class SessionRecorder:
     def relocated(self, pose: NDArray[np.float64]) -> None:
         """The robot was put down at ``pose`` (map frame) before the next frame."""
         self.relocations.append({"before_frame": len(self.rows), "pose": [float(v) for v in pose]})
+
+    def anchored(self, pose: NDArray[np.float64]) -> None:
+        """Localization in the saved map placed the next frame at ``pose``."""
+        self.map_anchors.append({"before_frame": len(self.rows), "pose": [float(v) for v in pose]})
 
     def arrays(self) -> dict[str, NDArray]:
         n = len(self.rows)
@@ -97,16 +103,19 @@ class Session:
         return int(len(self.arrays["time"]))
 
     def frames(self):
-        """The frames, in the order they were fed; ``(frame, relocation pose or None)`` pairs."""
+        """The frames, in the order they were fed: ``(frame, relocation pose or None, map anchor or None)``."""
         a = self.arrays
-        moves = {int(r["before_frame"]): np.asarray(r["pose"], dtype=np.float64)
-                 for r in self.record.get("relocations", [])}
+
+        def by_frame(key: str) -> dict[int, NDArray[np.float64]]:
+            return {int(r["before_frame"]): np.asarray(r["pose"], dtype=np.float64) for r in self.record.get(key, [])}
+
+        moves, anchors = by_frame("relocations"), by_frame("map_anchors")
         for k in range(len(self)):
             ranges = a["ranges"][a["beam_start"][k]:a["beam_start"][k + 1]].astype(np.float64)
             scan = LaserScan(float(a["time"][k]), ranges, float(a["angle_min"][k]), float(a["angle_increment"][k]),
                              float(a["range_min"][k]), float(a["range_max"][k]), mount=a["mount"][k].copy())
             odom = a["odometry"][k].copy() if a["has_odometry"][k] else None
-            yield Frame(k, scan, odom), moves.get(k)
+            yield Frame(k, scan, odom), moves.get(k), anchors.get(k)
 
 
 def write_session(folder: Path, recorder: SessionRecorder, *, method: str, params: dict[str, Any], seed: int,
@@ -129,6 +138,7 @@ def write_session(folder: Path, recorder: SessionRecorder, *, method: str, param
         "frames": {"file": frames_path.name, "count": len(recorder), "bytes": len(data),
                    "sha256": hashlib.sha256(data).hexdigest()},
         "relocations": recorder.relocations,
+        "map_anchors": recorder.map_anchors,
     }
     json_path = folder / "session.json"
     write_json_atomic(json_path, record)

@@ -203,6 +203,14 @@ class SlamMethod(ABC):
 
             self._gap_guard = OdometryGapGuard(self.gap_check)
 
+    def anchor_to_map(self, pose: NDArray[np.float64]) -> None:
+        """The next frame's pose in the saved map of a resumed session, as localization in that map finds it.
+        A graph method ties the frame's node to it (karto, lago); the others do not use it."""
+        self._anchor_to_map(np.asarray(pose, dtype=np.float64).reshape(3))
+
+    def _anchor_to_map(self, pose: NDArray[np.float64]) -> None:  # noqa: B027 - optional hook
+        pass
+
     @classmethod
     def can_relocate(cls) -> bool:
         """Whether :meth:`relocate` is implemented (``slam2d run --resume`` needs it)."""

@@ -410,12 +410,16 @@ def _write_run(
 
 
 def replay_session(slam: SlamMethod, session: Any, recorder: SessionRecorder) -> tuple[int, float | None]:
-    """Feed a session's frames (and relocations) to ``slam`` and ``recorder``: ``(poses it placed, last time)``."""
+    """Feed a session's frames (and relocations, map anchors) to ``slam`` and ``recorder``: ``(poses it placed,
+    last time)``."""
     last_t = None
-    for frame, relocation in session.frames():
+    for frame, relocation, anchor in session.frames():
         if relocation is not None:
             slam.relocate(relocation)
             recorder.relocated(relocation)
+        if anchor is not None:
+            slam.anchor_to_map(anchor)
+            recorder.anchored(anchor)
         recorder.add(frame)
         slam.feed(frame)
         last_t = frame.timestamp
@@ -439,7 +443,9 @@ def resume_run(
     the new recording's start is found in ``run``'s map (:class:`~slam2d.localization.Localizer`,
     matching from ``initial_pose`` or a global search), the scans before that traced back along the
     odometry in the same map, the method is put down at the first one, and the new frames follow,
-    their times moved after the session's when they start earlier. ``trajectory.tum`` holds the new
+    their times moved after the session's when they start earlier; the localization goes on in the saved map
+    and where it places a frame the method is told (:meth:`SlamMethod.anchor_to_map`, which holds a graph
+    method's new nodes to the saved map). ``trajectory.tum`` holds the new
     recording's poses (at its own times), in the saved map's frame.
     """
     from slam2d import __version__
@@ -485,8 +491,12 @@ def resume_run(
     shift = max(0.0, (old_last_t or 0.0) + period - new[first].timestamp)
     slam.relocate(placed)
     recorder.relocated(placed)
-    for frame in new[first:]:
+    for k, frame in enumerate(new[first:], start=first):
         moved = dataclasses.replace(frame, scan=dataclasses.replace(frame.scan, timestamp=frame.scan.timestamp + shift))
+        at = pose if k == found else localizer.feed(frame).pose if k > found else None
+        if at is not None:
+            slam.anchor_to_map(at)
+            recorder.anchored(at)
         recorder.add(moved)
         try:
             slam.feed(moved)

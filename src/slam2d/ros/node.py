@@ -189,6 +189,7 @@ class _Node:
         self.localizer: Any = None
         self.localization_log: Any = None
         self.placing: Any = None  # with ~session while mapping: where the live scans start in its map
+        self.holding: Any = None  # then the same localization, going on: where it places each scan (map anchors)
         self.session = SessionRecorder()
         self.replayed, self.shift, self.session_last_t = 0, 0.0, None
         if node.mode == "localization":
@@ -257,6 +258,7 @@ class _Node:
 
         self.session = SessionRecorder()  # the frames fed: the run folder's session/
         self.placing: Any = None
+        self.holding: Any = None
         # with ~session: the live scans (and odometry) until they are placed
         self.waiting: deque[tuple[LaserScan, Any]] = deque(maxlen=_WAITING_SCANS)
         self.replayed, self.shift, self.session_last_t = 0, 0.0, None
@@ -420,7 +422,10 @@ class _Node:
         started = time.process_time()
         with self.lock:
             backlog: list[tuple[LaserScan, Any]] = []
-            if self.placing is not None:  # ~session: where in the saved map do the live scans start?
+            anchor = None
+            if self.holding is not None:
+                anchor = self.holding.feed(Frame(self.frames, scan, odometry)).pose
+            elif self.placing is not None:  # ~session: where in the saved map do the live scans start?
                 found = self.placing.feed(Frame(self.frames, scan, odometry))
                 if found.pose is None:
                     self.counts["scans_before_placed"] += 1
@@ -437,17 +442,20 @@ class _Node:
                 self.waiting.clear()
                 self.slam.relocate(start)
                 self.session.relocated(start)
-                self.placing = None
+                self.placing, self.holding, anchor = None, self.placing, found.pose
                 # the method's clock goes on after the session's (a replayed bag starts earlier)
                 t0 = backlog[0][0].timestamp if backlog else t
                 self.shift = max(0.0, (self.session_last_t or t0) + 0.1 - t0)
                 rospy.loginfo("slam2d: found in %s at (%.2f, %.2f, %.2f) after %d scans: mapping on", self.p.session,
                               *found.pose, len(waiting) - 1)
             self.beams = len(msg.ranges)
-            for earlier, earlier_odometry in [*backlog, (scan, odometry)]:
+            for k, (earlier, earlier_odometry) in enumerate([*backlog, (scan, odometry)]):
                 if self.shift:
                     earlier = dataclasses.replace(earlier, timestamp=earlier.timestamp + self.shift)
                 frame = Frame(self.frames, earlier, earlier_odometry)
+                if anchor is not None and k == len(backlog):  # (the backlog's scans were placed by tracing back)
+                    self.slam.anchor_to_map(anchor)
+                    self.session.anchored(anchor)
                 self.session.add(frame)
                 self.slam.feed(frame)
                 self.frames += 1
