@@ -70,6 +70,10 @@ _KLD_ERROR, _KLD_Z = 0.01, 2.326
 # the pull of the predicted pose in matching, against the endpoints' unit weights (m^2 per m^2, m^2 per rad^2):
 # (0.05 m of endpoint noise / 0.1 m of prediction error)^2, (0.05 m / 0.05 rad)^2
 _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
+# the tracked pose's pull where its prediction fits less than _EDGE_FIT of the scan (a map's edge). Off: 0.6 and 4.0
+# (`benchmarks/localization.py --set _EDGE_FIT=0.6 --set _EDGE_PRIOR_XY=4.0`) brought fr079 in gmapping's map to
+# 0.099 m but aces in karto's to 0.31-0.34 m (0.288) and intel's mcl in gmapping's to 0.126 m (0.107)
+_EDGE_FIT, _EDGE_PRIOR_XY = 0.0, 4.0
 # ... and of a search's hypotheses and the paths traced back for them: as loose. The simulated odometry errs by 0.031 m
 # and 0.055 rad (RMS) over one scan's step of 0.08 m (GMapping's noise defaults; office's drive 2 of
 # benchmarks/localization.py), and the true place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
@@ -386,13 +390,15 @@ class Localizer:
         return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
 
     def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool, prior: tuple[float, float] | None = None,
-                reach: tuple[float, float] | None = None) -> tuple[NDArray[np.float64], float]:
+                reach: tuple[float, float] | None = None, edge: bool = False) -> tuple[NDArray[np.float64], float]:
         """The matched pose near ``pose`` and its fit; from several starts when ``wide`` or the first fits poorly.
         ``prior``: the pull of ``pose`` (m^2 per m^2, m^2 per rad^2; the tracked pose's when None). ``reach`` (m, rad):
-        a matched pose further from ``pose`` is not taken."""
+        a matched pose further from ``pose`` is not taken. ``edge``: the tracked pose's match (_EDGE_FIT)."""
         prior = (_PRIOR_XY, _PRIOR_TH) if prior is None else prior
         f = self.field
         best, best_fit = pose, self._fit(pose, bx, by)
+        if edge and best_fit < _EDGE_FIT:
+            prior = (_EDGE_PRIOR_XY, prior[1])
         starts = [(0.0, 0.0, 0.0)]
         if wide or best_fit < 0.8:
             starts += [(dx, dy, dt) for dx in (-0.2, 0.0, 0.2) for dy in (-0.2, 0.0, 0.2) for dt in (-0.15, 0.0, 0.15)
@@ -499,7 +505,7 @@ class Localizer:
                 self.filter_odom, self.confirm = odom, 1
                 self._forget_track()
                 return ScanResult(t, "searching", None, self._fit(predicted, mx, my), spread, len(self.particles))
-            pose, fit = self._refine(predicted, mx, my, wide=back, reach=None if back else _reach(step))
+            pose, fit = self._refine(predicted, mx, my, wide=back, reach=None if back else _reach(step), edge=not back)
             if back:  # the odometry drifted while off the map: the filter goes on from the matched place
                 self._set_state("localized", t, f"back on the map ({known:.0%} of the scan in its known area, "
                                 f"{fit:.0%} on walls)")
