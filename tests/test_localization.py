@@ -430,3 +430,31 @@ def test_the_scans_before_a_found_place_are_traced_back_to_it(office):
     # a scan without odometry cannot be traced back
     assert loc.traced_back([*frames[:50], dataclasses.replace(frames[50], odometry=None), *frames[51:60]],
                            truth) is None
+
+
+def test_a_match_beyond_reach_is_taken_only_when_it_fits_clearly_better(office, monkeypatch):
+    """A tracked pose 0.45 m off (held along a corridor) whose scan the walls place: no match within reach fits, the
+    one beyond does and is taken; unless it must lead the best within by more than it does (_BEYOND_LEAD)."""
+    import slam2d.localization.localizer as lz
+    from slam2d.io import open_recording
+    from slam2d.io.map_server import load_map_grid
+
+    grid, _ = load_map_grid(office / "truth-map.yaml")
+    frames = list(open_recording(office / "recording.log.gz").frames())
+    tt, tp = read_tum(office / "truth.tum")
+    frame = frames[len(frames) // 3]
+    truth = tp[int(np.argmin(np.abs(tt - frame.timestamp)))]
+    loc = Localizer(grid, LocalizationParams(method="match"))
+    mx, my = loc._beams(frame.scan.points_in_base(), loc.p.match_beams)
+    for offset in ([0.45, 0.0, 0.0], [0.0, 0.45, 0.0]):
+        off = truth + offset
+        within_fit = loc._refine(off, mx, my, wide=False, reach=(0.2, 0.15))
+        if np.hypot(*(within_fit[0][:2] - truth[:2])) < 0.1 and loc._fit(off, mx, my) < 0.6:
+            break
+    else:
+        pytest.skip("no pose off along a wall where the walls tell the truth apart")
+    pose, fit = within_fit
+    assert fit >= lz._FOUND_FIT and np.hypot(*(pose[:2] - off[:2])) > 0.2  # taken beyond the reach
+    monkeypatch.setattr(lz, "_BEYOND_LEAD", 1.0)  # no match can lead by a whole scan
+    pose, fit = loc._refine(off, mx, my, wide=False, reach=(0.2, 0.15))
+    assert np.hypot(*(pose[:2] - off[:2])) < 0.2 + 1e-9  # refused: the pose stays within reach

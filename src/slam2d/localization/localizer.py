@@ -74,6 +74,11 @@ _PRIOR_XY, _PRIOR_TH = 0.25, 1.0
 # (`benchmarks/localization.py --set _EDGE_FIT=0.6 --set _EDGE_PRIOR_XY=4.0`) brought fr079 in gmapping's map to
 # 0.099 m but aces in karto's to 0.31-0.34 m (0.288) and intel's mcl in gmapping's to 0.126 m (0.107)
 _EDGE_FIT, _EDGE_PRIOR_XY = 0.0, 4.0
+# ... and whether the tracked pose is matched with only the endpoints in the map's known area (those beyond it are
+# pulled to the nearest known wall). Off: on (--set _KNOWN_ENDS_ONLY=1), fr079 in gmapping's map 0.811 / 0.108 m
+# (mcl / match) -> 0.105 / 0.106 m, but karto's short-range map of the office 0.046 -> 0.050 m, fr079 in karto's
+# map 0.119 -> 0.125 m, the corridor loop's continued karto map 0.093 -> 0.114 m
+_KNOWN_ENDS_ONLY = 0
 # ... and of a search's hypotheses and the paths traced back for them: as loose. The simulated odometry errs by 0.031 m
 # and 0.055 rad (RMS) over one scan's step of 0.08 m (GMapping's noise defaults; office's drive 2 of
 # benchmarks/localization.py), and the true place's path must follow it. Tighter (10, 40: 0.016 m, 0.008 rad) held the twins' paths too: corridor-loop's search in
@@ -381,13 +386,19 @@ class Localizer:
 
     def _known_share(self, pose: NDArray[np.float64], bx, by) -> float:
         """The share of the endpoints (each pulled back ``_KNOWN_PULL`` towards the laser) in the map's known cells."""
+        return float(np.count_nonzero(self._known_ends(pose, bx, by))) / max(len(bx), 1)
+
+    def _known_ends(self, pose: NDArray[np.float64], bx, by) -> NDArray[np.bool_]:
+        """Per endpoint, whether it (pulled back ``_KNOWN_PULL`` towards the laser) lies in the map's known cells."""
         rng = np.hypot(bx, by)
         pull = np.maximum(rng - _KNOWN_PULL, 0.0) / np.maximum(rng, 1e-9)
         ends = se2.transform_points(pose, np.column_stack([bx * pull, by * pull]))
         col = np.floor((ends[:, 0] - self.known_origin[0]) / self.resolution).astype(np.int64)
         row = np.floor((ends[:, 1] - self.known_origin[1]) / self.resolution).astype(np.int64)
         inside = (row >= 0) & (col >= 0) & (row < self.known.shape[0]) & (col < self.known.shape[1])
-        return float(np.count_nonzero(self.known[row[inside], col[inside]])) / max(len(bx), 1)
+        known = np.zeros(len(bx), dtype=bool)
+        known[inside] = self.known[row[inside], col[inside]]
+        return known
 
     def _refine(self, pose: NDArray[np.float64], bx, by, *, wide: bool, prior: tuple[float, float] | None = None,
                 reach: tuple[float, float] | None = None, edge: bool = False) -> tuple[NDArray[np.float64], float]:
@@ -404,10 +415,15 @@ class Localizer:
             starts += [(dx, dy, dt) for dx in (-0.2, 0.0, 0.2) for dy in (-0.2, 0.0, 0.2) for dt in (-0.15, 0.0, 0.15)
                        if (dx, dy, dt) != (0.0, 0.0, 0.0)]
         beyond, beyond_fit = pose, 0.0  # the best match out of reach
+        rx, ry = bx, by
+        if edge and _KNOWN_ENDS_ONLY:
+            known = self._known_ends(pose, bx, by)
+            if np.count_nonzero(known) >= 10:
+                rx, ry = np.ascontiguousarray(bx[known]), np.ascontiguousarray(by[known])
         for dx, dy, dt in starts:
             x, y, th, used = refine_on_field(f.distance, f.origin[0], f.origin[1], f.resolution, f.max_distance,
                                              float(pose[0] + dx), float(pose[1] + dy), float(pose[2] + dt),
-                                             bx, by, 20, 0.1, pose, *prior)
+                                             rx, ry, 20, 0.1, pose, *prior)
             if used < 10:
                 continue
             cand = np.array([x, y, th])
