@@ -458,3 +458,14 @@ def test_a_match_beyond_reach_is_taken_only_when_it_fits_clearly_better(office, 
     monkeypatch.setattr(lz, "_BEYOND_LEAD", 1.0)  # no match can lead by a whole scan
     pose, fit = loc._refine(off, mx, my, wide=False, reach=(0.2, 0.15))
     assert np.hypot(*(pose[:2] - off[:2])) < 0.2 + 1e-9  # refused: the pose stays within reach
+
+
+def test_only_a_scan_that_fits_the_map_well_anchors_a_resumed_mapping_method():
+    import slam2d.localization.localizer as lz
+    from slam2d.localization.localizer import ScanResult, map_anchor
+
+    pose = np.array([1.0, 2.0, 0.3])
+    assert map_anchor(ScanResult(0.0, "localized", pose, lz._ANCHOR_FIT + 0.05, math.nan, 0)) is pose
+    # (intel's second half resumed with every localized scan as an anchor: 3.9 m off; with those fitting 0.8: 0.09 m)
+    assert map_anchor(ScanResult(0.0, "localized", pose, lz._ANCHOR_FIT - 0.05, math.nan, 0)) is None
+    assert map_anchor(ScanResult(0.0, "searching", None, 0.95, math.nan, 0)) is None

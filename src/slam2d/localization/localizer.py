@@ -119,6 +119,8 @@ _DRIFT_RADIUS = (3.0, 0.2)
 # the fraction of a scan on the map's walls a found place needs, at each of those updates (a right place fits
 # 0.9-1.0 in the simulated worlds and in fr079's mapped parts; wrong places that passed a 0.5 fit 0.45-0.75)
 _FOUND_FIT = 0.8
+# a localized scan fitting at least this much of the map holds a resumed mapping method there (map_anchor)
+_ANCHOR_FIT = 0.8
 # from a given initial pose: found when this share of the weight gathers within 1 m
 _FOUND_SHARE = 0.5
 # while searching, resampled only when the particles' effective number falls under this share: resampling
@@ -870,6 +872,12 @@ def _drift_radius(travelled: float) -> float:
     """How far (m) from where the odometry took a robot off the map's walls a place found for it may lie, after
     ``travelled`` metres of odometry (_DRIFT_RADIUS)."""
     return _DRIFT_RADIUS[0] + _DRIFT_RADIUS[1] * travelled
+
+
+def map_anchor(result: ScanResult) -> NDArray[np.float64] | None:
+    """The pose to hold a mapping method to (``SlamMethod.anchor_to_map``) from a scan's localization: a localized
+    pose whose scan fits the map's walls at least _ANCHOR_FIT, else None."""
+    return result.pose if result.pose is not None and result.fit >= _ANCHOR_FIT else None
 
 
 def _reach(step: NDArray[np.float64]) -> tuple[float, float]:

@@ -451,7 +451,7 @@ def resume_run(
     from slam2d import __version__
     from slam2d.io import detect_format, open_recording
     from slam2d.io.session import read_session
-    from slam2d.localization.localizer import LocalizationParams, Localizer
+    from slam2d.localization.localizer import LocalizationParams, Localizer, map_anchor
     from slam2d.io.map_server import load_map_grid
 
     run, data, out_dir = Path(run), Path(data), Path(out_dir)
@@ -493,7 +493,7 @@ def resume_run(
     recorder.relocated(placed)
     for k, frame in enumerate(new[first:], start=first):
         moved = dataclasses.replace(frame, scan=dataclasses.replace(frame.scan, timestamp=frame.scan.timestamp + shift))
-        at = pose if k == found else localizer.feed(frame).pose if k > found else None
+        at = pose if k == found else map_anchor(localizer.feed(frame)) if k > found else None
         if at is not None:
             slam.anchor_to_map(at)
             recorder.anchored(at)

@@ -34,6 +34,7 @@ from slam2d.core.frames import Frame
 from slam2d.core.scan import LaserScan, make_scan
 from slam2d.errors import InputError
 from slam2d.io.session import SessionRecorder
+from slam2d.localization.localizer import map_anchor
 from slam2d.io.rosbag import planar_transform  # tf as the bag reader reads it: (x, y, yaw), upside down
 from slam2d.params import param
 
@@ -424,7 +425,7 @@ class _Node:
             backlog: list[tuple[LaserScan, Any]] = []
             anchor = None
             if self.holding is not None:
-                anchor = self.holding.feed(Frame(self.frames, scan, odometry)).pose
+                anchor = map_anchor(self.holding.feed(Frame(self.frames, scan, odometry)))
             elif self.placing is not None:  # ~session: where in the saved map do the live scans start?
                 found = self.placing.feed(Frame(self.frames, scan, odometry))
                 if found.pose is None:
