@@ -34,9 +34,9 @@ RELOCATION_SIGMA_XY, RELOCATION_SIGMA_THETA = 0.3, 0.1  # m, rad
 # A map anchor (a resumed session's new node where localization in the saved map places it, an edge from the
 # gauge node; only scans that fit the map well, localization.map_anchor): its uncertainty, and how far from the
 # node's own matched estimate one is still believed. A wrong place, or a map stretched along a corridor, would
-# otherwise pull the graph along: with a 1 m gate tests/test_session.py's drives gave 0.86 m (0.27 m without
-# anchors), with 0.3 m 0.28 m. 0.05 m instead of 0.2 m: intel 0.094 m (0.087), fr079 0.117 m (0.112); the
-# simulated rows alike (benchmarks/localization.py, continue rows).
+# otherwise pull the graph along (a 1 m gate failed tests/test_session.py's resumed corridor drive). 0.05 m
+# instead of 0.2 m: intel 0.094 m (0.087), fr079 0.117 m (0.112); the simulated rows alike
+# (benchmarks/localization.py, continue rows).
 MAP_ANCHOR_SIGMA_XY, MAP_ANCHOR_SIGMA_THETA, MAP_ANCHOR_GATE = 0.2, 0.05, 0.3  # m, rad, m
 ODOMETRY_SIGMA_THETA = 3.0 * _DEG  # rad
 
