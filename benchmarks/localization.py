@@ -291,20 +291,18 @@ def real_continue_row(name: str, map_run: Path, second: Path, ref: Path, frame: 
     import slam2d.graph.frontend as frontend
     from slam2d.methods.runner import resume_run, run_method
 
-    cells = []
     gate = frontend.MAP_ANCHOR_GATE
-    for label, g in (("anchored", gate), ("no anchors", 0.0)):
-        out = work / f"{name}-resumed-{g}"
+    anchored, unanchored = work / f"{name}-resumed-anchored", work / f"{name}-resumed-no-anchors"
+    for out, g in ((anchored, gate), (unanchored, 0.0)):  # a zero gate refuses every anchor
         frontend.MAP_ANCHOR_GATE = g
         try:
             resume_run("karto", map_run, second, out)
         finally:
             frontend.MAP_ANCHOR_GATE = gate
-        counters = json.loads((out / "diagnostics.json").read_text())["counters"]
-        cells.append(f"{ate_in_frame(out / 'trajectory.tum', ref, frame):.3f} m"
-                     + (f" ({counters.get('map_anchors', 0)} anchors)" if g else ""))
-        if g:
-            floor = map_error_floor(map_run, ref, out / "trajectory.tum", ref, frame)
+    anchors = json.loads((anchored / "diagnostics.json").read_text())["counters"].get("map_anchors", 0)
+    cells = [f"{ate_in_frame(anchored / 'trajectory.tum', ref, frame):.3f} m ({anchors} anchors)",
+             f"{ate_in_frame(unanchored / 'trajectory.tum', ref, frame):.3f} m"]
+    floor = map_error_floor(map_run, ref, anchored / "trajectory.tum", ref, frame)
     alone = work / f"{name}-karto-2-alone"
     run_method("karto", second, alone)
     own = ate_in_frame(alone / "trajectory.tum", ref, frame_of(alone / "trajectory.tum", ref))
