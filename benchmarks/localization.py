@@ -94,6 +94,37 @@ def map_error_floor(map_run: Path, map_truth: Path, traj: Path, truth: Path, fra
     return float(np.sqrt(np.mean(np.sum(map_err[nearest] ** 2, axis=1))))
 
 
+def map_offset(map_source: Path, data: Path, out: Path, truth: Path, frame: np.ndarray | None) -> str:
+    """The map's disagreement with the truth as the scans see it: each localized scan of ``out`` matched into the map
+    from its true pose (``truth`` moved into the map's frame), the RMS and median of how far matching moves it. Where
+    the map's walls sit off the truth the scan fits them off it too, and a localizer that agrees with the map errs
+    as much; a scan that fits the map poorly can slide further (an RMS over the localizer's)."""
+    import csv
+
+    from slam2d.core import se2
+    from slam2d.io import open_recording
+    from slam2d.io.map_server import load_map_grid
+    from slam2d.io.tum import read_tum
+    from slam2d.localization.localizer import Localizer
+
+    localizer = Localizer(load_map_grid(map_source)[0])
+    tt, tp = read_tum(truth)
+    if frame is not None:  # the truth in the map's frame
+        tp = se2.compose(se2.inverse(frame), tp)
+    with open(out / "localization.csv", newline="") as f:
+        localized = {round(float(r["time"]), 6) for r in csv.DictReader(f) if r["state"] == "localized"}
+    offsets = []
+    for fr in open_recording(data).frames():
+        if round(fr.timestamp, 6) not in localized:
+            continue
+        true_pose = tp[min(int(np.searchsorted(tt, fr.timestamp)), len(tt) - 1)]
+        matched, _ = localizer.match(fr.scan, true_pose)
+        offsets.append(math.hypot(matched[0] - true_pose[0], matched[1] - true_pose[1]))
+    if not offsets:
+        return "-"
+    return f"{np.sqrt(np.mean(np.square(offsets))):.3f} m (median {np.median(offsets):.3f} m)"
+
+
 #: localizer settings to measure instead of the defaults (``--set NAME=VALUE``)
 OVERRIDES: dict[str, object] = {}
 
@@ -130,8 +161,10 @@ def sim_rows(world: str, work: Path) -> list[str]:
             if not rec["localized"]:
                 rows.append(f"| {world} | {label} | `{method}` | never | - | - | {rec['cpu_ms_per_scan']['median']:.1f} |")
                 continue
-            floor = "" if fr is None else (f" (the map's own error there "
-                                           f"{map_error_floor(map_source, d1 / 'truth.tum', out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m)")
+            floor = "" if fr is None else (
+                f" (the map's own error there "
+                f"{map_error_floor(map_source, d1 / 'truth.tum', out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m, "
+                f"at the scans {map_offset(map_source, d2 / 'recording.log.gz', out, d2 / 'truth.tum', fr)})")
             rows.append(f"| {world} | {label} | `{method}` | {100 * rec['first_localized']['fraction_of_scans']:.0f} % | "
                         f"{ate_in_frame(out / 'trajectory.tum', d2 / 'truth.tum', fr):.3f} m{floor} | {rec['lost']} | "
                         f"{rec['cpu_ms_per_scan']['median']:.1f} |")
@@ -269,10 +302,11 @@ def real_rows(work: Path) -> list[str]:
                 err = np.hypot(*errors_at(out / "trajectory.tum", ref, frame)[0].T)
                 # the reference is one trajectory through both halves: the truth for the map run and the localizer
                 floor = map_error_floor(map_run, ref, out / "trajectory.tum", ref, frame)
+                offset = map_offset(map_run, work / f"{name}-2.log", out, ref, frame)
                 rows.append(f"{label} {100 * rec['first_localized']['fraction_of_scans']:.0f} % | {ate:.3f} m (median "
                             f"{np.median(err):.3f} m, {100 * np.mean(err < 0.3):.0f} % within 0.3 m; the map's own error "
-                            f"there {floor:.3f} m; {rec['localized_scans']} scans localized, {rec['off_map_scans']} off "
-                            f"the map) | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
+                            f"there {floor:.3f} m, at the scans {offset}; {rec['localized_scans']} scans localized, "
+                            f"{rec['off_map_scans']} off the map) | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
                 print(rows[-1], file=sys.stderr, flush=True)
             if maker == "karto":
                 REAL_CONTINUE_ROWS.append(real_continue_row(name, map_run, work / f"{name}-2.log", ref, frame, work))
@@ -351,7 +385,9 @@ def main() -> int:
              "(defaults, or with its setting for a short-range laser as the simulated URG-04LX) of drive 1 (seed 1), or "
              "the world's true map. ATE in the map's frame as drive 1 fixes it. "
              "The map's own error there (drive 1's RMS error at its poses nearest drive 2's) is what a localizer "
-             "that agrees with the map perfectly would score.")
+             "that agrees with the map perfectly would score; at the scans: each localized scan matched into the map "
+             "from its true pose, how far matching moves it (RMS and median): where the map's walls sit off the truth, "
+             "as they do far from the run that mapped them, the scan fits them off it too.")
     rows += ["", "Continue mapping (`slam2d run METHOD DRIVE2 --resume DRIVE1_RUN`, no initial pose; the settings of drive 1's run): the scan "
              "of drive 2 at which it was found in drive 1's map (the scans before it traced back and mapped too), "
              "drive 2's ATE in drive 1's frame and with its own alignment, and the map error (mean distance from a "
