@@ -681,3 +681,33 @@ def test_islands_report_the_best_scoring_filter_run_alone_bit_for_bit(arena):
     assert np.array_equal(GMapping(params, seed=7).run(frames).trajectory()[1], slam.trajectory()[1])
     assert np.array_equal(GMapping(GMappingParams(particles=6, islands=1), seed=7).run(frames).trajectory()[1],
                           alone[0].trajectory()[1])
+
+
+def test_wall_refinement_joins_no_odometry_across_a_relocation(arena):
+    """A resumed run's new recording has its own odometry frame: ``wall_refinement`` must not tie the frame it was
+    put down at to the frame before by the odometry between them (a step across two recordings' frames)."""
+    import dataclasses
+
+    from slam2d.core import se2
+
+    frames = recording_frames(arena / "recording.log.gz")
+    half = len(frames) // 2
+    other_day = np.array([0.3, 0.2, 0.1])  # the second part's odometry, as another recording's
+    moved = [dataclasses.replace(f, odometry=se2.compose(other_day, np.asarray(f.odometry)).reshape(3))
+             for f in frames[half:]]
+    params = GMappingParams(particles=10, wall_refinement=True)
+    relocated = GMapping(params, seed=3)
+    for f in frames[:half]:
+        relocated.feed(f)
+    step = se2.relative(np.asarray(frames[half - 1].odometry), np.asarray(frames[half].odometry)).reshape(3)
+    relocated.relocate(se2.compose(relocated.pose, step).reshape(3))
+    relocated.run(moved)
+    assert relocated.diagnostics.counters["relocations"] == 1 and relocated._frame_breaks == [half]
+    plain = GMapping(params, seed=3).run(frames)
+    # the same refinement as the plain run's but for the one odometry step across the relocation: no costlier (with
+    # a step across the two recordings' frames it ended 80-160 higher, though the walls held the path to a millimetre)
+    after = relocated.diagnostics.summary["wall_refinement"]["objective_after"]
+    assert after <= plain.diagnostics.summary["wall_refinement"]["objective_after"] + 1.0
+    _, a = relocated.trajectory()
+    _, b = plain.trajectory()
+    assert np.max(np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1])) < 0.05

@@ -241,6 +241,8 @@ class GMapping(SlamMethod):
         # every frame since the first: time, odometry, and the node it follows
         self._frame_times: list[float] = []
         self._frame_odom: list[NDArray[np.float64]] = []
+        # frames the odometry does not join to the one before (a relocation: another recording's odometry)
+        self._frame_breaks: list[int] = []
         self._frame_node: list[int] = []
         self._frame_rel: list[NDArray[np.float64] | None] = []  # matched pose relative to its node (between_updates)
         self._frame_scans: list = []  # every frame's scan, kept only for wall_refinement
@@ -316,6 +318,8 @@ class GMapping(SlamMethod):
         self._track_pose, self._track_odom = pose.copy(), odom
         self._linear = self._angular = 0.0
         self.diagnostics.count("relocations")
+        if self._frame_times:
+            self._frame_breaks.append(len(self._frame_times))
 
     def update(self, frame: Frame) -> Mapping[str, float] | None:
         if self._islands:
@@ -713,7 +717,8 @@ class GMapping(SlamMethod):
         # The wall-end detector's other settings are karto's defaults (gmapping has no wall_end_* parameters).
         detector = SimpleNamespace(**{**vars(WallEndParams()), **vars(p)})
         res, segs = refine_path(self._frame_scans, poses, p, odometry=np.stack(self._frame_odom),
-                             sensor_model=self.sensor_model, range_limit=self._usable, detector=detector)
+                                odometry_breaks=np.asarray(self._frame_breaks, dtype=np.int64),
+                                sensor_model=self.sensor_model, range_limit=self._usable, detector=detector)
         if np.all(np.isfinite(res.poses)):
             self._refined = res.poses
             self._map_cache = None
