@@ -443,6 +443,41 @@ def test_a_place_found_late_is_scored_on_the_earlier_scans_along_its_traced_path
         assert loc._path_score(truth + np.array(offset)) < own - 3.0
 
 
+def test_a_place_whose_traced_path_runs_through_the_maps_walls_is_refused(office):
+    """The true place's path traced back through the odometry keeps off the walls; the same place turned a quarter turn
+    drives through them (the corridor it came along runs across it), and a search refuses such a place whatever its
+    scan fits (_THROUGH_WALLS). Turned the other way it leaves the building between two poses: only poses on walls
+    count (1 % of them), not the steps between them."""
+    from slam2d.localization.localizer import _THROUGH_WALLS
+
+    loc, _, truth = _search_history(office, 200)
+    assert loc._through_walls(truth, loc.search_scans) == 0.0
+    assert loc._through_walls(truth + np.array([0.0, 0.0, math.pi / 2]), loc.search_scans) > _THROUGH_WALLS
+    assert 0.0 < loc._through_walls(truth + np.array([0.0, 0.0, -math.pi / 2]), loc.search_scans) < _THROUGH_WALLS
+
+
+def test_mines_second_half_in_a_map_without_its_room_is_never_placed(tmp_path):
+    """Mines exp2's second half drives a room its first half never saw (karto and gmapping on the whole log agree);
+    the first half's rooms of rough rock walls look alike, and the search placed it 13 m off there, its scans fitting
+    81-91 % for 79 scans. Its paths traced back ran through the map's walls (6-11 % of their poses): now refused, it
+    is never placed and says so."""
+    from conftest import dataset_file
+
+    from slam2d.io import open_recording
+    from slam2d.io.carmen import write_carmen
+    from slam2d.methods.runner import run_method
+
+    frames = list(open_recording(dataset_file("mines-exp2/mines-exp2.clf.gz")).frames())
+    half = len(frames) // 2
+    write_carmen(tmp_path / "first.log", frames[:half])
+    write_carmen(tmp_path / "second.log", frames[half:])
+    run_method("karto", tmp_path / "first.log", tmp_path / "karto")
+    rec = localize_recording(tmp_path / "karto", tmp_path / "second.log", tmp_path / "out",
+                             params=LocalizationParams(method="match")).record
+    assert not rec["localized"] and rec["localized_scans"] == 0
+    assert any("runs through the map's walls" in e["why"] for e in rec["events"])
+
+
 def test_a_twin_that_fits_the_scans_by_sliding_against_the_odometry_pays_for_it(office):
     """At scan 60 a place 2 m along the corridor fits the scans along its traced path as well as the true place (within
     the search's margin), matched at every step; but its path slid from the odometry's prediction all along."""
