@@ -694,7 +694,8 @@ class Localizer:
         best = places[0]
         lead = best["score"] - places[1]["score"] if len(places) > 1 else math.inf
         if (lead < _HYPOTHESIS_MARGIN or not _near(best["pose"], self.pose, _drift_radius(self.off_travel), math.tau)
-                or self._known_share(best["pose"], mx, my) < _BACK_KNOWN):
+                or self._known_share(best["pose"], mx, my) < _BACK_KNOWN
+                or self._through_walls(best["pose"], self.track_scans) > _THROUGH_WALLS):
             return None
         self.filter_odom = odom  # the filter goes on from there (it waited off the map)
         off = math.hypot(*(best["pose"][:2] - self.pose[:2]))
