@@ -473,14 +473,7 @@ class Localizer:
         scans = list(scans)
         if len(scans) < 2:
             return 0.0
-        poses = np.empty((len(scans), 3))
-        poses[-1] = pose
-        for k in range(len(scans) - 2, -1, -1):
-            step = se2.relative(scans[k + 1][0], scans[k][0]).reshape(3)
-            predicted = se2.compose(poses[k + 1], step).reshape(3)
-            if self._known_share(predicted, scans[k][1], scans[k][2]) >= _MIN_KNOWN:
-                predicted = self._refine(predicted, scans[k][1], scans[k][2], wide=False)[0]
-            poses[k] = predicted
+        poses = self._trace(pose, scans)
         f = self.field
         col = np.floor((poses[:, 0] - f.origin[0]) / f.resolution).astype(np.int64)
         row = np.floor((poses[:, 1] - f.origin[1]) / f.resolution).astype(np.int64)
@@ -489,23 +482,27 @@ class Localizer:
         on_wall[inside] = f.distance[row[inside], col[inside]] < _WALL_CLEARANCE
         return float(np.mean(on_wall))
 
+    def _trace(self, pose: NDArray[np.float64], scans: Sequence) -> NDArray[np.float64]:
+        """The poses of ``scans`` (odometry, matched endpoints x, y) when the last is at ``pose`` (:meth:`traced_back`)."""
+        poses = np.empty((len(scans), 3))
+        poses[-1] = pose
+        for k in range(len(scans) - 2, -1, -1):
+            step = se2.relative(scans[k + 1][0], scans[k][0]).reshape(3)
+            predicted = se2.compose(poses[k + 1], step).reshape(3)
+            mx, my = scans[k][1], scans[k][2]
+            if len(mx) >= 10 and self._known_share(predicted, mx, my) >= _MIN_KNOWN:
+                predicted = self._refine(predicted, mx, my, wide=False)[0]
+            poses[k] = predicted
+        return poses
+
     def traced_back(self, frames: Sequence[Any], pose: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The poses of ``frames`` when the last one is at ``pose``: each earlier pose is the later one moved by the
         odometry between them and matched to the map from there (where its scan ends mostly in the map's known area;
         elsewhere the odometry alone), as the search traces a place back. None when a frame has no odometry."""
         if any(f.odometry is None for f in frames):
             return None
-        poses = np.empty((len(frames), 3))
-        poses[-1] = pose
-        for k in range(len(frames) - 2, -1, -1):
-            step = se2.relative(np.asarray(frames[k + 1].odometry, dtype=np.float64),
-                                np.asarray(frames[k].odometry, dtype=np.float64)).reshape(3)
-            predicted = se2.compose(poses[k + 1], step).reshape(3)
-            mx, my = self._beams(frames[k].scan.points_in_base(), self.p.match_beams)
-            if len(mx) >= 10 and self._known_share(predicted, mx, my) >= _MIN_KNOWN:
-                predicted = self._refine(predicted, mx, my, wide=False)[0]
-            poses[k] = predicted
-        return poses
+        return self._trace(pose, [(np.asarray(f.odometry, dtype=np.float64),
+                                   *self._beams(f.scan.points_in_base(), self.p.match_beams)) for f in frames])
 
     # -- the per-scan step -----------------------------------------------------------------------------
 
