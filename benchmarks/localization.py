@@ -271,21 +271,32 @@ REAL_LOGS = ("fr079", "intel", "aces", "csail", "fr101")
 MAP_MAKERS = ("karto", "gmapping")
 
 
-def real_rows(work: Path) -> list[str]:
+def split_halves(name: str, work: Path) -> tuple[int, int] | None:
+    """A shared log's two halves written as ``work/NAME-1.log`` and ``NAME-2.log``: its scan count and the first
+    half's, or None when the log is not in ../shared/datasets."""
     from slam2d.io import open_recording
     from slam2d.io.carmen import write_carmen
+
+    log = SHARED / name / f"{name}.clf.gz"
+    if not log.is_file():
+        return None
+    frames = list(open_recording(log).frames())
+    half = len(frames) // 2
+    write_carmen(work / f"{name}-1.log", frames[:half])
+    write_carmen(work / f"{name}-2.log", frames[half:])
+    return len(frames), half
+
+
+def real_rows(work: Path) -> list[str]:
     from slam2d.methods.runner import run_method
 
     rows = []
     for name in REAL_LOGS:
-        log = SHARED / name / f"{name}.clf.gz"
-        if not log.is_file():
+        split = split_halves(name, work)
+        if split is None:
             rows.append(f"| {name} | (not in ../shared/datasets) | | | | | |")
             continue
-        frames = list(open_recording(log).frames())
-        half = len(frames) // 2
-        write_carmen(work / f"{name}-1.log", frames[:half])
-        write_carmen(work / f"{name}-2.log", frames[half:])
+        total, half = split
         ref = SHARED / name / "reference.tum"
         for maker in MAP_MAKERS:
             map_run = work / f"{name}-{maker}"
@@ -294,7 +305,7 @@ def real_rows(work: Path) -> list[str]:
             for method in ("mcl", "match"):
                 out = work / f"{name}-{maker}-{method}"
                 rec = localize(map_run, work / f"{name}-2.log", out, method)
-                label = f"| {name} (2nd half, {len(frames) - half} scans) | {maker} map of the 1st half | `{method}` |"
+                label = f"| {name} (2nd half, {total - half} scans) | {maker} map of the 1st half | `{method}` |"
                 if not rec["localized"]:
                     rows.append(f"{label} never | - | {rec['lost']} | {rec['cpu_ms_per_scan']['median']:.1f} |")
                     continue
@@ -322,26 +333,21 @@ UNMAPPED_LOGS = ("mines-exp1", "mines-exp2")
 
 
 def unmapped_rows(work: Path) -> list[str]:
-    from slam2d.io import open_recording
-    from slam2d.io.carmen import write_carmen
     from slam2d.methods.runner import run_method
 
     rows = []
     for name in UNMAPPED_LOGS:
-        log = SHARED / name / f"{name}.clf.gz"
-        if not log.is_file():
+        split = split_halves(name, work)
+        if split is None:
             rows.append(f"| {name} | (not in ../shared/datasets) | | | | | |")
             continue
-        frames = list(open_recording(log).frames())
-        half = len(frames) // 2
-        write_carmen(work / f"{name}-1.log", frames[:half])
-        write_carmen(work / f"{name}-2.log", frames[half:])
+        total, half = split
         run_method("karto", work / f"{name}-1.log", work / f"{name}-karto")
         for method in ("mcl", "match"):
             rec = localize(work / f"{name}-karto", work / f"{name}-2.log", work / f"{name}-{method}", method)
             refused = sum("runs through the map's walls" in e["why"] for e in rec["events"])
             placed = f"{rec['localized_scans']} scans localized" if rec["localized"] else "never"
-            rows.append(f"| {name} (2nd half, {len(frames) - half} scans; no reference) | karto map of the 1st half | "
+            rows.append(f"| {name} (2nd half, {total - half} scans; no reference) | karto map of the 1st half | "
                         f"`{method}` | {placed} | - (the 2nd half drives a room the 1st never saw; {refused} places "
                         f"refused, their paths through the map's walls) | {rec['lost']} | "
                         f"{rec['cpu_ms_per_scan']['median']:.1f} |")
