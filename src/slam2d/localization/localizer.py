@@ -474,13 +474,7 @@ class Localizer:
         if len(scans) < 2:
             return 0.0
         poses = self._trace(pose, scans)
-        f = self.field
-        col = np.floor((poses[:, 0] - f.origin[0]) / f.resolution).astype(np.int64)
-        row = np.floor((poses[:, 1] - f.origin[1]) / f.resolution).astype(np.int64)
-        inside = (row >= 0) & (col >= 0) & (row < f.distance.shape[0]) & (col < f.distance.shape[1])
-        on_wall = np.zeros(len(poses), dtype=bool)
-        on_wall[inside] = f.distance[row[inside], col[inside]] < _WALL_CLEARANCE
-        return float(np.mean(on_wall))
+        return float(np.mean(self.field.lookup(poses[:, :2]) < _WALL_CLEARANCE))
 
     def _trace(self, pose: NDArray[np.float64], scans: Sequence) -> NDArray[np.float64]:
         """The poses of ``scans`` (odometry, matched endpoints x, y) when the last is at ``pose`` (:meth:`traced_back`)."""
